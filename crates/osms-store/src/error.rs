@@ -1,0 +1,52 @@
+use std::path::PathBuf;
+
+use crate::Hash;
+
+/// Everything that can go wrong in the store.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("I/O error on {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("object {hash} is missing from the store")]
+    Missing { hash: Hash },
+    #[error("object {hash} is damaged: its bytes hash to {actual} (at {path})")]
+    Damaged { hash: Hash, actual: Hash, path: PathBuf },
+    #[error("not an osms artifact: {reason}")]
+    Foreign { reason: String },
+    #[error(
+        "artifact format version {found} is newer than this osms understands ({supported}); \
+         hint: upgrade osms or rebuild the artifact"
+    )]
+    NewerFormat { found: u16, supported: u16 },
+    #[error("artifact holds a `{found}` but a `{expected}` was expected")]
+    WrongType { expected: String, found: String },
+    #[error(
+        "`{tag}` artifact has schema version {found}, this osms reads version {expected}; \
+         hint: rebuild it with `osms make`"
+    )]
+    SchemaMismatch { tag: String, found: u16, expected: u16 },
+    #[error("could not encode a `{tag}` artifact: {source}")]
+    Encode {
+        tag: String,
+        #[source]
+        source: postcard::Error,
+    },
+    #[error("could not decode a `{tag}` artifact: {reason}")]
+    Decode { tag: String, reason: String },
+    #[error("index record {path} is unreadable: {reason}")]
+    BadRecord { path: PathBuf, reason: String },
+    #[error("`{text}` is not a hash: expected 64 hexadecimal digits")]
+    BadHash { text: String },
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io { path: path.into(), source }
+    }
+}

@@ -1,0 +1,17 @@
+//! Content-addressed artifact store: blake3 hashes, a versioned postcard+zstd codec, atomic
+//! verified reads and writes, an index of stage records, locks, verify and gc.
+//!
+//! Entry points: [`Store`] (objects, records, lock, verify, gc), [`encode`]/[`decode`] (the
+//! artifact codec), [`Hash`] (content hashes and stage keys).
+
+mod codec;
+mod error;
+mod hash;
+mod store;
+
+pub use codec::{Artifact, Header, decode, encode, read_header, FORMAT_VERSION, MAGIC};
+pub use error::{Error, Result};
+pub use hash::Hash;
+pub use store::{
+    GcReport, ObjectState, Record, Store, StoreLock, VerifyProblem, VerifyReport,
+};

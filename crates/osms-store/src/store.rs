@@ -1,0 +1,498 @@
+//! The on-disk store.
+//!
+//! ```text
+//! <root>/OSMS_STORE           layout marker; a directory without it is not touched
+//! <root>/objects/ab/<hash>    artifact bytes, named by the blake3 of those bytes
+//! <root>/index/ab/<key>.json  stage key -> content hash + metadata (a [`Record`])
+//! <root>/state/<name>         small files owned by the engine (e.g. the last build of each stage)
+//! <root>/tmp/                 writes in flight; emptied by whoever takes the lock
+//! <root>/lock                 advisory lock file serialising writers
+//! ```
+//!
+//! Every write goes to `tmp/`, is fsynced, renamed into place, and the directory is fsynced, so
+//! a crash at any point leaves either the old state or the new one, never a half-written file.
+//! Every read re-hashes, so a damaged object is reported, never used.
+
+use std::collections::BTreeSet;
+use std::fs::{self, File, OpenOptions};
+use std::io::{ErrorKind, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use serde::{Deserialize, Serialize};
+
+use crate::{Error, Hash, Result, read_header};
+
+const MARKER: &str = "OSMS_STORE";
+const MARKER_TEXT: &str = "osms store, layout 1\n";
+
+/// What the engine records about one built artifact, keyed by its stage key.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Record {
+    pub key: Hash,
+    pub content_hash: Hash,
+    pub stage: String,
+    pub kind: String,
+    pub code_version: u32,
+    /// `None` for stages that draw no random numbers.
+    pub seed: Option<u64>,
+    /// Item range `[start, end)` for a shard of an itemised stage.
+    pub shard: Option<[u64; 2]>,
+    pub params: serde_json::Value,
+    /// Input slot -> content hash, in slot order.
+    pub inputs: Vec<(String, Hash)>,
+    pub type_tag: String,
+    pub size_bytes: u64,
+    pub osms_version: String,
+    pub wall_time_secs: f64,
+}
+
+/// The state of one object on disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ObjectState {
+    Present,
+    Missing,
+    Damaged { actual: Hash },
+}
+
+/// Something `verify` found wrong.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "problem", rename_all = "snake_case")]
+pub enum VerifyProblem {
+    DamagedObject { hash: Hash, actual: Hash, path: PathBuf },
+    ForeignObject { path: PathBuf, reason: String },
+    StrayFile { path: PathBuf },
+    MissingObject { key: Hash, stage: String, hash: Hash },
+    BadRecord { path: PathBuf, reason: String },
+}
+
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct VerifyReport {
+    pub objects_checked: u64,
+    pub bytes_checked: u64,
+    pub records_checked: u64,
+    pub problems: Vec<VerifyProblem>,
+}
+
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct GcReport {
+    pub dry_run: bool,
+    pub objects_removed: Vec<Hash>,
+    pub bytes_removed: u64,
+    pub records_removed: Vec<Hash>,
+    pub objects_kept: u64,
+}
+
+/// Held while a process may write to the store; released on drop.
+#[derive(Debug)]
+pub struct StoreLock {
+    _file: File,
+}
+
+#[derive(Debug, Clone)]
+pub struct Store {
+    root: PathBuf,
+}
+
+static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+impl Store {
+    /// Opens the store at `root`, creating it if the directory is absent or empty. A non-empty
+    /// directory that is not an osms store is refused, so a mistyped `--store` cannot litter or
+    /// garbage-collect someone's files.
+    pub fn open(root: impl Into<PathBuf>) -> Result<Self> {
+        let root = root.into();
+        let marker = root.join(MARKER);
+        if !marker.is_file() {
+            let empty = match fs::read_dir(&root) {
+                Ok(mut entries) => entries.all(|e| {
+                    e.map(|e| e.file_name().to_string_lossy().starts_with('.')).unwrap_or(false)
+                }),
+                Err(e) if e.kind() == ErrorKind::NotFound => true,
+                Err(e) => return Err(Error::io(&root, e)),
+            };
+            if !empty {
+                return Err(Error::Foreign {
+                    reason: format!(
+                        "{} is a non-empty directory without an {MARKER} marker, so it is not \
+                         an osms store; hint: choose an empty or new directory with --store",
+                        root.display()
+                    ),
+                });
+            }
+            fs::create_dir_all(&root).map_err(|e| Error::io(&root, e))?;
+            let store = Store { root };
+            store.write_atomic(&marker, MARKER_TEXT.as_bytes())?;
+            return store.ensure_dirs();
+        }
+        Store { root }.ensure_dirs()
+    }
+
+    fn ensure_dirs(self) -> Result<Self> {
+        for dir in ["objects", "index", "state", "tmp"] {
+            let path = self.root.join(dir);
+            fs::create_dir_all(&path).map_err(|e| Error::io(&path, e))?;
+        }
+        Ok(self)
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn object_path(&self, hash: &Hash) -> PathBuf {
+        let hex = hash.to_hex();
+        self.root.join("objects").join(&hex[..2]).join(hex)
+    }
+
+    fn record_path(&self, key: &Hash) -> PathBuf {
+        let hex = key.to_hex();
+        self.root.join("index").join(&hex[..2]).join(format!("{hex}.json"))
+    }
+
+    /// Takes the writer lock, waiting for another holder to finish, then empties `tmp/` (only a
+    /// lock holder writes there, so anything in it is debris from a killed process).
+    pub fn lock(&self, on_wait: impl FnOnce()) -> Result<StoreLock> {
+        let path = self.root.join("lock");
+        let file = OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .map_err(|e| Error::io(&path, e))?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(fs::TryLockError::WouldBlock) => {
+                on_wait();
+                file.lock().map_err(|e| Error::io(&path, e))?;
+            }
+            Err(fs::TryLockError::Error(e)) => return Err(Error::io(&path, e)),
+        }
+        self.clear_tmp()?;
+        Ok(StoreLock { _file: file })
+    }
+
+    fn clear_tmp(&self) -> Result<()> {
+        let tmp = self.root.join("tmp");
+        let entries = fs::read_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        for entry in entries {
+            let path = entry.map_err(|e| Error::io(&tmp, e))?.path();
+            match fs::remove_file(&path) {
+                Ok(()) => {}
+                Err(e) if e.kind() == ErrorKind::NotFound => {}
+                Err(e) => return Err(Error::io(&path, e)),
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes `bytes` to `dest` through a fsynced temp file and a rename.
+    fn write_atomic(&self, dest: &Path, bytes: &[u8]) -> Result<()> {
+        let dir = dest.parent().expect("store paths have a parent");
+        fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        let tmp_dir = self.root.join("tmp");
+        fs::create_dir_all(&tmp_dir).map_err(|e| Error::io(&tmp_dir, e))?;
+        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tmp = tmp_dir.join(format!("{}-{n}", std::process::id()));
+        let result = (|| {
+            let mut file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
+            file.write_all(bytes).map_err(|e| Error::io(&tmp, e))?;
+            file.sync_all().map_err(|e| Error::io(&tmp, e))?;
+            fs::rename(&tmp, dest).map_err(|e| Error::io(dest, e))?;
+            File::open(dir).and_then(|d| d.sync_all()).map_err(|e| Error::io(dir, e))
+        })();
+        if result.is_err() {
+            let _ = fs::remove_file(&tmp);
+        }
+        result
+    }
+
+    /// Stores `bytes` and returns their content hash. An intact copy already present is kept;
+    /// a damaged one is replaced.
+    pub fn put(&self, bytes: &[u8]) -> Result<Hash> {
+        let hash = Hash::of(bytes);
+        if self.object_state(&hash)? != ObjectState::Present {
+            self.write_atomic(&self.object_path(&hash), bytes)?;
+        }
+        Ok(hash)
+    }
+
+    /// Reads an object and checks its bytes against its name.
+    pub fn get(&self, hash: &Hash) -> Result<Vec<u8>> {
+        let path = self.object_path(hash);
+        let bytes = match fs::read(&path) {
+            Ok(b) => b,
+            Err(e) if e.kind() == ErrorKind::NotFound => return Err(Error::Missing { hash: *hash }),
+            Err(e) => return Err(Error::io(&path, e)),
+        };
+        let actual = Hash::of(&bytes);
+        if actual != *hash {
+            return Err(Error::Damaged { hash: *hash, actual, path });
+        }
+        Ok(bytes)
+    }
+
+    pub fn object_state(&self, hash: &Hash) -> Result<ObjectState> {
+        match self.get(hash) {
+            Ok(_) => Ok(ObjectState::Present),
+            Err(Error::Missing { .. }) => Ok(ObjectState::Missing),
+            Err(Error::Damaged { actual, .. }) => Ok(ObjectState::Damaged { actual }),
+            Err(e) => Err(e),
+        }
+    }
+
+    pub fn put_record(&self, record: &Record) -> Result<()> {
+        let mut text = serde_json::to_vec_pretty(record).expect("records serialise to JSON");
+        text.push(b'\n');
+        self.write_atomic(&self.record_path(&record.key), &text)
+    }
+
+    pub fn record(&self, key: &Hash) -> Result<Option<Record>> {
+        let path = self.record_path(key);
+        match fs::read(&path) {
+            Ok(bytes) => parse_record(&path, &bytes).map(Some),
+            Err(e) if e.kind() == ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(Error::io(&path, e)),
+        }
+    }
+
+    /// All records in key order, with the ones that failed to parse reported separately.
+    pub fn records(&self) -> Result<(Vec<Record>, Vec<(PathBuf, String)>)> {
+        let mut good = Vec::new();
+        let mut bad = Vec::new();
+        for path in sorted_files(&self.root.join("index"))? {
+            let bytes = fs::read(&path).map_err(|e| Error::io(&path, e))?;
+            match parse_record(&path, &bytes) {
+                Ok(r) => good.push(r),
+                Err(Error::BadRecord { path, reason }) => bad.push((path, reason)),
+                Err(e) => return Err(e),
+            }
+        }
+        good.sort_by_key(|r| r.key);
+        Ok((good, bad))
+    }
+
+    pub fn read_state(&self, name: &str) -> Result<Option<Vec<u8>>> {
+        let path = self.root.join("state").join(name);
+        match fs::read(&path) {
+            Ok(b) => Ok(Some(b)),
+            Err(e) if e.kind() == ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(Error::io(&path, e)),
+        }
+    }
+
+    pub fn write_state(&self, name: &str, bytes: &[u8]) -> Result<()> {
+        self.write_atomic(&self.root.join("state").join(name), bytes)
+    }
+
+    /// Re-hashes every object, checks every record's object exists and reports anything that
+    /// does not belong.
+    pub fn verify(&self) -> Result<VerifyReport> {
+        let mut report = VerifyReport::default();
+        let mut intact = BTreeSet::new();
+        for path in sorted_files(&self.root.join("objects"))? {
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let Ok(hash) = name.parse::<Hash>() else {
+                report.problems.push(VerifyProblem::StrayFile { path });
+                continue;
+            };
+            let bytes = fs::read(&path).map_err(|e| Error::io(&path, e))?;
+            report.objects_checked += 1;
+            report.bytes_checked += bytes.len() as u64;
+            let actual = Hash::of(&bytes);
+            if actual != hash {
+                report.problems.push(VerifyProblem::DamagedObject { hash, actual, path });
+            } else if let Err(e) = read_header(&bytes) {
+                report.problems.push(VerifyProblem::ForeignObject { path, reason: e.to_string() });
+            } else {
+                intact.insert(hash);
+            }
+        }
+        let (records, bad) = self.records()?;
+        report.records_checked = (records.len() + bad.len()) as u64;
+        for (path, reason) in bad {
+            report.problems.push(VerifyProblem::BadRecord { path, reason });
+        }
+        for r in records {
+            if !intact.contains(&r.content_hash) && !self.object_path(&r.content_hash).exists() {
+                report.problems.push(VerifyProblem::MissingObject {
+                    key: r.key,
+                    stage: r.stage,
+                    hash: r.content_hash,
+                });
+            }
+        }
+        Ok(report)
+    }
+
+    /// Keeps the records whose keys are in `keep` and the objects they point to; removes the
+    /// rest. Callers hold the lock.
+    pub fn gc(&self, keep: &BTreeSet<Hash>, dry_run: bool) -> Result<GcReport> {
+        let mut report = GcReport { dry_run, ..GcReport::default() };
+        let (records, _) = self.records()?;
+        let mut live = BTreeSet::new();
+        for r in &records {
+            if keep.contains(&r.key) {
+                live.insert(r.content_hash);
+            } else {
+                report.records_removed.push(r.key);
+                if !dry_run {
+                    let path = self.record_path(&r.key);
+                    fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+                }
+            }
+        }
+        for path in sorted_files(&self.root.join("objects"))? {
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let Ok(hash) = name.parse::<Hash>() else { continue };
+            if live.contains(&hash) {
+                report.objects_kept += 1;
+                continue;
+            }
+            report.bytes_removed += fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+            report.objects_removed.push(hash);
+            if !dry_run {
+                fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+            }
+        }
+        Ok(report)
+    }
+}
+
+fn parse_record(path: &Path, bytes: &[u8]) -> Result<Record> {
+    serde_json::from_slice(bytes)
+        .map_err(|e| Error::BadRecord { path: path.to_path_buf(), reason: e.to_string() })
+}
+
+/// Files two levels below `dir` (`dir/ab/file`), sorted, so reports come out in a stable order.
+fn sorted_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    let top = match fs::read_dir(dir) {
+        Ok(t) => t,
+        Err(e) if e.kind() == ErrorKind::NotFound => return Ok(out),
+        Err(e) => return Err(Error::io(dir, e)),
+    };
+    for entry in top {
+        let entry = entry.map_err(|e| Error::io(dir, e))?;
+        let path = entry.path();
+        if path.is_dir() {
+            for inner in fs::read_dir(&path).map_err(|e| Error::io(&path, e))? {
+                out.push(inner.map_err(|e| Error::io(&path, e))?.path());
+            }
+        } else {
+            out.push(path);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Artifact, encode};
+
+    #[derive(Serialize, Deserialize)]
+    struct Blob(Vec<u32>);
+    impl Artifact for Blob {
+        const TYPE_TAG: &'static str = "test-blob";
+        const SCHEMA_VERSION: u16 = 1;
+    }
+
+    fn record(key: Hash, content_hash: Hash) -> Record {
+        Record {
+            key,
+            content_hash,
+            stage: "s".into(),
+            kind: "k".into(),
+            code_version: 1,
+            seed: Some(0),
+            shard: None,
+            params: serde_json::json!({"n": 3}),
+            inputs: vec![],
+            type_tag: "test-blob".into(),
+            size_bytes: 0,
+            osms_version: "0".into(),
+            wall_time_secs: 0.0,
+        }
+    }
+
+    #[test]
+    fn put_get_round_trip_and_damage_detection() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path().join("s")).expect("open");
+        let bytes = encode(&Blob((0..100).collect())).expect("encode");
+        let hash = store.put(&bytes).expect("put");
+        assert_eq!(hash, Hash::of(&bytes));
+        assert_eq!(store.get(&hash).expect("get"), bytes);
+
+        let path = store.object_path(&hash);
+        let mut damaged = bytes.clone();
+        damaged[20] ^= 1;
+        fs::write(&path, &damaged).expect("write");
+        assert!(matches!(store.get(&hash), Err(Error::Damaged { .. })));
+        let report = store.verify().expect("verify");
+        assert!(matches!(report.problems[..], [VerifyProblem::DamagedObject { .. }]));
+
+        // Putting the same bytes again repairs the damaged copy.
+        store.put(&bytes).expect("put");
+        assert_eq!(store.get(&hash).expect("get"), bytes);
+        assert!(store.verify().expect("verify").problems.is_empty());
+
+        fs::remove_file(&path).expect("remove");
+        assert!(matches!(store.get(&hash), Err(Error::Missing { .. })));
+    }
+
+    #[test]
+    fn refuses_non_store_directory_and_reports_foreign_objects() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        fs::write(dir.path().join("notes.txt"), "mine").expect("write");
+        assert!(matches!(Store::open(dir.path()), Err(Error::Foreign { .. })));
+
+        let store = Store::open(dir.path().join("s")).expect("open");
+        let junk = b"not an artifact";
+        let hash = Hash::of(junk);
+        let path = store.object_path(&hash);
+        fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
+        fs::write(&path, junk).expect("write");
+        fs::write(path.with_file_name("README"), "stray").expect("write");
+        let problems = store.verify().expect("verify").problems;
+        assert_eq!(problems.len(), 2, "{problems:?}");
+    }
+
+    #[test]
+    fn records_gc_and_missing_objects() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path()).expect("open");
+        let a = store.put(&encode(&Blob(vec![1])).expect("encode")).expect("put");
+        let b = store.put(&encode(&Blob(vec![2])).expect("encode")).expect("put");
+        let (ka, kb) = (Hash::of(b"key a"), Hash::of(b"key b"));
+        store.put_record(&record(ka, a)).expect("record");
+        store.put_record(&record(kb, b)).expect("record");
+        assert_eq!(store.record(&ka).expect("read"), Some(record(ka, a)));
+        assert_eq!(store.records().expect("records").0.len(), 2);
+
+        let keep: BTreeSet<Hash> = [ka].into();
+        let dry = store.gc(&keep, true).expect("gc");
+        assert_eq!((dry.objects_removed.clone(), dry.records_removed.clone()), (vec![b], vec![kb]));
+        assert_eq!(store.object_state(&b).expect("state"), ObjectState::Present);
+        store.gc(&keep, false).expect("gc");
+        assert_eq!(store.object_state(&b).expect("state"), ObjectState::Missing);
+        assert_eq!(store.record(&kb).expect("read"), None);
+        assert_eq!(store.object_state(&a).expect("state"), ObjectState::Present);
+
+        fs::remove_file(store.object_path(&a)).expect("remove");
+        let problems = store.verify().expect("verify").problems;
+        assert!(matches!(problems[..], [VerifyProblem::MissingObject { .. }]));
+    }
+
+    #[test]
+    fn lock_clears_tmp_debris() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path()).expect("open");
+        fs::write(dir.path().join("tmp/123-0"), "half").expect("write");
+        let _lock = store.lock(|| {}).expect("lock");
+        assert_eq!(fs::read_dir(dir.path().join("tmp")).expect("read").count(), 0);
+    }
+}
