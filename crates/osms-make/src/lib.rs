@@ -1,1 +1,28 @@
-//! placeholder
+//! pipeline.toml to a typed stage graph: stage keys, seeded RNG streams, a sharded
+//! deterministic executor, status, lineage and seed sweeps.
+//!
+//! Entry points: [`Pipeline::load`] reads the declaration, [`Plan::new`] checks it against a
+//! [`Registry`] of stage kinds, [`make`] builds, [`status`] and [`why`] explain.
+
+mod error;
+mod exec;
+mod heads;
+mod kind;
+mod pipeline;
+mod plan;
+pub mod rng;
+mod status;
+
+pub use error::{Error, Invalid, Location, Result};
+pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, make};
+pub use heads::{ParamChange, Reason, describe};
+pub use kind::{
+    Ctx, DynKind, ItemStage, KindInfo, NoProgress, ParsedParams, Progress, Registry, Stage,
+    StageError, Summarize,
+};
+pub use pipeline::{Pipeline, StageSpec};
+pub use plan::{InstanceId, Plan, PlannedStage, shard_key, shard_ranges};
+pub use status::{InstanceStatus, Lineage, State, status, why};
+
+/// The osms version recorded in every artifact's metadata.
+pub const OSMS_VERSION: &str = exec::OSMS_VERSION;

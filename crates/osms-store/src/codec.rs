@@ -43,8 +43,10 @@ pub fn encode<A: Artifact>(artifact: &A) -> Result<Vec<u8>> {
         !tag.is_empty() && tag.len() <= MAX_TAG_LEN && tag.is_ascii(),
         "artifact type tag `{tag}` must be 1..={MAX_TAG_LEN} ASCII bytes"
     );
-    let raw = postcard::to_stdvec(artifact)
-        .map_err(|source| Error::Encode { tag: tag.to_string(), source })?;
+    let raw = postcard::to_stdvec(artifact).map_err(|source| Error::Encode {
+        tag: tag.to_string(),
+        source,
+    })?;
     let packed = zstd::bulk::compress(&raw, ZSTD_LEVEL).map_err(|e| Error::Decode {
         tag: tag.to_string(),
         reason: format!("zstd compression failed: {e}"),
@@ -60,9 +62,13 @@ pub fn encode<A: Artifact>(artifact: &A) -> Result<Vec<u8>> {
 }
 
 pub fn read_header(bytes: &[u8]) -> Result<Header> {
-    let foreign = |reason: &str| Error::Foreign { reason: reason.to_string() };
+    let foreign = |reason: &str| Error::Foreign {
+        reason: reason.to_string(),
+    };
     if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
-        return Err(foreign("the file does not start with the osms artifact magic"));
+        return Err(foreign(
+            "the file does not start with the osms artifact magic",
+        ));
     }
     let rest = &bytes[MAGIC.len()..];
     if rest.len() < 5 {
@@ -70,7 +76,10 @@ pub fn read_header(bytes: &[u8]) -> Result<Header> {
     }
     let format_version = u16::from_le_bytes([rest[0], rest[1]]);
     if format_version > FORMAT_VERSION {
-        return Err(Error::NewerFormat { found: format_version, supported: FORMAT_VERSION });
+        return Err(Error::NewerFormat {
+            found: format_version,
+            supported: FORMAT_VERSION,
+        });
     }
     let schema_version = u16::from_le_bytes([rest[2], rest[3]]);
     let tag_len = rest[4] as usize;
@@ -92,7 +101,10 @@ pub fn read_header(bytes: &[u8]) -> Result<Header> {
 pub fn decode<A: Artifact>(bytes: &[u8]) -> Result<A> {
     let header = read_header(bytes)?;
     if header.type_tag != A::TYPE_TAG {
-        return Err(Error::WrongType { expected: A::TYPE_TAG.to_string(), found: header.type_tag });
+        return Err(Error::WrongType {
+            expected: A::TYPE_TAG.to_string(),
+            found: header.type_tag,
+        });
     }
     if header.schema_version != A::SCHEMA_VERSION {
         return Err(Error::SchemaMismatch {
@@ -101,12 +113,18 @@ pub fn decode<A: Artifact>(bytes: &[u8]) -> Result<A> {
             expected: A::SCHEMA_VERSION,
         });
     }
-    let fail = |reason: String| Error::Decode { tag: A::TYPE_TAG.to_string(), reason };
+    let fail = |reason: String| Error::Decode {
+        tag: A::TYPE_TAG.to_string(),
+        reason,
+    };
     let raw = zstd::decode_all(&bytes[header.payload_offset..])
         .map_err(|e| fail(format!("zstd payload is corrupt: {e}")))?;
     let (value, rest) = postcard::take_from_bytes::<A>(&raw).map_err(|e| fail(e.to_string()))?;
     if !rest.is_empty() {
-        return Err(fail(format!("{} trailing bytes after the value", rest.len())));
+        return Err(fail(format!(
+            "{} trailing bytes after the value",
+            rest.len()
+        )));
     }
     Ok(value)
 }
@@ -135,7 +153,10 @@ mod tests {
     }
 
     fn sample() -> Numbers {
-        Numbers { values: (0..1000).map(|i| f64::from(i) * 0.5).collect(), label: "x".into() }
+        Numbers {
+            values: (0..1000).map(|i| f64::from(i) * 0.5).collect(),
+            label: "x".into(),
+        }
     }
 
     #[test]
@@ -155,13 +176,25 @@ mod tests {
 
     #[test]
     fn foreign_newer_wrong_type_and_truncated_are_refused() {
-        assert!(matches!(read_header(b"PK\x03\x04 a zip file"), Err(Error::Foreign { .. })));
+        assert!(matches!(
+            read_header(b"PK\x03\x04 a zip file"),
+            Err(Error::Foreign { .. })
+        ));
         let mut bytes = encode(&sample()).expect("encode");
-        assert!(matches!(decode::<Other>(&bytes), Err(Error::WrongType { .. })));
+        assert!(matches!(
+            decode::<Other>(&bytes),
+            Err(Error::WrongType { .. })
+        ));
         let truncated = &bytes[..bytes.len() - 10];
-        assert!(matches!(decode::<Numbers>(truncated), Err(Error::Decode { .. })));
+        assert!(matches!(
+            decode::<Numbers>(truncated),
+            Err(Error::Decode { .. })
+        ));
         bytes[8] = 0xff;
-        assert!(matches!(read_header(&bytes), Err(Error::NewerFormat { .. })));
+        assert!(matches!(
+            read_header(&bytes),
+            Err(Error::NewerFormat { .. })
+        ));
     }
 
     #[test]
@@ -176,6 +209,9 @@ mod tests {
             const SCHEMA_VERSION: u16 = 4;
         }
         let bytes = encode(&sample()).expect("encode");
-        assert!(matches!(decode::<NumbersV4>(&bytes), Err(Error::SchemaMismatch { .. })));
+        assert!(matches!(
+            decode::<NumbersV4>(&bytes),
+            Err(Error::SchemaMismatch { .. })
+        ));
     }
 }

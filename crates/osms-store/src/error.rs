@@ -14,7 +14,11 @@ pub enum Error {
     #[error("object {hash} is missing from the store")]
     Missing { hash: Hash },
     #[error("object {hash} is damaged: its bytes hash to {actual} (at {path})")]
-    Damaged { hash: Hash, actual: Hash, path: PathBuf },
+    Damaged {
+        hash: Hash,
+        actual: Hash,
+        path: PathBuf,
+    },
     #[error("not an osms artifact: {reason}")]
     Foreign { reason: String },
     #[error(
@@ -28,7 +32,11 @@ pub enum Error {
         "`{tag}` artifact has schema version {found}, this osms reads version {expected}; \
          hint: rebuild it with `osms make`"
     )]
-    SchemaMismatch { tag: String, found: u16, expected: u16 },
+    SchemaMismatch {
+        tag: String,
+        found: u16,
+        expected: u16,
+    },
     #[error("could not encode a `{tag}` artifact: {source}")]
     Encode {
         tag: String,
@@ -47,6 +55,9 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Error::Io { path: path.into(), source }
+        Error::Io {
+            path: path.into(),
+            source,
+        }
     }
 }

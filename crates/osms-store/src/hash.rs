@@ -47,7 +47,9 @@ impl FromStr for Hash {
     fn from_str(s: &str) -> Result<Self, Error> {
         blake3::Hash::from_hex(s)
             .map(Hash::from)
-            .map_err(|_| Error::BadHash { text: s.to_string() })
+            .map_err(|_| Error::BadHash {
+                text: s.to_string(),
+            })
     }
 }
 
@@ -81,7 +83,10 @@ mod tests {
     fn hex_round_trip_and_known_digest() {
         // blake3("") from the reference test vectors.
         let h = Hash::of(b"");
-        assert_eq!(h.to_hex(), "af1349b9f5f9a1a6a0404dea36dcc9499bcb25c9adc112b7cc9a93cae41f3262");
+        assert_eq!(
+            h.to_hex(),
+            "af1349b9f5f9a1a6a0404dea36dcc9499bcb25c9adc112b7cc9a93cae41f3262"
+        );
         assert_eq!(h.to_hex().parse::<Hash>().ok(), Some(h));
         assert_eq!(h.short(), "af1349b9f5f9");
         assert!("xyz".parse::<Hash>().is_err());

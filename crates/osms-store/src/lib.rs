@@ -9,9 +9,9 @@ mod error;
 mod hash;
 mod store;
 
-pub use codec::{Artifact, Header, decode, encode, read_header, FORMAT_VERSION, MAGIC};
+pub use codec::{Artifact, FORMAT_VERSION, Header, MAGIC, decode, encode, read_header};
 pub use error::{Error, Result};
 pub use hash::Hash;
 pub use store::{
-    GcReport, ObjectState, Record, Store, StoreLock, VerifyProblem, VerifyReport,
+    GcReport, ObjectState, Record, ShardOf, Store, StoreLock, VerifyProblem, VerifyReport,
 };

@@ -37,8 +37,8 @@ pub struct Record {
     pub code_version: u32,
     /// `None` for stages that draw no random numbers.
     pub seed: Option<u64>,
-    /// Item range `[start, end)` for a shard of an itemised stage.
-    pub shard: Option<[u64; 2]>,
+    /// Set on the records of shards of an itemised stage.
+    pub shard: Option<ShardOf>,
     pub params: serde_json::Value,
     /// Input slot -> content hash, in slot order.
     pub inputs: Vec<(String, Hash)>,
@@ -46,6 +46,15 @@ pub struct Record {
     pub size_bytes: u64,
     pub osms_version: String,
     pub wall_time_secs: f64,
+}
+
+/// Which stage a shard belongs to and which items `[start, end)` it holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShardOf {
+    pub stage_key: Hash,
+    pub start: u64,
+    pub end: u64,
 }
 
 /// The state of one object on disk.
@@ -60,11 +69,27 @@ pub enum ObjectState {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "problem", rename_all = "snake_case")]
 pub enum VerifyProblem {
-    DamagedObject { hash: Hash, actual: Hash, path: PathBuf },
-    ForeignObject { path: PathBuf, reason: String },
-    StrayFile { path: PathBuf },
-    MissingObject { key: Hash, stage: String, hash: Hash },
-    BadRecord { path: PathBuf, reason: String },
+    DamagedObject {
+        hash: Hash,
+        actual: Hash,
+        path: PathBuf,
+    },
+    ForeignObject {
+        path: PathBuf,
+        reason: String,
+    },
+    StrayFile {
+        path: PathBuf,
+    },
+    MissingObject {
+        key: Hash,
+        stage: String,
+        hash: Hash,
+    },
+    BadRecord {
+        path: PathBuf,
+        reason: String,
+    },
 }
 
 #[derive(Debug, Clone, Default, Serialize)]
@@ -107,7 +132,8 @@ impl Store {
         if !marker.is_file() {
             let empty = match fs::read_dir(&root) {
                 Ok(mut entries) => entries.all(|e| {
-                    e.map(|e| e.file_name().to_string_lossy().starts_with('.')).unwrap_or(false)
+                    e.map(|e| e.file_name().to_string_lossy().starts_with('.'))
+                        .unwrap_or(false)
                 }),
                 Err(e) if e.kind() == ErrorKind::NotFound => true,
                 Err(e) => return Err(Error::io(&root, e)),
@@ -148,7 +174,10 @@ impl Store {
 
     fn record_path(&self, key: &Hash) -> PathBuf {
         let hex = key.to_hex();
-        self.root.join("index").join(&hex[..2]).join(format!("{hex}.json"))
+        self.root
+            .join("index")
+            .join(&hex[..2])
+            .join(format!("{hex}.json"))
     }
 
     /// Takes the writer lock, waiting for another holder to finish, then empties `tmp/` (only a
@@ -200,7 +229,9 @@ impl Store {
             file.write_all(bytes).map_err(|e| Error::io(&tmp, e))?;
             file.sync_all().map_err(|e| Error::io(&tmp, e))?;
             fs::rename(&tmp, dest).map_err(|e| Error::io(dest, e))?;
-            File::open(dir).and_then(|d| d.sync_all()).map_err(|e| Error::io(dir, e))
+            File::open(dir)
+                .and_then(|d| d.sync_all())
+                .map_err(|e| Error::io(dir, e))
         })();
         if result.is_err() {
             let _ = fs::remove_file(&tmp);
@@ -223,12 +254,18 @@ impl Store {
         let path = self.object_path(hash);
         let bytes = match fs::read(&path) {
             Ok(b) => b,
-            Err(e) if e.kind() == ErrorKind::NotFound => return Err(Error::Missing { hash: *hash }),
+            Err(e) if e.kind() == ErrorKind::NotFound => {
+                return Err(Error::Missing { hash: *hash });
+            }
             Err(e) => return Err(Error::io(&path, e)),
         };
         let actual = Hash::of(&bytes);
         if actual != *hash {
-            return Err(Error::Damaged { hash: *hash, actual, path });
+            return Err(Error::Damaged {
+                hash: *hash,
+                actual,
+                path,
+            });
         }
         Ok(bytes)
     }
@@ -292,7 +329,10 @@ impl Store {
         let mut report = VerifyReport::default();
         let mut intact = BTreeSet::new();
         for path in sorted_files(&self.root.join("objects"))? {
-            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let name = path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
             let Ok(hash) = name.parse::<Hash>() else {
                 report.problems.push(VerifyProblem::StrayFile { path });
                 continue;
@@ -302,9 +342,14 @@ impl Store {
             report.bytes_checked += bytes.len() as u64;
             let actual = Hash::of(&bytes);
             if actual != hash {
-                report.problems.push(VerifyProblem::DamagedObject { hash, actual, path });
+                report
+                    .problems
+                    .push(VerifyProblem::DamagedObject { hash, actual, path });
             } else if let Err(e) = read_header(&bytes) {
-                report.problems.push(VerifyProblem::ForeignObject { path, reason: e.to_string() });
+                report.problems.push(VerifyProblem::ForeignObject {
+                    path,
+                    reason: e.to_string(),
+                });
             } else {
                 intact.insert(hash);
             }
@@ -312,7 +357,9 @@ impl Store {
         let (records, bad) = self.records()?;
         report.records_checked = (records.len() + bad.len()) as u64;
         for (path, reason) in bad {
-            report.problems.push(VerifyProblem::BadRecord { path, reason });
+            report
+                .problems
+                .push(VerifyProblem::BadRecord { path, reason });
         }
         for r in records {
             if !intact.contains(&r.content_hash) && !self.object_path(&r.content_hash).exists() {
@@ -326,14 +373,23 @@ impl Store {
         Ok(report)
     }
 
-    /// Keeps the records whose keys are in `keep` and the objects they point to; removes the
-    /// rest. Callers hold the lock.
+    /// Keeps the records whose keys are in `keep` and the objects they point to, plus the shards
+    /// of kept stages that are not complete yet (a finished stage's artifact holds every item);
+    /// removes the rest. Callers hold the lock.
     pub fn gc(&self, keep: &BTreeSet<Hash>, dry_run: bool) -> Result<GcReport> {
-        let mut report = GcReport { dry_run, ..GcReport::default() };
+        let mut report = GcReport {
+            dry_run,
+            ..GcReport::default()
+        };
         let (records, _) = self.records()?;
+        let complete: BTreeSet<Hash> = records.iter().map(|r| r.key).collect();
+        let kept = |r: &Record| match r.shard {
+            Some(s) => keep.contains(&s.stage_key) && !complete.contains(&s.stage_key),
+            None => keep.contains(&r.key),
+        };
         let mut live = BTreeSet::new();
         for r in &records {
-            if keep.contains(&r.key) {
+            if kept(r) {
                 live.insert(r.content_hash);
             } else {
                 report.records_removed.push(r.key);
@@ -344,8 +400,13 @@ impl Store {
             }
         }
         for path in sorted_files(&self.root.join("objects"))? {
-            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            let Ok(hash) = name.parse::<Hash>() else { continue };
+            let name = path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let Ok(hash) = name.parse::<Hash>() else {
+                continue;
+            };
             if live.contains(&hash) {
                 report.objects_kept += 1;
                 continue;
@@ -361,8 +422,10 @@ impl Store {
 }
 
 fn parse_record(path: &Path, bytes: &[u8]) -> Result<Record> {
-    serde_json::from_slice(bytes)
-        .map_err(|e| Error::BadRecord { path: path.to_path_buf(), reason: e.to_string() })
+    serde_json::from_slice(bytes).map_err(|e| Error::BadRecord {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
 }
 
 /// Files two levels below `dir` (`dir/ab/file`), sorted, so reports come out in a stable order.
@@ -433,7 +496,10 @@ mod tests {
         fs::write(&path, &damaged).expect("write");
         assert!(matches!(store.get(&hash), Err(Error::Damaged { .. })));
         let report = store.verify().expect("verify");
-        assert!(matches!(report.problems[..], [VerifyProblem::DamagedObject { .. }]));
+        assert!(matches!(
+            report.problems[..],
+            [VerifyProblem::DamagedObject { .. }]
+        ));
 
         // Putting the same bytes again repairs the damaged copy.
         store.put(&bytes).expect("put");
@@ -448,7 +514,10 @@ mod tests {
     fn refuses_non_store_directory_and_reports_foreign_objects() {
         let dir = tempfile::tempdir().expect("tempdir");
         fs::write(dir.path().join("notes.txt"), "mine").expect("write");
-        assert!(matches!(Store::open(dir.path()), Err(Error::Foreign { .. })));
+        assert!(matches!(
+            Store::open(dir.path()),
+            Err(Error::Foreign { .. })
+        ));
 
         let store = Store::open(dir.path().join("s")).expect("open");
         let junk = b"not an artifact";
@@ -465,8 +534,12 @@ mod tests {
     fn records_gc_and_missing_objects() {
         let dir = tempfile::tempdir().expect("tempdir");
         let store = Store::open(dir.path()).expect("open");
-        let a = store.put(&encode(&Blob(vec![1])).expect("encode")).expect("put");
-        let b = store.put(&encode(&Blob(vec![2])).expect("encode")).expect("put");
+        let a = store
+            .put(&encode(&Blob(vec![1])).expect("encode"))
+            .expect("put");
+        let b = store
+            .put(&encode(&Blob(vec![2])).expect("encode"))
+            .expect("put");
         let (ka, kb) = (Hash::of(b"key a"), Hash::of(b"key b"));
         store.put_record(&record(ka, a)).expect("record");
         store.put_record(&record(kb, b)).expect("record");
@@ -475,7 +548,10 @@ mod tests {
 
         let keep: BTreeSet<Hash> = [ka].into();
         let dry = store.gc(&keep, true).expect("gc");
-        assert_eq!((dry.objects_removed.clone(), dry.records_removed.clone()), (vec![b], vec![kb]));
+        assert_eq!(
+            (dry.objects_removed.clone(), dry.records_removed.clone()),
+            (vec![b], vec![kb])
+        );
         assert_eq!(store.object_state(&b).expect("state"), ObjectState::Present);
         store.gc(&keep, false).expect("gc");
         assert_eq!(store.object_state(&b).expect("state"), ObjectState::Missing);
@@ -484,7 +560,10 @@ mod tests {
 
         fs::remove_file(store.object_path(&a)).expect("remove");
         let problems = store.verify().expect("verify").problems;
-        assert!(matches!(problems[..], [VerifyProblem::MissingObject { .. }]));
+        assert!(matches!(
+            problems[..],
+            [VerifyProblem::MissingObject { .. }]
+        ));
     }
 
     #[test]
@@ -493,6 +572,9 @@ mod tests {
         let store = Store::open(dir.path()).expect("open");
         fs::write(dir.path().join("tmp/123-0"), "half").expect("write");
         let _lock = store.lock(|| {}).expect("lock");
-        assert_eq!(fs::read_dir(dir.path().join("tmp")).expect("read").count(), 0);
+        assert_eq!(
+            fs::read_dir(dir.path().join("tmp")).expect("read").count(),
+            0
+        );
     }
 }

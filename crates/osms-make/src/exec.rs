@@ -1,0 +1,383 @@
+//! `osms make`: build the instances a target needs, in dependency order, reusing every
+//! artifact whose key is already in the store.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::ops::Range;
+use std::sync::Arc;
+use std::time::Instant;
+
+use osms_store::{Hash, ObjectState, Record, ShardOf, Store, read_header};
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::heads::{Heads, Reason};
+use crate::kind::{Progress, RunEnv, ShardIo, StageError};
+use crate::plan::{InstanceId, Plan, shard_key, shard_ranges};
+
+/// Options of one `make`.
+#[derive(Debug, Clone)]
+pub struct MakeOptions {
+    /// Stage names (all stages if empty).
+    pub targets: Vec<String>,
+    pub seeds: Vec<u64>,
+    pub jobs: usize,
+    pub dry_run: bool,
+}
+
+/// What happened to one instance.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "outcome", rename_all = "snake_case")]
+pub enum Outcome {
+    /// Computed in this run.
+    Built {
+        reason: String,
+    },
+    /// Found in the store.
+    Cached,
+    /// Found in the store although an input was rebuilt in this run: the rebuilt input
+    /// reproduced the bytes it had before, so nothing downstream had to run.
+    CutOff,
+    /// `--dry-run`: would be computed.
+    WouldBuild {
+        reason: String,
+    },
+    Failed {
+        error: String,
+    },
+    /// Not attempted because an input failed.
+    Skipped {
+        failed_input: String,
+    },
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct InstanceReport {
+    pub instance: String,
+    pub key: Option<Hash>,
+    pub content_hash: Option<Hash>,
+    #[serde(flatten)]
+    pub outcome: Outcome,
+    pub wall_time_secs: f64,
+}
+
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct MakeReport {
+    pub instances: Vec<InstanceReport>,
+}
+
+impl MakeReport {
+    pub fn count(&self, f: impl Fn(&Outcome) -> bool) -> usize {
+        self.instances.iter().filter(|r| f(&r.outcome)).count()
+    }
+
+    pub fn failed(&self) -> Vec<&str> {
+        self.instances
+            .iter()
+            .filter(|r| matches!(r.outcome, Outcome::Failed { .. }))
+            .map(|r| r.instance.as_str())
+            .collect()
+    }
+}
+
+/// Hooks for the CLI's progress display and log lines.
+pub trait Observer: Sync {
+    fn waiting_for_lock(&self) {}
+    /// Called before an instance runs; the returned sink receives its progress.
+    fn started(&self, instance: &str, reason: &str) -> Box<dyn Progress + '_>;
+    fn finished(&self, report: &InstanceReport);
+}
+
+pub const OSMS_VERSION: &str = env!("CARGO_PKG_VERSION");
+
+pub fn make(
+    plan: &Plan,
+    store: &Store,
+    opts: &MakeOptions,
+    observer: &dyn Observer,
+) -> Result<MakeReport> {
+    let _lock = if opts.dry_run {
+        None
+    } else {
+        Some(store.lock(|| observer.waiting_for_lock())?)
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(opts.jobs.max(1))
+        .thread_name(|i| format!("osms-worker-{i}"))
+        .build()
+        .map_err(|e| Error::usage(format!("cannot start {} worker threads: {e}", opts.jobs)))?;
+    let instances = plan.instances(&opts.targets, &opts.seeds)?;
+    let heads = Heads::load(store)?;
+    let mut report = MakeReport::default();
+    // Content hash of every instance that is available, and which ones ran in this make.
+    let mut available: BTreeMap<InstanceId, Hash> = BTreeMap::new();
+    let mut built: BTreeSet<InstanceId> = BTreeSet::new();
+    let mut unavailable: BTreeMap<InstanceId, String> = BTreeMap::new();
+
+    for id in instances {
+        let name = plan.display(id);
+        let inputs = plan.input_instances(id);
+        let mut input_hashes = Vec::with_capacity(inputs.len());
+        let mut blocked = None;
+        for (slot, up) in &inputs {
+            match available.get(up) {
+                Some(h) => input_hashes.push((slot.clone(), *h)),
+                None => {
+                    blocked = Some(
+                        unavailable
+                            .get(up)
+                            .cloned()
+                            .unwrap_or_else(|| plan.display(*up)),
+                    );
+                    break;
+                }
+            }
+        }
+        if let Some(up) = blocked {
+            let outcome = if opts.dry_run {
+                Outcome::WouldBuild {
+                    reason: format!("input `{up}` will be rebuilt"),
+                }
+            } else {
+                Outcome::Skipped {
+                    failed_input: up.clone(),
+                }
+            };
+            unavailable.insert(id, up);
+            let r = InstanceReport {
+                instance: name,
+                key: None,
+                content_hash: None,
+                outcome,
+                wall_time_secs: 0.0,
+            };
+            observer.finished(&r);
+            report.instances.push(r);
+            continue;
+        }
+
+        let key = plan.key(id, &input_hashes);
+        let reason = match store.record(&key)? {
+            Some(rec) => match store.object_state(&rec.content_hash)? {
+                ObjectState::Present => {
+                    let cut_off = inputs.iter().any(|(_, up)| built.contains(up));
+                    available.insert(id, rec.content_hash);
+                    heads.update(&name, &rec)?;
+                    let r = InstanceReport {
+                        instance: name,
+                        key: Some(key),
+                        content_hash: Some(rec.content_hash),
+                        outcome: if cut_off {
+                            Outcome::CutOff
+                        } else {
+                            Outcome::Cached
+                        },
+                        wall_time_secs: 0.0,
+                    };
+                    observer.finished(&r);
+                    report.instances.push(r);
+                    continue;
+                }
+                ObjectState::Missing => Reason::ObjectMissing {
+                    hash: rec.content_hash,
+                }
+                .to_string(),
+                ObjectState::Damaged { .. } => Reason::ObjectDamaged {
+                    hash: rec.content_hash,
+                }
+                .to_string(),
+            },
+            None => heads.reason_to_build(plan, id, &name, &input_hashes),
+        };
+
+        if opts.dry_run {
+            unavailable.insert(id, name.clone());
+            let r = InstanceReport {
+                instance: name,
+                key: Some(key),
+                content_hash: None,
+                outcome: Outcome::WouldBuild { reason },
+                wall_time_secs: 0.0,
+            };
+            observer.finished(&r);
+            report.instances.push(r);
+            continue;
+        }
+
+        let started = Instant::now();
+        let progress = observer.started(&name, &reason);
+        let result = build(
+            plan,
+            store,
+            id,
+            key,
+            &input_hashes,
+            &pool,
+            progress.as_ref(),
+        );
+        drop(progress);
+        let wall_time_secs = started.elapsed().as_secs_f64();
+        let r = match result {
+            Ok(content_hash) => {
+                let rec = record(
+                    plan,
+                    id,
+                    key,
+                    content_hash,
+                    &input_hashes,
+                    store,
+                    wall_time_secs,
+                )?;
+                store.put_record(&rec)?;
+                heads.update(&name, &rec)?;
+                available.insert(id, content_hash);
+                built.insert(id);
+                InstanceReport {
+                    instance: name,
+                    key: Some(key),
+                    content_hash: Some(content_hash),
+                    outcome: Outcome::Built { reason },
+                    wall_time_secs,
+                }
+            }
+            Err(e) => {
+                unavailable.insert(id, name.clone());
+                InstanceReport {
+                    instance: name,
+                    key: Some(key),
+                    content_hash: None,
+                    outcome: Outcome::Failed {
+                        error: e.to_string(),
+                    },
+                    wall_time_secs,
+                }
+            }
+        };
+        observer.finished(&r);
+        report.instances.push(r);
+    }
+    Ok(report)
+}
+
+fn build(
+    plan: &Plan,
+    store: &Store,
+    id: InstanceId,
+    key: Hash,
+    input_hashes: &[(String, Hash)],
+    pool: &rayon::ThreadPool,
+    progress: &dyn Progress,
+) -> Result<Hash, StageError> {
+    let stage = &plan.stages[id.stage];
+    let mut inputs = BTreeMap::new();
+    for (slot, hash) in input_hashes {
+        inputs.insert(slot.clone(), Arc::new(store.get(hash)?));
+    }
+    let shards = StoreShards {
+        plan,
+        store,
+        id,
+        stage_key: key,
+        input_hashes,
+        shards: stage.shards,
+    };
+    let env = RunEnv {
+        stage: &stage.name,
+        seed: plan.effective_seed(id),
+        params: &stage.params,
+        inputs: &inputs,
+        progress,
+        shards: &shards,
+    };
+    let bytes = pool.install(|| stage.kind.run(&env))?;
+    let tag = read_header(&bytes)?.type_tag;
+    if tag != stage.info.output_tag {
+        return Err(format!(
+            "kind `{}` produced a `{tag}`, not a `{}`",
+            stage.info.name, stage.info.output_tag
+        )
+        .into());
+    }
+    Ok(store.put(&bytes)?)
+}
+
+fn record(
+    plan: &Plan,
+    id: InstanceId,
+    key: Hash,
+    content_hash: Hash,
+    input_hashes: &[(String, Hash)],
+    store: &Store,
+    wall_time_secs: f64,
+) -> Result<Record> {
+    let stage = &plan.stages[id.stage];
+    let size_bytes = std::fs::metadata(store.object_path(&content_hash))
+        .map(|m| m.len())
+        .unwrap_or(0);
+    Ok(Record {
+        key,
+        content_hash,
+        stage: stage.name.clone(),
+        kind: stage.info.name.to_string(),
+        code_version: stage.info.code_version,
+        seed: plan.effective_seed(id),
+        shard: None,
+        params: stage.params.json.clone(),
+        inputs: input_hashes.to_vec(),
+        type_tag: stage.info.output_tag.to_string(),
+        size_bytes,
+        osms_version: OSMS_VERSION.to_string(),
+        wall_time_secs,
+    })
+}
+
+/// Shards of an itemised stage live in the store as artifacts of their own, so a killed make
+/// resumes from the last finished shard.
+struct StoreShards<'a> {
+    plan: &'a Plan,
+    store: &'a Store,
+    id: InstanceId,
+    stage_key: Hash,
+    input_hashes: &'a [(String, Hash)],
+    shards: u32,
+}
+
+impl ShardIo for StoreShards<'_> {
+    fn ranges(&self, n_items: usize) -> Vec<Range<usize>> {
+        shard_ranges(n_items, self.shards)
+    }
+
+    fn load(&self, range: &Range<usize>) -> Option<Vec<u8>> {
+        if self.shards <= 1 {
+            return None;
+        }
+        let key = shard_key(&self.stage_key, range.start as u64, range.end as u64);
+        let rec = self.store.record(&key).ok()??;
+        self.store.get(&rec.content_hash).ok()
+    }
+
+    fn save(&self, range: &Range<usize>, bytes: Vec<u8>) -> Result<(), StageError> {
+        // One shard would duplicate the stage's own artifact.
+        if self.shards <= 1 {
+            return Ok(());
+        }
+        let (start, end) = (range.start as u64, range.end as u64);
+        let content_hash = self.store.put(&bytes)?;
+        let mut rec = record(
+            self.plan,
+            self.id,
+            shard_key(&self.stage_key, start, end),
+            content_hash,
+            self.input_hashes,
+            self.store,
+            0.0,
+        )?;
+        rec.shard = Some(ShardOf {
+            stage_key: self.stage_key,
+            start,
+            end,
+        });
+        rec.type_tag = "shard".to_string();
+        self.store.put_record(&rec)?;
+        Ok(())
+    }
+}

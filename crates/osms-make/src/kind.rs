@@ -1,0 +1,376 @@
+//! Stage kinds: the typed traits a stage implements, and their type-erased form in a
+//! [`Registry`].
+//!
+//! A kind is registered in code with a name, an explicit code version (bump it whenever the
+//! output for the same inputs may change), its input slots and a params struct. Plain kinds
+//! ([`Stage`]) compute one artifact; itemised kinds ([`ItemStage`]) compute a list of
+//! independent items that the executor can split into shards.
+
+use std::any::Any;
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::sync::Arc;
+
+use osms_store::{Artifact, decode, encode};
+use rayon::prelude::*;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::rng::{self, StreamRng};
+
+/// What a stage's `run` returns on failure; any error type converts into it.
+pub type StageError = Box<dyn std::error::Error + Send + Sync>;
+
+/// Reports progress of a running stage.
+pub trait Progress: Sync {
+    fn set_total(&self, total: u64);
+    fn inc(&self, n: u64);
+}
+
+/// Progress that goes nowhere (tests, `--no-progress`).
+pub struct NoProgress;
+impl Progress for NoProgress {
+    fn set_total(&self, _: u64) {}
+    fn inc(&self, _: u64) {}
+}
+
+/// A short, human-readable description of an artifact for `osms show`.
+pub trait Summarize {
+    fn summary(&self) -> serde_json::Value;
+}
+
+/// A stage that computes one artifact.
+pub trait Stage: Send + Sync + 'static {
+    const KIND: &'static str;
+    const CODE_VERSION: u32;
+    /// Whether the stage draws random numbers; if not, its key ignores the seed and seed sweeps
+    /// share one build.
+    const USES_RNG: bool;
+    const INPUTS: &'static [&'static str];
+    const DOC: &'static str;
+    type Params: Serialize + DeserializeOwned + Send + Sync + 'static;
+    type Output: Artifact + Summarize;
+
+    fn run(&self, ctx: &Ctx<'_, Self::Params>) -> Result<Self::Output, StageError>;
+}
+
+/// A stage whose work is a list of independent items (e.g. rollouts). Item `i` draws from the
+/// stream `("item", i)`, so the output does not depend on how items are split into shards or
+/// threads.
+pub trait ItemStage: Send + Sync + 'static {
+    const KIND: &'static str;
+    const CODE_VERSION: u32;
+    const USES_RNG: bool;
+    const INPUTS: &'static [&'static str];
+    const DOC: &'static str;
+    type Params: Serialize + DeserializeOwned + Send + Sync + 'static;
+    /// Decoded inputs and anything built once per stage (e.g. a simulator model).
+    type Prepared: Send + Sync;
+    type Item: Serialize + DeserializeOwned + Send;
+    type Output: Artifact + Summarize;
+
+    fn prepare(&self, ctx: &Ctx<'_, Self::Params>) -> Result<Self::Prepared, StageError>;
+    fn n_items(&self, ctx: &Ctx<'_, Self::Params>, prepared: &Self::Prepared) -> usize;
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, Self::Params>,
+        prepared: &Self::Prepared,
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<Self::Item, StageError>;
+    fn merge(
+        &self,
+        ctx: &Ctx<'_, Self::Params>,
+        prepared: Self::Prepared,
+        items: Vec<Self::Item>,
+    ) -> Result<Self::Output, StageError>;
+}
+
+/// What a running stage sees: its params, its inputs, its random streams and a progress sink.
+/// It runs inside the make's thread pool, so rayon's parallel iterators use `--jobs` threads.
+pub struct Ctx<'a, P> {
+    pub params: &'a P,
+    stage: &'a str,
+    seed: Option<u64>,
+    inputs: &'a BTreeMap<String, Arc<Vec<u8>>>,
+    progress: &'a dyn Progress,
+}
+
+impl<P> Ctx<'_, P> {
+    pub fn stage(&self) -> &str {
+        self.stage
+    }
+
+    /// Decodes the artifact bound to input `slot`.
+    pub fn input<A: Artifact>(&self, slot: &str) -> Result<A, StageError> {
+        let bytes = self
+            .inputs
+            .get(slot)
+            .ok_or_else(|| format!("stage `{}` has no input slot `{slot}`", self.stage))?;
+        decode(bytes).map_err(|e| format!("input `{slot}`: {e}").into())
+    }
+
+    /// The generator of stream (`name`, `index`) of this stage.
+    pub fn rng(&self, name: &str, index: u64) -> StreamRng {
+        let seed = self.seed.unwrap_or_else(|| {
+            panic!(
+                "stage kind of `{}` declares USES_RNG = false but asked for a stream",
+                self.stage
+            )
+        });
+        rng::stream(seed, self.stage, name, index)
+    }
+
+    pub fn progress(&self) -> &dyn Progress {
+        self.progress
+    }
+}
+
+/// Canonical, typed params of one stage.
+pub struct ParsedParams {
+    /// postcard encoding of the typed struct, defaults included: this is what keys hash.
+    pub canonical: Vec<u8>,
+    /// The same values as JSON, for records, `status` diffs and `show`.
+    pub json: serde_json::Value,
+    typed: Arc<dyn Any + Send + Sync>,
+}
+
+/// Where an itemised stage keeps and finds its shards.
+pub trait ShardIo: Sync {
+    /// Splits `n_items` into the ranges that become shards.
+    fn ranges(&self, n_items: usize) -> Vec<Range<usize>>;
+    /// A previously stored shard, if one is intact.
+    fn load(&self, range: &Range<usize>) -> Option<Vec<u8>>;
+    fn save(&self, range: &Range<usize>, bytes: Vec<u8>) -> Result<(), StageError>;
+}
+
+/// Everything a type-erased kind needs to run once.
+pub struct RunEnv<'a> {
+    pub stage: &'a str,
+    pub seed: Option<u64>,
+    pub params: &'a ParsedParams,
+    pub inputs: &'a BTreeMap<String, Arc<Vec<u8>>>,
+    pub progress: &'a dyn Progress,
+    pub shards: &'a dyn ShardIo,
+}
+
+/// Static facts about a kind.
+#[derive(Debug, Clone, Serialize)]
+pub struct KindInfo {
+    pub name: &'static str,
+    pub code_version: u32,
+    pub uses_rng: bool,
+    pub inputs: &'static [&'static str],
+    pub doc: &'static str,
+    pub itemised: bool,
+    pub output_tag: &'static str,
+}
+
+/// A kind with its types erased.
+pub trait DynKind: Send + Sync {
+    fn info(&self) -> KindInfo;
+    fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError>;
+    /// Runs the stage and returns the encoded output artifact.
+    fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError>;
+    /// Decodes an output artifact of this kind and summarises it.
+    fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error>;
+}
+
+/// A param that did not deserialize: where (path of keys inside `params`) and why.
+#[derive(Debug, Clone)]
+pub struct ParamError {
+    pub path: Vec<String>,
+    pub message: String,
+}
+
+fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
+    value: toml::Value,
+) -> Result<ParsedParams, ParamError> {
+    let typed: P = serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e
+            .path()
+            .iter()
+            .filter_map(|seg| match seg {
+                serde_path_to_error::Segment::Map { key } => Some(key.clone()),
+                serde_path_to_error::Segment::Seq { index } => Some(index.to_string()),
+                _ => None,
+            })
+            .collect();
+        ParamError {
+            path,
+            message: e.into_inner().to_string(),
+        }
+    })?;
+    let canonical = postcard::to_stdvec(&typed).map_err(|e| ParamError {
+        path: vec![],
+        message: format!("params cannot be encoded canonically: {e}"),
+    })?;
+    let json = serde_json::to_value(&typed).map_err(|e| ParamError {
+        path: vec![],
+        message: format!("params cannot be shown as JSON: {e}"),
+    })?;
+    Ok(ParsedParams {
+        canonical,
+        json,
+        typed: Arc::new(typed),
+    })
+}
+
+fn typed_params<P: 'static>(params: &ParsedParams) -> &P {
+    params
+        .typed
+        .downcast_ref::<P>()
+        .expect("params were parsed by the same kind")
+}
+
+struct Plain<S>(S);
+struct Itemised<S>(S);
+
+/// The stored form of one shard: the items it holds, in index order.
+#[derive(Serialize, Deserialize)]
+#[serde(transparent)]
+struct ShardItems<I>(Vec<I>);
+impl<I: Serialize + DeserializeOwned> Artifact for ShardItems<I> {
+    const TYPE_TAG: &'static str = "shard";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+impl<S: Stage> DynKind for Plain<S> {
+    fn info(&self) -> KindInfo {
+        KindInfo {
+            name: S::KIND,
+            code_version: S::CODE_VERSION,
+            uses_rng: S::USES_RNG,
+            inputs: S::INPUTS,
+            doc: S::DOC,
+            itemised: false,
+            output_tag: <S::Output as Artifact>::TYPE_TAG,
+        }
+    }
+    fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
+        parse_typed::<S::Params>(value)
+    }
+    fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
+        let ctx = Ctx {
+            params: typed_params::<S::Params>(env.params),
+            stage: env.stage,
+            seed: env.seed,
+            inputs: env.inputs,
+            progress: env.progress,
+        };
+        Ok(encode(&self.0.run(&ctx)?)?)
+    }
+    fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
+        Ok(decode::<S::Output>(bytes)?.summary())
+    }
+}
+
+impl<S: ItemStage> DynKind for Itemised<S> {
+    fn info(&self) -> KindInfo {
+        KindInfo {
+            name: S::KIND,
+            code_version: S::CODE_VERSION,
+            uses_rng: S::USES_RNG,
+            inputs: S::INPUTS,
+            doc: S::DOC,
+            itemised: true,
+            output_tag: <S::Output as Artifact>::TYPE_TAG,
+        }
+    }
+    fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
+        parse_typed::<S::Params>(value)
+    }
+    fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
+        let ctx = Ctx {
+            params: typed_params::<S::Params>(env.params),
+            stage: env.stage,
+            seed: env.seed,
+            inputs: env.inputs,
+            progress: env.progress,
+        };
+        let prepared = self.0.prepare(&ctx)?;
+        let n = self.0.n_items(&ctx, &prepared);
+        env.progress.set_total(n as u64);
+        let mut items = Vec::with_capacity(n);
+        for range in env.shards.ranges(n) {
+            let stored = env
+                .shards
+                .load(&range)
+                .and_then(|bytes| decode::<ShardItems<S::Item>>(&bytes).ok())
+                .filter(|shard| shard.0.len() == range.len());
+            let shard = match stored {
+                Some(shard) => {
+                    env.progress.inc(range.len() as u64);
+                    shard.0
+                }
+                None => {
+                    let computed = range
+                        .clone()
+                        .into_par_iter()
+                        .map(|i| {
+                            let mut rng = match env.seed {
+                                Some(seed) => rng::stream(seed, env.stage, "item", i as u64),
+                                // Kinds without randomness still get a generator so the
+                                // signature stays uniform. It must not depend on the stage
+                                // name, which such kinds' keys leave out.
+                                None => rng::stream(0, "", "item", i as u64),
+                            };
+                            let item = self.0.run_item(&ctx, &prepared, i, &mut rng);
+                            env.progress.inc(1);
+                            item
+                        })
+                        .collect::<Result<Vec<_>, _>>()?;
+                    let shard = ShardItems(computed);
+                    env.shards.save(&range, encode(&shard)?)?;
+                    shard.0
+                }
+            };
+            items.extend(shard);
+        }
+        Ok(encode(&self.0.merge(&ctx, prepared, items)?)?)
+    }
+    fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
+        Ok(decode::<S::Output>(bytes)?.summary())
+    }
+}
+
+/// The stage kinds a program knows, by name.
+#[derive(Default, Clone)]
+pub struct Registry {
+    kinds: BTreeMap<&'static str, Arc<dyn DynKind>>,
+}
+
+impl Registry {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn register<S: Stage>(&mut self, stage: S) -> &mut Self {
+        self.insert(S::KIND, Arc::new(Plain(stage)))
+    }
+
+    pub fn register_itemised<S: ItemStage>(&mut self, stage: S) -> &mut Self {
+        self.insert(S::KIND, Arc::new(Itemised(stage)))
+    }
+
+    fn insert(&mut self, name: &'static str, kind: Arc<dyn DynKind>) -> &mut Self {
+        let previous = self.kinds.insert(name, kind);
+        assert!(
+            previous.is_none(),
+            "stage kind `{name}` is registered twice"
+        );
+        self
+    }
+
+    pub fn get(&self, name: &str) -> Option<&Arc<dyn DynKind>> {
+        self.kinds.get(name)
+    }
+
+    pub fn names(&self) -> Vec<&'static str> {
+        self.kinds.keys().copied().collect()
+    }
+
+    pub fn infos(&self) -> Vec<KindInfo> {
+        self.kinds.values().map(|k| k.info()).collect()
+    }
+}

@@ -1,0 +1,405 @@
+//! Reading `pipeline.toml`: the declaration of stages, their params and inputs, and the
+//! profiles that overlay params.
+//!
+//! ```toml
+//! [pipeline]
+//! default_profile = "small"   # used when --profile is not given
+//! seed = 0                    # used when --seed/--seeds are not given
+//!
+//! [stages.rollouts]
+//! kind = "collect"            # a kind registered in code
+//! inputs = { world = "world" }# input slot -> upstream stage
+//! shards = 4                  # itemised kinds only: items split into 4 artifacts
+//! seed = 7                    # optional: a fixed seed, shared by every run of a seed sweep
+//! params = { n = 1000 }
+//!
+//! [profiles.tiny.rollouts]    # profile `tiny` overlays params (deep merge) and shards
+//! params = { n = 10 }
+//! ```
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::error::{Error, Location, Result, list};
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPipeline {
+    #[serde(default)]
+    pipeline: RawMeta,
+    #[serde(default)]
+    stages: BTreeMap<String, RawStage>,
+    #[serde(default)]
+    profiles: BTreeMap<String, BTreeMap<String, RawOverlay>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMeta {
+    #[serde(default = "default_profile")]
+    default_profile: String,
+    #[serde(default)]
+    seed: u64,
+}
+
+fn default_profile() -> String {
+    "small".to_string()
+}
+
+impl Default for RawMeta {
+    fn default() -> Self {
+        RawMeta {
+            default_profile: default_profile(),
+            seed: 0,
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawStage {
+    kind: String,
+    #[serde(default)]
+    inputs: BTreeMap<String, String>,
+    #[serde(default)]
+    params: toml::Table,
+    shards: Option<u32>,
+    seed: Option<u64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawOverlay {
+    #[serde(default)]
+    params: toml::Table,
+    shards: Option<u32>,
+}
+
+/// One stage as declared, with the chosen profile applied.
+#[derive(Debug, Clone)]
+pub struct StageSpec {
+    pub name: String,
+    pub kind: String,
+    pub inputs: BTreeMap<String, String>,
+    pub params: toml::Table,
+    pub shards: u32,
+    pub fixed_seed: Option<u64>,
+    /// Whether the chosen profile overlays any of this stage's params (for error locations).
+    pub params_overlaid: bool,
+}
+
+/// A parsed `pipeline.toml` with one profile applied.
+#[derive(Debug)]
+pub struct Pipeline {
+    pub path: PathBuf,
+    pub profile: String,
+    pub profiles: Vec<String>,
+    pub default_seed: u64,
+    pub stages: BTreeMap<String, StageSpec>,
+    source: String,
+    doc: toml_edit::Document<String>,
+}
+
+impl Pipeline {
+    /// Reads `path` and applies `profile` (or the file's default profile).
+    pub fn load(path: &Path, profile: Option<&str>) -> Result<Self> {
+        let source = std::fs::read_to_string(path).map_err(|source| Error::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(path, source, profile)
+    }
+
+    pub fn parse(path: &Path, source: String, profile: Option<&str>) -> Result<Self> {
+        let located = |span: Option<std::ops::Range<usize>>| {
+            span.map(|s| location_of(path, &source, s.start))
+        };
+        let doc = toml_edit::Document::parse(source.clone()).map_err(|e| {
+            Error::invalid(located(e.span()), e.message().trim_end().to_string(), None)
+        })?;
+        let raw: RawPipeline = toml::from_str(&source).map_err(|e| {
+            let hint = e
+                .message()
+                .contains("unknown field")
+                .then(|| "see the pipeline.toml section of README.md for the fields".to_string());
+            Error::invalid(located(e.span()), e.message().trim_end().to_string(), hint)
+        })?;
+
+        let mut profiles: Vec<String> = raw.profiles.keys().cloned().collect();
+        if !profiles.contains(&raw.pipeline.default_profile) {
+            profiles.push(raw.pipeline.default_profile.clone());
+            profiles.sort();
+        }
+        let profile = profile.unwrap_or(&raw.pipeline.default_profile).to_string();
+        if !profiles.contains(&profile) {
+            return Err(Error::usage(format!(
+                "unknown profile `{profile}` in {}\nhint: declared profiles are {}",
+                path.display(),
+                list(&profiles)
+            )));
+        }
+
+        let mut stages = BTreeMap::new();
+        for (name, s) in raw.stages {
+            if !valid_name(&name) {
+                return Err(Error::invalid(
+                    None,
+                    format!("stage name `{name}` is not allowed"),
+                    Some("use letters, digits, `_` and `-`, starting with a letter".into()),
+                ))
+                .map_err(|e| relocate(e, path, &source, &doc, &["stages", &name]));
+            }
+            stages.insert(
+                name.clone(),
+                StageSpec {
+                    name,
+                    kind: s.kind,
+                    inputs: s.inputs,
+                    params: s.params,
+                    shards: s.shards.unwrap_or(1),
+                    fixed_seed: s.seed,
+                    params_overlaid: false,
+                },
+            );
+        }
+        if let Some(overlays) = raw.profiles.get(&profile) {
+            for (name, overlay) in overlays {
+                let Some(stage) = stages.get_mut(name) else {
+                    let loc = key_location(path, &source, &doc, &["profiles", &profile, name]);
+                    return Err(Error::invalid(
+                        loc,
+                        format!(
+                            "profile `{profile}` overlays stage `{name}`, which is not declared"
+                        ),
+                        Some(format!(
+                            "declared stages are {}",
+                            list(raw_stage_names(&doc))
+                        )),
+                    ));
+                };
+                stage.params_overlaid = !overlay.params.is_empty();
+                merge(&mut stage.params, &overlay.params);
+                if let Some(shards) = overlay.shards {
+                    stage.shards = shards;
+                }
+            }
+        }
+        Ok(Pipeline {
+            path: path.to_path_buf(),
+            profile,
+            profiles,
+            default_seed: raw.pipeline.seed,
+            stages,
+            source,
+            doc,
+        })
+    }
+
+    /// The location of the deepest key of `keys` that exists in the file.
+    pub fn locate(&self, keys: &[&str]) -> Option<Location> {
+        key_location(&self.path, &self.source, &self.doc, keys)
+    }
+
+    /// The location of a stage's param, looking at the profile's overlay first.
+    pub fn locate_param(&self, stage: &str, param_path: &[String]) -> Option<Location> {
+        let mut overlay = vec!["profiles", self.profile.as_str(), stage, "params"];
+        overlay.extend(param_path.iter().map(String::as_str));
+        let mut base = vec!["stages", stage, "params"];
+        base.extend(param_path.iter().map(String::as_str));
+        // Point at whichever table names more of the param's path; ties go to the overlay,
+        // because its value is the one in force.
+        let matched = |keys: &[&str], prefix: usize| key_depth(&self.doc, keys).checked_sub(prefix);
+        match (matched(&overlay, 4), matched(&base, 3)) {
+            (Some(o), Some(b)) if o >= b => self.locate(&overlay),
+            (Some(_), None) => self.locate(&overlay),
+            _ => self.locate(&base),
+        }
+    }
+}
+
+fn valid_name(name: &str) -> bool {
+    name.chars().next().is_some_and(|c| c.is_ascii_alphabetic())
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+}
+
+fn raw_stage_names(doc: &toml_edit::Document<String>) -> Vec<String> {
+    doc.get("stages")
+        .and_then(|s| s.as_table_like())
+        .map(|t| t.iter().map(|(k, _)| k.to_string()).collect())
+        .unwrap_or_default()
+}
+
+fn relocate(
+    e: Error,
+    path: &Path,
+    source: &str,
+    doc: &toml_edit::Document<String>,
+    keys: &[&str],
+) -> Error {
+    match e {
+        Error::Invalid(mut inv) if inv.location.is_none() => {
+            inv.location = key_location(path, source, doc, keys);
+            Error::Invalid(inv)
+        }
+        other => other,
+    }
+}
+
+/// Deep merge: tables merge key by key, anything else is replaced.
+fn merge(base: &mut toml::Table, overlay: &toml::Table) {
+    for (key, value) in overlay {
+        match (base.get_mut(key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            _ => {
+                base.insert(key.clone(), value.clone());
+            }
+        }
+    }
+}
+
+fn key_depth(doc: &toml_edit::Document<String>, keys: &[&str]) -> usize {
+    let mut item: &toml_edit::Item = doc.as_item();
+    for (depth, key) in keys.iter().enumerate() {
+        match item.as_table_like().and_then(|t| t.get(key)) {
+            Some(next) => item = next,
+            None => return depth,
+        }
+    }
+    keys.len()
+}
+
+fn key_location(
+    path: &Path,
+    source: &str,
+    doc: &toml_edit::Document<String>,
+    keys: &[&str],
+) -> Option<Location> {
+    let mut item: &toml_edit::Item = doc.as_item();
+    let mut span = None;
+    for key in keys {
+        let Some((k, next)) = item.as_table_like().and_then(|t| t.get_key_value(key)) else {
+            break;
+        };
+        span = k.span().or(span);
+        item = next;
+    }
+    span.map(|s| location_of(path, source, s.start))
+}
+
+fn location_of(path: &Path, source: &str, offset: usize) -> Location {
+    let before = &source[..offset.min(source.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before
+        .rsplit('\n')
+        .next()
+        .map(|l| l.chars().count())
+        .unwrap_or(0)
+        + 1;
+    Location {
+        path: path.to_path_buf(),
+        line,
+        column,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str, profile: Option<&str>) -> Result<Pipeline> {
+        Pipeline::parse(Path::new("pipeline.toml"), text.to_string(), profile)
+    }
+
+    const TEXT: &str = r#"
+[pipeline]
+default_profile = "small"
+seed = 3
+
+[stages.gen]
+kind = "numbers"
+shards = 2
+params = { n = 100, scale = { a = 1.0, b = 2.0 } }
+
+[stages.sum]
+kind = "sum"
+inputs = { values = "gen" }
+
+[profiles.tiny.gen]
+params = { n = 10, scale = { b = 5.0 } }
+shards = 3
+
+[profiles.small]
+[profiles.paper]
+"#;
+
+    #[test]
+    fn profiles_overlay_params_deeply() {
+        let p = parse(TEXT, Some("tiny")).expect("parse");
+        let gen_ = &p.stages["gen"];
+        assert_eq!(gen_.shards, 3);
+        assert_eq!(gen_.params["n"].as_integer(), Some(10));
+        assert_eq!(gen_.params["scale"]["a"].as_float(), Some(1.0));
+        assert_eq!(gen_.params["scale"]["b"].as_float(), Some(5.0));
+        assert_eq!(p.default_seed, 3);
+        let small = parse(TEXT, None).expect("parse");
+        assert_eq!(small.profile, "small");
+        assert_eq!(small.stages["gen"].params["n"].as_integer(), Some(100));
+        assert_eq!(small.profiles, ["paper", "small", "tiny"]);
+    }
+
+    #[test]
+    fn malformed_toml_is_located() {
+        let err =
+            parse("[stages.a]\nkind = \"x\"\nparams = { n = }\n", None).expect_err("bad toml");
+        let Error::Invalid(inv) = err else {
+            panic!("not located: {err}")
+        };
+        let loc = inv.location.clone().expect("location");
+        assert_eq!((loc.line, loc.column), (3, 16), "{inv}");
+    }
+
+    #[test]
+    fn unknown_field_and_unknown_profile() {
+        let err = parse("[stages.a]\nkind = \"x\"\nshard = 2\n", None).expect_err("unknown field");
+        let text = err.to_string();
+        assert!(
+            text.starts_with("pipeline.toml:3:1: unknown field `shard`"),
+            "{text}"
+        );
+        assert!(text.contains("`shards`"), "{text}");
+        let err = parse(TEXT, Some("huge")).expect_err("unknown profile");
+        assert!(
+            err.to_string().contains("`paper`, `small`, `tiny`"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn overlay_of_undeclared_stage_is_located() {
+        let err = parse(
+            "[stages.a]\nkind = \"x\"\n[profiles.small.b]\nshards = 2\n",
+            None,
+        )
+        .expect_err("bad overlay");
+        assert!(
+            err.to_string()
+                .starts_with("pipeline.toml:3:17: profile `small` overlays stage `b`"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn param_locations_prefer_the_overlay() {
+        let p = parse(TEXT, Some("tiny")).expect("parse");
+        let loc = p.locate_param("gen", &["n".into()]).expect("loc");
+        assert_eq!(loc.line, 16);
+        let loc = p
+            .locate_param("gen", &["scale".into(), "a".into()])
+            .expect("loc");
+        assert_eq!(loc.line, 9);
+    }
+}

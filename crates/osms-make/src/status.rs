@@ -1,0 +1,160 @@
+//! `osms status` and `osms why`: what is up to date, what is not and why, and where an
+//! artifact came from. Read-only: takes no lock, builds nothing.
+
+use std::collections::BTreeMap;
+
+use osms_store::{Hash, ObjectState, Store};
+use serde::Serialize;
+
+use crate::error::Result;
+use crate::heads::{Heads, Reason};
+use crate::plan::{InstanceId, Plan};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum State {
+    /// Its key is in the store and the object is intact.
+    Cached,
+    /// Built before, but something it depends on changed.
+    Stale,
+    /// Never built, or its object is gone or damaged.
+    Missing,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct InstanceStatus {
+    pub instance: String,
+    pub stage: String,
+    pub kind: String,
+    pub state: State,
+    /// Unknown while an input is not up to date (the key hashes the input's content).
+    pub key: Option<Hash>,
+    pub content_hash: Option<Hash>,
+    pub reasons: Vec<Reason>,
+    #[serde(skip)]
+    pub id: InstanceId,
+}
+
+/// The status of every instance needed for `targets` and `seeds`, in dependency order.
+pub fn status(
+    plan: &Plan,
+    store: &Store,
+    targets: &[String],
+    seeds: &[u64],
+) -> Result<Vec<InstanceStatus>> {
+    let heads = Heads::load(store)?;
+    let mut out: Vec<InstanceStatus> = Vec::new();
+    let mut known: BTreeMap<InstanceId, Hash> = BTreeMap::new();
+    for id in plan.instances(targets, seeds)? {
+        let stage = &plan.stages[id.stage];
+        let instance = plan.display(id);
+        let mut input_hashes = Vec::new();
+        let mut reasons = Vec::new();
+        for (slot, up) in plan.input_instances(id) {
+            match known.get(&up) {
+                Some(h) => input_hashes.push((slot, *h)),
+                None => reasons.push(Reason::UpstreamNotUpToDate {
+                    input: plan.display(up),
+                }),
+            }
+        }
+        let mut st = InstanceStatus {
+            instance: instance.clone(),
+            stage: stage.name.clone(),
+            kind: stage.info.name.to_string(),
+            state: State::Stale,
+            key: None,
+            content_hash: None,
+            reasons: Vec::new(),
+            id,
+        };
+        if !reasons.is_empty() {
+            // Built before under any key? Then it is stale rather than missing.
+            st.state = if heads.get(&instance)?.is_some() {
+                State::Stale
+            } else {
+                State::Missing
+            };
+            st.reasons = reasons;
+            out.push(st);
+            continue;
+        }
+        let key = plan.key(id, &input_hashes);
+        st.key = Some(key);
+        match store.record(&key)? {
+            Some(rec) => match store.object_state(&rec.content_hash)? {
+                ObjectState::Present => {
+                    st.state = State::Cached;
+                    st.content_hash = Some(rec.content_hash);
+                    known.insert(id, rec.content_hash);
+                }
+                ObjectState::Missing => {
+                    st.state = State::Missing;
+                    st.reasons = vec![Reason::ObjectMissing {
+                        hash: rec.content_hash,
+                    }];
+                }
+                ObjectState::Damaged { .. } => {
+                    st.state = State::Missing;
+                    st.reasons = vec![Reason::ObjectDamaged {
+                        hash: rec.content_hash,
+                    }];
+                }
+            },
+            None => {
+                st.reasons = heads.reasons(plan, id, &instance, &input_hashes);
+                st.state = if st.reasons == [Reason::New] {
+                    State::Missing
+                } else {
+                    State::Stale
+                };
+            }
+        }
+        out.push(st);
+    }
+    Ok(out)
+}
+
+/// One node of a lineage tree.
+#[derive(Debug, Clone, Serialize)]
+pub struct Lineage {
+    pub slot: Option<String>,
+    #[serde(flatten)]
+    pub status: InstanceStatus,
+    pub inputs: Vec<Lineage>,
+}
+
+/// The lineage of `target` (a stage name, optionally `name@seed`) for `seed`.
+pub fn why(plan: &Plan, store: &Store, target: &str, seed: u64) -> Result<Lineage> {
+    let (name, seed) = match target.split_once('@') {
+        Some((n, s)) => (
+            n,
+            s.parse()
+                .map_err(|_| crate::Error::usage(format!("`{target}`: `{s}` is not a seed")))?,
+        ),
+        None => (target, seed),
+    };
+    let statuses = status(plan, store, &[name.to_string()], &[seed])?;
+    let by_id: BTreeMap<InstanceId, &InstanceStatus> = statuses.iter().map(|s| (s.id, s)).collect();
+    fn node(
+        plan: &Plan,
+        by_id: &BTreeMap<InstanceId, &InstanceStatus>,
+        id: InstanceId,
+        slot: Option<String>,
+    ) -> Lineage {
+        Lineage {
+            slot,
+            status: by_id[&id].clone(),
+            inputs: plan
+                .input_instances(id)
+                .into_iter()
+                .map(|(s, up)| node(plan, by_id, up, Some(s)))
+                .collect(),
+        }
+    }
+    let root = plan.instance(
+        plan.stage_index(name).expect("status checked the target"),
+        seed,
+    );
+    Ok(node(plan, &by_id, root, None))
+}
