@@ -319,6 +319,23 @@ impl Store {
         }
     }
 
+    /// Names of the state files directly inside `state/<dir>/`, sorted.
+    pub fn list_state(&self, dir: &str) -> Result<Vec<String>> {
+        let path = self.root.join("state").join(dir);
+        let entries = match fs::read_dir(&path) {
+            Ok(e) => e,
+            Err(e) if e.kind() == ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(e) => return Err(Error::io(&path, e)),
+        };
+        let mut names = Vec::new();
+        for entry in entries {
+            let entry = entry.map_err(|e| Error::io(&path, e))?;
+            names.push(entry.file_name().to_string_lossy().into_owned());
+        }
+        names.sort();
+        Ok(names)
+    }
+
     pub fn write_state(&self, name: &str, bytes: &[u8]) -> Result<()> {
         self.write_atomic(&self.root.join("state").join(name), bytes)
     }

@@ -1,0 +1,138 @@
+//! Every clap type of the `osms` command line.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "osms",
+    version,
+    about = "Outcome-sensitive motion search as a deterministic, content-addressed build"
+)]
+pub struct Cli {
+    #[command(flatten)]
+    pub global: Global,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Args)]
+pub struct Global {
+    /// The pipeline declaration [default: pipeline.toml in this or a parent directory]
+    #[arg(long, global = true, env = "OSMS_PIPELINE", value_name = "FILE")]
+    pub pipeline: Option<PathBuf>,
+    /// The artifact store [default: store/ beside pipeline.toml]
+    #[arg(long, global = true, env = "OSMS_STORE", value_name = "DIR")]
+    pub store: Option<PathBuf>,
+    /// Print only errors (and data on stdout)
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+    /// Print more: cached stages, debug logs
+    #[arg(short, long, global = true)]
+    pub verbose: bool,
+    /// Hide progress bars
+    #[arg(long, global = true, env = "OSMS_NO_PROGRESS")]
+    pub no_progress: bool,
+}
+
+#[derive(Debug, Args, Clone)]
+pub struct Selection {
+    /// Profile overlaying the params [default: the pipeline's default_profile]
+    #[arg(long, short = 'p')]
+    pub profile: Option<String>,
+    /// Run seed [default: the pipeline's seed]
+    #[arg(long, conflicts_with = "seeds")]
+    pub seed: Option<u64>,
+    /// A seed sweep: the seed-dependent stages once per seed, the rest shared
+    #[arg(long, value_delimiter = ',', value_name = "S,S,...")]
+    pub seeds: Option<Vec<u64>>,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Build the targets (all stages if none), reusing everything already in the store
+    Make(MakeArgs),
+    /// Show which stages are cached, stale (and why) or missing
+    Status(StatusArgs),
+    /// Show the lineage of a stage: its inputs, recursively, with keys and content hashes
+    Why(WhyArgs),
+    /// Show an artifact's metadata and a summary of its contents
+    Show(ShowArgs),
+    /// List the artifacts in the store
+    Ls(JsonArg),
+    /// Re-hash every object in the store and report damage
+    Verify(JsonArg),
+    /// Remove objects that no current stage key reaches
+    Gc(GcArgs),
+    /// Check the set-up: MuJoCo, store, pipeline, platform class
+    Doctor(JsonArg),
+    /// List the stage kinds this osms knows, with their inputs and code versions
+    Kinds(JsonArg),
+}
+
+#[derive(Debug, Args)]
+pub struct JsonArg {
+    /// Print JSON on stdout
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct MakeArgs {
+    /// Stages to build (with everything they need)
+    pub targets: Vec<String>,
+    #[command(flatten)]
+    pub selection: Selection,
+    /// Show what would be built, build nothing
+    #[arg(long, short = 'n')]
+    pub dry_run: bool,
+    /// Worker threads [default: all cores]
+    #[arg(long, short = 'j')]
+    pub jobs: Option<usize>,
+    /// Print the report as JSON on stdout
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct StatusArgs {
+    pub targets: Vec<String>,
+    #[command(flatten)]
+    pub selection: Selection,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct WhyArgs {
+    /// A stage name, or `stage@seed`
+    pub target: String,
+    #[command(flatten)]
+    pub selection: Selection,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ShowArgs {
+    /// A stage key or content hash (a unique prefix of at least 6 hex digits is enough)
+    pub hash: String,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct GcArgs {
+    /// Keep only what these profiles reach [default: every declared profile]
+    #[arg(long = "profile", short = 'p')]
+    pub profiles: Vec<String>,
+    /// Keep only these seeds [default: the pipeline's seed and every seed built before]
+    #[arg(long, value_delimiter = ',')]
+    pub seeds: Option<Vec<u64>>,
+    /// Report what would be removed, remove nothing
+    #[arg(long, short = 'n')]
+    pub dry_run: bool,
+    #[arg(long)]
+    pub json: bool,
+}

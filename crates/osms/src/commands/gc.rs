@@ -1,0 +1,81 @@
+use std::collections::BTreeSet;
+use std::process::ExitCode;
+
+use anyhow::{Result, bail};
+use osms_make::{Pipeline, Plan, State};
+
+use crate::cli::GcArgs;
+use crate::commands::{human_bytes, print_json};
+use crate::context::Context;
+
+pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
+    let store = ctx.store()?;
+    let default = Pipeline::load(&ctx.pipeline_path, None)?;
+    let profiles = if args.profiles.is_empty() {
+        default.profiles.clone()
+    } else {
+        args.profiles.clone()
+    };
+    for p in &profiles {
+        if !default.profiles.contains(p) {
+            bail!(
+                "unknown profile `{p}`\nhint: declared profiles are {}",
+                default.profiles.join(", ")
+            );
+        }
+    }
+    let seeds: Vec<u64> = match &args.seeds {
+        Some(s) => s.clone(),
+        None => {
+            // Every seed some instance was built with, so gc never removes a sweep's results.
+            let mut seeds: BTreeSet<u64> = [default.default_seed].into();
+            for name in store.list_state("heads")? {
+                if let Some(seed) = name
+                    .strip_suffix(".json")
+                    .and_then(|n| n.rsplit_once('@'))
+                    .and_then(|(_, s)| s.parse().ok())
+                {
+                    seeds.insert(seed);
+                }
+            }
+            seeds.into_iter().collect()
+        }
+    };
+    let _lock = store
+        .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
+    let mut keep = BTreeSet::new();
+    for profile in &profiles {
+        let pipeline = Pipeline::load(&ctx.pipeline_path, Some(profile))?;
+        let plan = Plan::new(&pipeline, &ctx.registry)?;
+        for s in osms_make::status(&plan, &store, &[], &seeds)? {
+            if s.state == State::Cached {
+                keep.extend(s.key);
+            }
+        }
+    }
+    let report = store.gc(&keep, args.dry_run)?;
+    if args.json {
+        print_json(&report)?;
+    } else if !ctx.quiet {
+        let verb = if args.dry_run {
+            "would remove"
+        } else {
+            "removed"
+        };
+        if ctx.verbose || args.dry_run {
+            for h in &report.objects_removed {
+                println!("{verb} object {h}");
+            }
+        }
+        eprintln!(
+            "osms gc: {verb} {} objects ({}) and {} index records; kept {} objects reachable from profiles {} at seeds {:?}",
+            report.objects_removed.len(),
+            human_bytes(report.bytes_removed),
+            report.records_removed.len(),
+            report.objects_kept,
+            profiles.join(", "),
+            seeds
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}

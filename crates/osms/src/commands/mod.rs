@@ -1,0 +1,57 @@
+//! One file per verb.
+
+mod doctor;
+mod gc;
+mod inspect;
+mod make;
+mod status;
+mod verify;
+
+use std::process::ExitCode;
+
+use anyhow::Result;
+use osms_make::Registry;
+
+use crate::cli::{Cli, Command};
+use crate::context::Context;
+
+pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
+    // doctor and kinds must work without a pipeline.toml.
+    match &cli.command {
+        Command::Doctor(args) => return doctor::run(&cli.global, &registry, args.json),
+        Command::Kinds(args) => return inspect::kinds(&registry, args.json),
+        _ => {}
+    }
+    let ctx = Context::new(&cli.global, registry)?;
+    match cli.command {
+        Command::Make(args) => make::run(&ctx, &args),
+        Command::Status(args) => status::status(&ctx, &args),
+        Command::Why(args) => status::why(&ctx, &args),
+        Command::Show(args) => inspect::show(&ctx, &args),
+        Command::Ls(args) => inspect::ls(&ctx, args.json),
+        Command::Verify(args) => verify::run(&ctx, args.json),
+        Command::Gc(args) => gc::run(&ctx, &args),
+        Command::Doctor(_) | Command::Kinds(_) => unreachable!("handled above"),
+    }
+}
+
+/// Prints `value` as pretty JSON on stdout.
+pub(crate) fn print_json(value: &impl serde::Serialize) -> Result<()> {
+    println!("{}", serde_json::to_string_pretty(value)?);
+    Ok(())
+}
+
+pub(crate) fn human_bytes(n: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = n as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{n} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}

@@ -1,0 +1,115 @@
+use std::process::ExitCode;
+
+use anyhow::Result;
+use osms_make::{Lineage, State, describe};
+
+use crate::EXIT_FAILURE;
+use crate::cli::{StatusArgs, WhyArgs};
+use crate::commands::print_json;
+use crate::context::Context;
+
+pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
+    let plan = ctx.plan(args.selection.profile.as_deref())?;
+    let store = ctx.store()?;
+    let seeds = Context::seeds(&args.selection, &plan);
+    let statuses = osms_make::status(&plan, &store, &args.targets, &seeds)?;
+    let not_up_to_date = statuses.iter().filter(|s| s.state != State::Cached).count();
+    if args.json {
+        print_json(&statuses)?;
+    } else if !ctx.quiet {
+        if not_up_to_date == 0 {
+            println!(
+                "Everything is up to date ({} stages, profile {}).",
+                statuses.len(),
+                plan.profile
+            );
+        } else {
+            for s in &statuses {
+                let hash = s
+                    .content_hash
+                    .map(|h| h.short())
+                    .unwrap_or_else(|| "-".into());
+                match s.state {
+                    State::Cached => {
+                        if ctx.verbose {
+                            println!("{:<8} {} {hash}", "cached", s.instance);
+                        }
+                    }
+                    State::Stale | State::Missing => {
+                        let state = if s.state == State::Stale {
+                            "stale"
+                        } else {
+                            "missing"
+                        };
+                        println!("{state:<8} {}: {}", s.instance, describe(&s.reasons));
+                    }
+                }
+            }
+            let cached = statuses.len() - not_up_to_date;
+            println!(
+                "{not_up_to_date} of {} stages not up to date, {cached} cached (profile {}).",
+                statuses.len(),
+                plan.profile
+            );
+        }
+    }
+    // As `dvc status -q`: the exit code says whether anything would run.
+    if ctx.quiet && not_up_to_date > 0 {
+        Ok(ExitCode::from(EXIT_FAILURE))
+    } else {
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+pub fn why(ctx: &Context, args: &WhyArgs) -> Result<ExitCode> {
+    let plan = ctx.plan(args.selection.profile.as_deref())?;
+    let store = ctx.store()?;
+    let seed = Context::seeds(&args.selection, &plan)[0];
+    let lineage = osms_make::why(&plan, &store, &args.target, seed)?;
+    if args.json {
+        print_json(&lineage)?;
+    } else {
+        let mut out = String::new();
+        draw(&lineage, "", true, true, &mut out);
+        print!("{out}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn draw(node: &Lineage, prefix: &str, last: bool, root: bool, out: &mut String) {
+    let s = &node.status;
+    let key = s.key.map(|h| h.short()).unwrap_or_else(|| "?".into());
+    let hash = s
+        .content_hash
+        .map(|h| h.short())
+        .unwrap_or_else(|| "-".into());
+    let state = match s.state {
+        State::Cached => "cached".to_string(),
+        State::Stale => format!("stale: {}", describe(&s.reasons)),
+        State::Missing => format!("missing: {}", describe(&s.reasons)),
+    };
+    let slot = node
+        .slot
+        .as_ref()
+        .map(|sl| format!("{sl}: "))
+        .unwrap_or_default();
+    let branch = if root {
+        ""
+    } else if last {
+        "└── "
+    } else {
+        "├── "
+    };
+    out.push_str(&format!(
+        "{prefix}{branch}{slot}{} [{}] key {key} hash {hash} ({state})\n",
+        s.instance, s.kind
+    ));
+    let child_prefix = if root {
+        String::new()
+    } else {
+        format!("{prefix}{}", if last { "    " } else { "│   " })
+    };
+    for (i, child) in node.inputs.iter().enumerate() {
+        draw(child, &child_prefix, i + 1 == node.inputs.len(), false, out);
+    }
+}

@@ -1,0 +1,80 @@
+//! Finding the project (pipeline.toml) and the store, and loading the plan.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context as _, Result, bail};
+use osms_make::{Pipeline, Plan, Registry};
+use osms_store::Store;
+
+use crate::cli::{Global, Selection};
+
+pub struct Context {
+    pub pipeline_path: PathBuf,
+    pub store_path: PathBuf,
+    pub registry: Registry,
+    pub quiet: bool,
+    pub verbose: bool,
+    pub progress: bool,
+}
+
+impl Context {
+    pub fn new(global: &Global, registry: Registry) -> Result<Self> {
+        let pipeline_path = match &global.pipeline {
+            Some(p) => p.clone(),
+            None => find_pipeline()?,
+        };
+        let store_path = match &global.store {
+            Some(s) => s.clone(),
+            None => pipeline_path
+                .parent()
+                .unwrap_or(Path::new("."))
+                .join("store"),
+        };
+        Ok(Context {
+            pipeline_path,
+            store_path,
+            registry,
+            quiet: global.quiet,
+            verbose: global.verbose,
+            progress: !global.no_progress && !global.quiet,
+        })
+    }
+
+    pub fn store(&self) -> Result<Store> {
+        Store::open(&self.store_path)
+            .with_context(|| format!("cannot open the store at {}", self.store_path.display()))
+    }
+
+    pub fn plan(&self, profile: Option<&str>) -> Result<Plan> {
+        let pipeline = Pipeline::load(&self.pipeline_path, profile)?;
+        Ok(Plan::new(&pipeline, &self.registry)?)
+    }
+
+    /// Seeds of a selection: `--seeds`, else `--seed`, else the pipeline's seed.
+    pub fn seeds(selection: &Selection, plan: &Plan) -> Vec<u64> {
+        match (&selection.seeds, selection.seed) {
+            (Some(seeds), _) if !seeds.is_empty() => {
+                let mut s = seeds.clone();
+                s.sort_unstable();
+                s.dedup();
+                s
+            }
+            (_, Some(seed)) => vec![seed],
+            _ => vec![plan.default_seed],
+        }
+    }
+}
+
+fn find_pipeline() -> Result<PathBuf> {
+    let cwd = std::env::current_dir().context("cannot read the current directory")?;
+    for dir in cwd.ancestors() {
+        let candidate = dir.join("pipeline.toml");
+        if candidate.is_file() {
+            return Ok(candidate);
+        }
+    }
+    bail!(
+        "no pipeline.toml in {} or any parent directory\nhint: run osms inside an osms project, or pass --pipeline FILE",
+        cwd.display()
+    )
+}

@@ -1,0 +1,87 @@
+//! The osms command line: make, status, why, show, ls, verify, gc, doctor; registers the stage
+//! kinds.
+//!
+//! [`main_with`] runs the command line with any [`Registry`], so end-to-end tests can drive the
+//! same code with stage kinds of their own; [`registry`] holds the kinds osms ships.
+
+mod cli;
+mod commands;
+mod context;
+pub mod platform;
+mod progress;
+
+use std::process::ExitCode;
+
+use clap::Parser;
+use osms_make::Registry;
+
+pub use context::Context;
+
+/// The stage kinds osms ships. The pipeline's domain stages (world, teacher, method, report)
+/// register here as their crates land.
+pub fn registry() -> Registry {
+    Registry::new()
+}
+
+/// Exit codes, as uv: 0 success, 1 the user's input or the pipeline failed, 2 internal error.
+pub(crate) const EXIT_FAILURE: u8 = 1;
+pub(crate) const EXIT_INTERNAL: u8 = 2;
+
+/// Parses the command line and runs it with `registry`.
+pub fn main_with(registry: Registry) -> ExitCode {
+    let cli = cli::Cli::parse();
+    init_logging(&cli.global);
+    match commands::run(cli, registry) {
+        Ok(code) => code,
+        Err(err) => {
+            eprintln!("error: {}", render(&err));
+            ExitCode::from(exit_code_of(&err))
+        }
+    }
+}
+
+fn init_logging(global: &cli::Global) {
+    let default = if global.quiet {
+        "error"
+    } else if global.verbose {
+        "debug"
+    } else {
+        "info"
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_env("OSMS_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .without_time()
+        .with_target(false)
+        .try_init();
+}
+
+/// The error chain, outermost first, one cause per line.
+fn render(err: &anyhow::Error) -> String {
+    let mut text = err.to_string();
+    for cause in err.chain().skip(1) {
+        let c = cause.to_string();
+        if !text.contains(&c) {
+            text.push_str(&format!("\n  caused by: {c}"));
+        }
+    }
+    text
+}
+
+fn exit_code_of(err: &anyhow::Error) -> u8 {
+    for cause in err.chain() {
+        if let Some(e) = cause.downcast_ref::<osms_make::Error>() {
+            return if e.is_user_error() {
+                EXIT_FAILURE
+            } else {
+                EXIT_INTERNAL
+            };
+        }
+        if let Some(osms_store::Error::Io { .. }) = cause.downcast_ref::<osms_store::Error>() {
+            return EXIT_INTERNAL;
+        }
+    }
+    EXIT_FAILURE
+}

@@ -1,0 +1,3 @@
+fn main() -> std::process::ExitCode {
+    osms::main_with(osms::registry())
+}
