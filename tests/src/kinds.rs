@@ -1,0 +1,321 @@
+//! Test-only stage kinds.
+
+use std::time::Duration;
+
+use mujoco_rs::prelude::MjModel;
+use osms_make::rng::{self, StreamRng};
+use osms_make::{Ctx, ItemStage, Registry, Stage, StageError, Summarize};
+use osms_store::Artifact;
+use serde::{Deserialize, Serialize};
+
+/// All test kinds.
+pub fn registry() -> Registry {
+    let mut r = Registry::new();
+    r.register_itemised(NumbersKind)
+        .register_itemised(DropKind)
+        .register(SignsKind)
+        .register(ShiftKind)
+        .register(SumKind)
+        .register(CombineKind);
+    r
+}
+
+/// Rows of numbers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Numbers {
+    pub rows: Vec<Vec<f64>>,
+}
+impl Artifact for Numbers {
+    const TYPE_TAG: &'static str = "test.numbers";
+    const SCHEMA_VERSION: u16 = 1;
+}
+impl Summarize for Numbers {
+    fn summary(&self) -> serde_json::Value {
+        let n: usize = self.rows.iter().map(Vec::len).sum();
+        let sum: f64 = self.rows.iter().flatten().sum();
+        serde_json::json!({ "rows": self.rows.len(), "values": n, "mean": if n > 0 { sum / n as f64 } else { 0.0 } })
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NumbersParams {
+    /// Number of rows (items).
+    pub n: u32,
+    /// Values per row.
+    #[serde(default = "default_len")]
+    pub len: u32,
+    #[serde(default = "default_scale")]
+    pub scale: f64,
+    /// Sleep per item, so kill tests can interrupt a make mid-stage.
+    #[serde(default)]
+    pub sleep_ms: u64,
+    /// Item index at which to fail (tests failure handling).
+    #[serde(default)]
+    pub fail_at: Option<u32>,
+}
+fn default_len() -> u32 {
+    4
+}
+fn default_scale() -> f64 {
+    1.0
+}
+
+/// Normal random rows, one item per row.
+pub struct NumbersKind;
+impl ItemStage for NumbersKind {
+    const KIND: &'static str = "numbers";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &[];
+    const DOC: &'static str = "rows of scaled standard-normal numbers (test kind)";
+    type Params = NumbersParams;
+    type Prepared = ();
+    type Item = Vec<f64>;
+    type Output = Numbers;
+
+    fn prepare(&self, _: &Ctx<'_, NumbersParams>) -> Result<(), StageError> {
+        Ok(())
+    }
+    fn n_items(&self, ctx: &Ctx<'_, NumbersParams>, _: &()) -> usize {
+        ctx.params.n as usize
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, NumbersParams>,
+        _: &(),
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<Vec<f64>, StageError> {
+        let p = ctx.params;
+        if p.fail_at == Some(index as u32) {
+            return Err(format!("item {index} failed on purpose (fail_at)").into());
+        }
+        if p.sleep_ms > 0 {
+            std::thread::sleep(Duration::from_millis(p.sleep_ms));
+        }
+        Ok((0..p.len).map(|_| p.scale * rng::normal(rng)).collect())
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, NumbersParams>,
+        _: (),
+        items: Vec<Vec<f64>>,
+    ) -> Result<Numbers, StageError> {
+        Ok(Numbers { rows: items })
+    }
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoParams {}
+
+/// Signs of the values: many inputs map to one output, which makes early cutoff observable.
+pub struct SignsKind;
+impl Stage for SignsKind {
+    const KIND: &'static str = "signs";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [&'static str] = &["values"];
+    const DOC: &'static str = "the sign of every value (test kind)";
+    type Params = NoParams;
+    type Output = Numbers;
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Numbers, StageError> {
+        let v: Numbers = ctx.input("values")?;
+        Ok(Numbers {
+            rows: v
+                .rows
+                .iter()
+                .map(|r| r.iter().map(|x| x.signum()).collect())
+                .collect(),
+        })
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShiftParams {
+    pub by: f64,
+}
+
+/// Adds a constant.
+pub struct ShiftKind;
+impl Stage for ShiftKind {
+    const KIND: &'static str = "shift";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [&'static str] = &["values"];
+    const DOC: &'static str = "every value plus a constant (test kind)";
+    type Params = ShiftParams;
+    type Output = Numbers;
+    fn run(&self, ctx: &Ctx<'_, ShiftParams>) -> Result<Numbers, StageError> {
+        let v: Numbers = ctx.input("values")?;
+        Ok(Numbers {
+            rows: v
+                .rows
+                .iter()
+                .map(|r| r.iter().map(|x| x + ctx.params.by).collect())
+                .collect(),
+        })
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Total {
+    pub count: u64,
+    pub sum: f64,
+}
+impl Artifact for Total {
+    const TYPE_TAG: &'static str = "test.total";
+    const SCHEMA_VERSION: u16 = 1;
+}
+impl Summarize for Total {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::json!({ "count": self.count, "sum": self.sum })
+    }
+}
+
+/// Sums the values in index order.
+pub struct SumKind;
+impl Stage for SumKind {
+    const KIND: &'static str = "sum";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [&'static str] = &["values"];
+    const DOC: &'static str = "count and sum of the values (test kind)";
+    type Params = NoParams;
+    type Output = Total;
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Total, StageError> {
+        let v: Numbers = ctx.input("values")?;
+        let values: Vec<f64> = v.rows.into_iter().flatten().collect();
+        Ok(Total {
+            count: values.len() as u64,
+            sum: values.iter().sum(),
+        })
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DropParams {
+    /// Number of drops (items).
+    pub n: u32,
+    /// Physics steps of 2 ms per drop.
+    #[serde(default = "default_steps")]
+    pub steps: u32,
+}
+fn default_steps() -> u32 {
+    400
+}
+
+/// Final states of boxes thrown onto a plane in MuJoCo.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Drops {
+    /// Per drop: final qpos (7) of the free joint.
+    pub finals: Vec<Vec<f64>>,
+}
+impl Artifact for Drops {
+    const TYPE_TAG: &'static str = "test.drops";
+    const SCHEMA_VERSION: u16 = 1;
+}
+impl Summarize for Drops {
+    fn summary(&self) -> serde_json::Value {
+        let n = self.finals.len().max(1) as f64;
+        let mean_z: f64 = self.finals.iter().map(|q| q[2]).sum::<f64>() / n;
+        serde_json::json!({ "drops": self.finals.len(), "mean_final_z_m": mean_z })
+    }
+}
+
+const DROP_XML: &str = r#"<mujoco>
+  <option timestep="0.002" integrator="implicitfast" cone="elliptic"/>
+  <worldbody>
+    <geom type="plane" size="2 2 0.1" friction="0.8 0.02 0.001"/>
+    <body pos="0 0 0.5">
+      <freejoint/>
+      <geom type="box" size="0.03 0.02 0.015" mass="0.05"/>
+    </body>
+  </worldbody>
+</mujoco>"#;
+
+/// Throws a small box onto a plane with a random velocity and records where it comes to rest:
+/// contacts, friction and the elliptic cone make this sensitive to every bit of the simulation.
+pub struct DropKind;
+impl ItemStage for DropKind {
+    const KIND: &'static str = "drop";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &[];
+    const DOC: &'static str = "MuJoCo box throws onto a plane (test kind)";
+    type Params = DropParams;
+    type Prepared = MjModel;
+    type Item = Vec<f64>;
+    type Output = Drops;
+
+    fn prepare(&self, _: &Ctx<'_, DropParams>) -> Result<MjModel, StageError> {
+        Ok(MjModel::from_xml_string(DROP_XML)?)
+    }
+    fn n_items(&self, ctx: &Ctx<'_, DropParams>, _: &MjModel) -> usize {
+        ctx.params.n as usize
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, DropParams>,
+        model: &MjModel,
+        _: usize,
+        rng: &mut StreamRng,
+    ) -> Result<Vec<f64>, StageError> {
+        let mut data = model.make_data();
+        let v: Vec<f64> = (0..6).map(|_| rng::uniform(rng, -2.0, 2.0)).collect();
+        data.qvel_mut().copy_from_slice(&v);
+        for _ in 0..ctx.params.steps {
+            data.step();
+        }
+        Ok(data.qpos().to_vec())
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, DropParams>,
+        _: MjModel,
+        items: Vec<Vec<f64>>,
+    ) -> Result<Drops, StageError> {
+        Ok(Drops { finals: items })
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Combined {
+    pub total: f64,
+    pub drops: u64,
+    pub reference_rows: u64,
+}
+impl Artifact for Combined {
+    const TYPE_TAG: &'static str = "test.combined";
+    const SCHEMA_VERSION: u16 = 1;
+}
+impl Summarize for Combined {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::to_value(self).unwrap_or_default()
+    }
+}
+
+/// Reads three inputs of three types.
+pub struct CombineKind;
+impl Stage for CombineKind {
+    const KIND: &'static str = "combine";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [&'static str] = &["total", "drops", "reference"];
+    const DOC: &'static str = "a small report over three inputs (test kind)";
+    type Params = NoParams;
+    type Output = Combined;
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Combined, StageError> {
+        let total: Total = ctx.input("total")?;
+        let drops: Drops = ctx.input("drops")?;
+        let reference: Numbers = ctx.input("reference")?;
+        Ok(Combined {
+            total: total.sum,
+            drops: drops.finals.len() as u64,
+            reference_rows: reference.rows.len() as u64,
+        })
+    }
+}

@@ -1,0 +1,116 @@
+//! A temporary osms project (pipeline.toml + store) for tests and benchmarks.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use osms_make::{
+    MakeOptions, MakeReport, NoProgress, Observer, Outcome, Pipeline, Plan, Progress, Registry,
+};
+use osms_store::{Hash, Store};
+
+/// The engine test pipeline.
+pub const ENGINE_PIPELINE: &str = include_str!("../pipelines/engine.toml");
+
+pub struct Project {
+    pub dir: tempfile::TempDir,
+    pub pipeline: PathBuf,
+    pub store: PathBuf,
+    pub registry: Registry,
+}
+
+/// An observer that shows nothing.
+pub struct Silent;
+impl Observer for Silent {
+    fn started(&self, _: &str, _: &str) -> Box<dyn Progress + '_> {
+        Box::new(NoProgress)
+    }
+    fn finished(&self, _: &osms_make::InstanceReport) {}
+}
+
+impl Project {
+    pub fn new(pipeline_text: &str) -> Self {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let pipeline = dir.path().join("pipeline.toml");
+        std::fs::write(&pipeline, pipeline_text).expect("write pipeline.toml");
+        let store = dir.path().join("store");
+        Project {
+            dir,
+            pipeline,
+            store,
+            registry: crate::registry(),
+        }
+    }
+
+    pub fn engine() -> Self {
+        Self::new(ENGINE_PIPELINE)
+    }
+
+    pub fn write_pipeline(&self, text: &str) {
+        std::fs::write(&self.pipeline, text).expect("write pipeline.toml");
+    }
+
+    pub fn plan(&self, profile: Option<&str>) -> osms_make::Result<Plan> {
+        let pipeline = Pipeline::load(&self.pipeline, profile)?;
+        Plan::new(&pipeline, &self.registry)
+    }
+
+    pub fn open_store(&self) -> Store {
+        Store::open(&self.store).expect("open store")
+    }
+
+    /// Builds everything for `profile` and `seeds` with `jobs` threads through the library.
+    pub fn make(&self, profile: Option<&str>, seeds: &[u64], jobs: usize) -> MakeReport {
+        let plan = self.plan(profile).expect("plan");
+        let opts = MakeOptions {
+            targets: vec![],
+            seeds: seeds.to_vec(),
+            jobs,
+            dry_run: false,
+        };
+        osms_make::make(&plan, &self.open_store(), &opts, &Silent).expect("make")
+    }
+
+    /// Runs an osms binary on this project with progress bars off.
+    pub fn run(&self, bin: &Path, args: &[&str]) -> Output {
+        Command::new(bin)
+            .arg("--pipeline")
+            .arg(&self.pipeline)
+            .arg("--store")
+            .arg(&self.store)
+            .args(args)
+            .env("OSMS_NO_PROGRESS", "1")
+            .env_remove("OSMS_LOG")
+            .current_dir(self.dir.path())
+            .output()
+            .expect("run osms")
+    }
+}
+
+/// Instance name -> content hash of every instance the report built or found.
+pub fn hashes(report: &MakeReport) -> BTreeMap<String, Hash> {
+    report
+        .instances
+        .iter()
+        .filter_map(|r| r.content_hash.map(|h| (r.instance.clone(), h)))
+        .collect()
+}
+
+/// Instance name -> outcome label.
+pub fn outcomes(report: &MakeReport) -> BTreeMap<String, &'static str> {
+    report
+        .instances
+        .iter()
+        .map(|r| {
+            let label = match r.outcome {
+                Outcome::Built { .. } => "built",
+                Outcome::Cached => "cached",
+                Outcome::CutOff => "cut off",
+                Outcome::WouldBuild { .. } => "would build",
+                Outcome::Failed { .. } => "failed",
+                Outcome::Skipped { .. } => "skipped",
+            };
+            (r.instance.clone(), label)
+        })
+        .collect()
+}
