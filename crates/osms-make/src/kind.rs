@@ -198,7 +198,7 @@ fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
             .collect();
         ParamError {
             path,
-            message: e.into_inner().to_string(),
+            message: e.into_inner().message().trim_end().to_string(),
         }
     })?;
     let canonical = postcard::to_stdvec(&typed).map_err(|e| ParamError {

@@ -32,7 +32,7 @@ pub struct Global {
     #[arg(short, long, global = true)]
     pub verbose: bool,
     /// Hide progress bars
-    #[arg(long, global = true, env = "OSMS_NO_PROGRESS")]
+    #[arg(long, global = true, env = "OSMS_NO_PROGRESS", value_parser = clap::builder::BoolishValueParser::new())]
     pub no_progress: bool,
 }
 

@@ -1,0 +1,192 @@
+//! The real command line over a temporary project: exit codes, stdout and stderr snapshotted
+//! under `golden/cli/`, with only the temp path and timings filtered (never hashes).
+
+use std::path::Path;
+use std::process::Output;
+
+use osms_tests::Project;
+
+const BIN: &str = env!("CARGO_BIN_EXE_osms-test");
+
+/// A pipeline of pure-Rust kinds only, so its hashes are the same on every platform.
+const CLI_PIPELINE: &str = r#"[pipeline]
+default_profile = "small"
+seed = 0
+
+[stages.numbers]
+kind = "numbers"
+shards = 2
+params = { n = 4, len = 2 }
+
+[stages.signs]
+kind = "signs"
+inputs = { values = "numbers" }
+
+[stages.total]
+kind = "sum"
+inputs = { values = "signs" }
+
+[stages.shifted]
+kind = "shift"
+inputs = { values = "numbers" }
+params = { by = 0.5 }
+
+[profiles.tiny.numbers]
+params = { n = 2 }
+[profiles.small]
+[profiles.paper]
+"#;
+
+/// Replaces `<digits>.<digits>s` with `[T]s`.
+fn filter_timings(text: &str) -> String {
+    let chars: Vec<char> = text.chars().collect();
+    let mut out = String::with_capacity(text.len());
+    let mut i = 0;
+    while i < chars.len() {
+        let start = i;
+        let mut j = i;
+        while j < chars.len() && chars[j].is_ascii_digit() {
+            j += 1;
+        }
+        let boundary = start == 0 || !chars[start - 1].is_ascii_alphanumeric();
+        if j > start && boundary && j < chars.len() && chars[j] == '.' {
+            let mut k = j + 1;
+            while k < chars.len() && chars[k].is_ascii_digit() {
+                k += 1;
+            }
+            if k > j + 1 && k < chars.len() && chars[k] == 's' && (k + 1 == chars.len() || !chars[k + 1].is_ascii_alphanumeric()) {
+                out.push_str("[T]s");
+                i = k + 1;
+                continue;
+            }
+        }
+        out.push(chars[i]);
+        i += 1;
+    }
+    out
+}
+
+fn transcript(p: &Project, args: &[&str]) -> (String, Output) {
+    let out = p.run(Path::new(BIN), args);
+    let dir = p.dir.path().display().to_string();
+    let clean = |b: &[u8]| filter_timings(&String::from_utf8_lossy(b).replace(&dir, "[PROJECT]"));
+    let text = format!(
+        "$ osms {}\nexit: {}\n--- stdout\n{}--- stderr\n{}",
+        args.join(" "),
+        out.status.code().map(|c| c.to_string()).unwrap_or_else(|| "signal".into()),
+        clean(&out.stdout),
+        clean(&out.stderr)
+    );
+    (text, out)
+}
+
+fn session(p: &Project, commands: &[&[&str]]) -> String {
+    commands.iter().map(|args| transcript(p, args).0).collect::<Vec<_>>().join("\n")
+}
+
+fn settings() -> insta::Settings {
+    let mut s = insta::Settings::clone_current();
+    s.set_snapshot_path(Path::new(env!("CARGO_MANIFEST_DIR")).join("../golden/cli"));
+    s.set_prepend_module_to_snapshot(false);
+    s.set_omit_expression(true);
+    s
+}
+
+#[test]
+fn make_status_why_ls_show() {
+    let p = Project::new(CLI_PIPELINE);
+    let mut text = session(
+        &p,
+        &[&["status"], &["make"], &["make", "-v"], &["status"], &["status", "-q"], &["why", "total"], &["ls"]],
+    );
+    let (ls, _) = transcript(&p, &["ls", "--json"]);
+    let json_start = ls.find('[').expect("ls --json prints an array");
+    let json_end = ls.rfind(']').expect("array end");
+    let records: serde_json::Value = serde_json::from_str(&ls[json_start..=json_end]).expect("ls --json");
+    let total = records
+        .as_array()
+        .and_then(|r| r.iter().find(|r| r["stage"] == "total"))
+        .and_then(|r| r["key"].as_str())
+        .expect("total's key")
+        .to_string();
+    text.push('\n');
+    text.push_str(&transcript(&p, &["show", &total[..10]]).0);
+
+    p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = 1.5 }"));
+    text.push('\n');
+    text.push_str(&session(&p, &[&["status"], &["status", "-q"], &["make", "--dry-run"], &["make"], &["status"]]));
+    settings().bind(|| insta::assert_snapshot!("make_status_why_ls_show", text));
+}
+
+#[test]
+fn seed_sweep_and_profiles() {
+    let p = Project::new(CLI_PIPELINE);
+    let text = session(
+        &p,
+        &[&["make", "--seeds", "0,1,2", "-v"], &["status", "--seed", "1", "-v"], &["make", "--profile", "tiny"], &["status", "-p", "tiny"]],
+    );
+    settings().bind(|| insta::assert_snapshot!("seed_sweep_and_profiles", text));
+}
+
+#[test]
+fn gc_and_verify() {
+    let p = Project::new(CLI_PIPELINE);
+    transcript(&p, &["make"]);
+    p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = 2.5 }"));
+    let text = session(&p, &[&["make"], &["gc", "--dry-run", "--profile", "small"], &["gc", "--profile", "small"], &["verify"], &["status"]]);
+    settings().bind(|| insta::assert_snapshot!("gc_and_verify", text));
+}
+
+#[test]
+fn user_errors_exit_1_with_a_located_message() {
+    let p = Project::new(CLI_PIPELINE);
+    let mut text = session(
+        &p,
+        &[&["make", "--profile", "huge"], &["make", "totl"], &["why", "total@x"], &["show", "zz"], &["show", "abcdef"]],
+    );
+    p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = \"half\" }"));
+    text.push('\n');
+    text.push_str(&session(&p, &[&["make"]]));
+    p.write_pipeline(&CLI_PIPELINE.replace("kind = \"shift\"", "kind = \"shfit\""));
+    text.push('\n');
+    text.push_str(&session(&p, &[&["status"]]));
+    p.write_pipeline("[stages.a\nkind = 1\n");
+    text.push('\n');
+    text.push_str(&session(&p, &[&["make"]]));
+    settings().bind(|| insta::assert_snapshot!("user_errors", text));
+
+    let out = std::process::Command::new(BIN)
+        .arg("status")
+        .current_dir(p.dir.path().parent().unwrap_or(Path::new("/")))
+        .env_remove("OSMS_PIPELINE")
+        .output()
+        .expect("run");
+    // The temp dir's parent has no pipeline.toml (and neither has /).
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no pipeline.toml in"));
+}
+
+#[test]
+fn doctor_reports_mujoco_from_the_library_itself() {
+    let p = Project::new(CLI_PIPELINE);
+    let out = p.run(Path::new(BIN), &["doctor", "--json"]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("doctor --json");
+    assert_eq!(report["mujoco_version"], "3.17.0");
+    assert_eq!(report["setup_complete"], true);
+    assert_eq!(report["platform_class"], osms::platform::class());
+    assert!(report["mujoco_smoke_test"]["Ok"].is_string(), "{report}");
+    assert_eq!(report["store"], p.store.display().to_string());
+}
+
+#[test]
+fn make_json_reports_every_instance() {
+    let p = Project::new(CLI_PIPELINE);
+    let out = p.run(Path::new(BIN), &["make", "--json", "-q"]);
+    assert_eq!(out.status.code(), Some(0));
+    assert!(out.stderr.is_empty(), "-q prints nothing on stderr: {}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("make --json");
+    let instances = report["instances"].as_array().expect("instances");
+    assert_eq!(instances.len(), 4);
+    assert!(instances.iter().all(|i| i["outcome"] == "built" && i["content_hash"].is_string()));
+}

@@ -1,0 +1,300 @@
+//! The engine through the library: identity under reruns, threads and shards; early cutoff;
+//! seed sweeps; status reasons; failures; and every kind of bad pipeline declaration.
+
+use osms_make::{ItemStage, MakeOptions, Reason, Registry, State};
+use osms_tests::kinds::{NumbersKind, NumbersParams};
+use osms_tests::project::{ENGINE_PIPELINE, Silent, hashes, outcomes};
+use osms_tests::{Project, registry};
+
+fn with_shards(numbers: u32, drops: u32) -> String {
+    ENGINE_PIPELINE
+        .replace("[stages.numbers]\nkind = \"numbers\"\nshards = 3", &format!("[stages.numbers]\nkind = \"numbers\"\nshards = {numbers}"))
+        .replace("[stages.drops]\nkind = \"drop\"\nshards = 2", &format!("[stages.drops]\nkind = \"drop\"\nshards = {drops}"))
+}
+
+#[test]
+fn outputs_do_not_depend_on_rerun_threads_or_shards() {
+    let reference = Project::engine();
+    let r1 = reference.make(Some("tiny"), &[0], 1);
+    let h1 = hashes(&r1);
+    assert_eq!(h1.len(), 7, "{h1:?}");
+
+    let two_threads = Project::engine();
+    assert_eq!(hashes(&two_threads.make(Some("tiny"), &[0], 2)), h1, "1 vs 2 threads");
+
+    for (numbers, drops) in [(1, 1), (5, 4), (6, 3)] {
+        let text = with_shards(numbers, drops);
+        assert_ne!(text, ENGINE_PIPELINE);
+        let p = Project::new(&text);
+        assert_eq!(hashes(&p.make(Some("tiny"), &[0], 2)), h1, "{numbers} and {drops} shards");
+    }
+
+    // A rerun into a fresh store rebuilds every byte identically, keys included.
+    std::fs::remove_dir_all(&reference.store).expect("remove store");
+    let r2 = reference.make(Some("tiny"), &[0], 2);
+    assert!(outcomes(&r2).values().all(|o| *o == "built"));
+    assert_eq!(hashes(&r2), h1);
+    let keys = |r: &osms_make::MakeReport| r.instances.iter().map(|i| (i.instance.clone(), i.key)).collect::<Vec<_>>();
+    assert_eq!(keys(&r1), keys(&r2));
+}
+
+#[test]
+fn a_second_make_finds_everything_cached() {
+    let p = Project::engine();
+    let first = p.make(Some("tiny"), &[0], 2);
+    let second = p.make(Some("tiny"), &[0], 2);
+    assert!(outcomes(&second).values().all(|o| *o == "cached"), "{:?}", outcomes(&second));
+    assert_eq!(hashes(&first), hashes(&second));
+}
+
+#[test]
+fn changing_a_shard_count_rebuilds_nothing() {
+    let p = Project::engine();
+    let first = p.make(Some("tiny"), &[0], 2);
+    p.write_pipeline(&with_shards(2, 1));
+    let second = p.make(Some("tiny"), &[0], 2);
+    assert!(outcomes(&second).values().all(|o| *o == "cached"), "{:?}", outcomes(&second));
+    assert_eq!(hashes(&first), hashes(&second));
+}
+
+#[test]
+fn an_upstream_rebuild_with_identical_bytes_cuts_off_downstream() {
+    let p = Project::engine();
+    let before = p.make(Some("tiny"), &[0], 2);
+    // Doubling the scale changes every value but no sign.
+    p.write_pipeline(&ENGINE_PIPELINE.replace("scale = 1.0", "scale = 2.0"));
+    let after = p.make(Some("tiny"), &[0], 2);
+    let o = outcomes(&after);
+    assert_eq!(o["numbers@0"], "built");
+    assert_eq!(o["signs@0"], "built");
+    assert_eq!(o["sign_total@0"], "cut off");
+    assert_eq!(o["total@0"], "built");
+    assert_eq!(o["drops@0"], "cached");
+    assert_eq!(o["reference"], "cached");
+    let (hb, ha) = (hashes(&before), hashes(&after));
+    assert_eq!(hb["signs@0"], ha["signs@0"]);
+    assert_ne!(hb["numbers@0"], ha["numbers@0"]);
+}
+
+#[test]
+fn seed_sweeps_instantiate_the_seeded_part_once_per_seed_and_share_the_rest() {
+    let p = Project::engine();
+    let sweep = p.make(Some("tiny"), &[0, 1, 2], 2);
+    let h = hashes(&sweep);
+    // Six seed-dependent stages per seed, and `reference`, whose seed is fixed, once.
+    assert_eq!(h.len(), 3 * 6 + 1, "{:?}", h.keys());
+    assert!(h.contains_key("reference") && !h.contains_key("reference@0"));
+    assert_ne!(h["numbers@0"], h["numbers@1"]);
+    assert_ne!(h["numbers@1"], h["numbers@2"]);
+    assert_ne!(h["drops@0"], h["drops@1"]);
+
+    let single = p.make(Some("tiny"), &[1], 1);
+    assert!(outcomes(&single).values().all(|o| *o == "cached"));
+    let fresh = Project::engine();
+    let alone = hashes(&fresh.make(Some("tiny"), &[2], 1));
+    for (name, hash) in alone {
+        assert_eq!(h[&name], hash, "{name} in a sweep vs alone");
+    }
+}
+
+#[test]
+fn dry_run_builds_nothing_and_says_what_would_run() {
+    let p = Project::engine();
+    let plan = p.plan(Some("tiny")).expect("plan");
+    let opts = MakeOptions { targets: vec!["total".into()], seeds: vec![0], jobs: 1, dry_run: true };
+    let report = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect("dry run");
+    let o = outcomes(&report);
+    assert_eq!(o.len(), 2, "target `total` needs numbers and total only: {o:?}");
+    assert!(o.values().all(|v| *v == "would build"));
+    assert!(p.open_store().records().expect("records").0.is_empty());
+}
+
+/// `numbers` at code version 2, to check that a bump is seen as one.
+struct NumbersV2;
+impl ItemStage for NumbersV2 {
+    const KIND: &'static str = "numbers";
+    const CODE_VERSION: u32 = 2;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &[];
+    const DOC: &'static str = "numbers, bumped";
+    type Params = NumbersParams;
+    type Prepared = ();
+    type Item = Vec<f64>;
+    type Output = osms_tests::kinds::Numbers;
+    fn prepare(&self, ctx: &osms_make::Ctx<'_, NumbersParams>) -> Result<(), osms_make::StageError> {
+        NumbersKind.prepare(ctx)
+    }
+    fn n_items(&self, ctx: &osms_make::Ctx<'_, NumbersParams>, p: &()) -> usize {
+        NumbersKind.n_items(ctx, p)
+    }
+    fn run_item(
+        &self,
+        ctx: &osms_make::Ctx<'_, NumbersParams>,
+        p: &(),
+        i: usize,
+        rng: &mut osms_make::rng::StreamRng,
+    ) -> Result<Vec<f64>, osms_make::StageError> {
+        NumbersKind.run_item(ctx, p, i, rng)
+    }
+    fn merge(
+        &self,
+        ctx: &osms_make::Ctx<'_, NumbersParams>,
+        p: (),
+        items: Vec<Vec<f64>>,
+    ) -> Result<osms_tests::kinds::Numbers, osms_make::StageError> {
+        NumbersKind.merge(ctx, p, items)
+    }
+}
+
+#[test]
+fn status_names_why_each_stage_would_run() {
+    let mut p = Project::engine();
+    let store = p.open_store();
+    let status = |p: &Project| {
+        let plan = p.plan(Some("tiny")).expect("plan");
+        osms_make::status(&plan, &store, &[], &[0]).expect("status")
+    };
+    let fresh = status(&p);
+    assert!(fresh.iter().all(|s| s.state == State::Missing));
+    assert_eq!(fresh.iter().find(|s| s.instance == "numbers@0").map(|s| s.reasons.clone()), Some(vec![Reason::New]));
+
+    p.make(Some("tiny"), &[0], 2);
+    assert!(status(&p).iter().all(|s| s.state == State::Cached));
+
+    p.write_pipeline(&ENGINE_PIPELINE.replace("params = { n = 6 }", "params = { n = 7 }"));
+    let changed = status(&p);
+    let numbers = changed.iter().find(|s| s.instance == "numbers@0").expect("numbers");
+    assert_eq!(numbers.state, State::Stale);
+    match &numbers.reasons[..] {
+        [Reason::ParamsChanged { changes }] => {
+            assert_eq!(changes.len(), 1);
+            assert_eq!(changes[0].param, "n");
+            assert_eq!((changes[0].old.clone(), changes[0].new.clone()), (Some(6.into()), Some(7.into())));
+        }
+        other => panic!("expected a param change, got {other:?}"),
+    }
+    let total = changed.iter().find(|s| s.instance == "total@0").expect("total");
+    assert_eq!(total.reasons, vec![Reason::UpstreamNotUpToDate { input: "numbers@0".into() }]);
+    assert_eq!(changed.iter().find(|s| s.instance == "drops@0").map(|s| s.state), Some(State::Cached));
+
+    p.write_pipeline(ENGINE_PIPELINE);
+    // The test registry with `numbers` at version 2.
+    let mut bumped = Registry::new();
+    bumped
+        .register_itemised(NumbersV2)
+        .register_itemised(osms_tests::kinds::DropKind)
+        .register(osms_tests::kinds::SignsKind)
+        .register(osms_tests::kinds::ShiftKind)
+        .register(osms_tests::kinds::SumKind)
+        .register(osms_tests::kinds::CombineKind);
+    assert_eq!(bumped.names(), registry().names());
+    p.registry = bumped;
+    let after_bump = status(&p);
+    let numbers = after_bump.iter().find(|s| s.instance == "numbers@0").expect("numbers");
+    assert_eq!(numbers.reasons, vec![Reason::CodeVersionBumped { old: 1, new: 2 }]);
+    // `reference` is also a `numbers` stage.
+    assert_eq!(after_bump.iter().find(|s| s.instance == "reference").map(|s| s.state), Some(State::Stale));
+}
+
+#[test]
+fn a_failing_stage_skips_its_dependents_and_the_rest_is_built() {
+    let p = Project::new(&ENGINE_PIPELINE.replace("params = { n = 6 }", "params = { n = 6, fail_at = 4 }"));
+    let report = p.make(Some("tiny"), &[0], 2);
+    let o = outcomes(&report);
+    assert_eq!(o["numbers@0"], "failed");
+    for dependent in ["signs@0", "sign_total@0", "total@0", "report@0"] {
+        assert_eq!(o[dependent], "skipped", "{dependent}");
+    }
+    assert_eq!(o["drops@0"], "built");
+    assert_eq!(o["reference"], "built");
+    let err = report.instances.iter().find_map(|r| match &r.outcome {
+        osms_make::Outcome::Failed { error } => Some(error.clone()),
+        _ => None,
+    });
+    assert!(err.is_some_and(|e| e.contains("item 4 failed on purpose")));
+}
+
+fn plan_error(text: &str) -> String {
+    let p = Project::new(text);
+    match p.plan(Some("small")) {
+        Ok(_) => panic!("the pipeline was accepted:\n{text}"),
+        Err(e) => e.to_string().replace(&p.pipeline.display().to_string(), "pipeline.toml"),
+    }
+}
+
+#[test]
+fn malformed_toml_is_reported_with_line_and_column() {
+    let err = plan_error("[stages.a]\nkind = \"numbers\"\nparams = { n = 3,, }\n");
+    assert!(err.starts_with("pipeline.toml:3:"), "{err}");
+}
+
+#[test]
+fn unknown_stage_kind_names_the_stage_and_the_known_kinds() {
+    let err = plan_error("[stages.gen]\nkind = \"numbres\"\nparams = { n = 3 }\n");
+    assert_eq!(
+        err,
+        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `numbers`, `shift`, `signs`, `sum`"
+    );
+}
+
+#[test]
+fn unknown_param_names_the_field_and_lists_the_valid_ones() {
+    let err = plan_error("[stages.gen]\nkind = \"numbers\"\n\n[stages.gen.params]\nn = 3\nscael = 2.0\n");
+    assert!(err.starts_with("pipeline.toml:6:1: stage `gen` (kind `numbers`), param"), "{err}");
+    assert!(err.contains("unknown field `scael`"), "{err}");
+    assert!(err.contains("expected one of `n`, `len`, `scale`, `sleep_ms`, `fail_at`"), "{err}");
+}
+
+#[test]
+fn unknown_param_in_a_profile_overlay_points_at_the_overlay() {
+    let err = plan_error(
+        "[stages.gen]\nkind = \"numbers\"\nparams = { n = 3 }\n\n[profiles.small.gen.params]\nlne = 2\n",
+    );
+    assert!(err.starts_with("pipeline.toml:6:1:"), "{err}");
+    assert!(err.contains("unknown field `lne`"), "{err}");
+}
+
+#[test]
+fn mistyped_param_names_the_field_and_the_expected_type() {
+    let err = plan_error("[stages.gen]\nkind = \"numbers\"\nparams = { n = \"ten\" }\n");
+    assert!(err.starts_with("pipeline.toml:3:12: stage `gen` (kind `numbers`), param `n`: invalid type: string \"ten\", expected u32"), "{err}");
+    let err = plan_error("[stages.gen]\nkind = \"numbers\"\nparams = { len = 2 }\n");
+    assert!(err.contains("missing field `n`"), "{err}");
+}
+
+#[test]
+fn missing_input_names_the_stage_and_the_slot() {
+    let err = plan_error("[stages.total]\nkind = \"sum\"\n");
+    assert_eq!(
+        err,
+        "pipeline.toml:1:9: stage `total` (kind `sum`) is missing input `values`\nhint: add `inputs = { values = \"<stage>\" }` to it"
+    );
+}
+
+#[test]
+fn input_from_an_undeclared_stage_or_an_unknown_slot_is_named() {
+    let err = plan_error("[stages.total]\nkind = \"sum\"\ninputs = { values = \"numbrs\" }\n");
+    assert!(err.starts_with("pipeline.toml:3:12: stage `total`: input `values` refers to stage `numbrs`, which is not declared"), "{err}");
+    let err = plan_error(
+        "[stages.n]\nkind = \"numbers\"\nparams = { n = 1 }\n[stages.total]\nkind = \"sum\"\ninputs = { values = \"n\", extra = \"n\" }\n",
+    );
+    assert!(err.contains("stage `total` (kind `sum`) has no input slot `extra`\nhint: its input slots are `values`"), "{err}");
+}
+
+#[test]
+fn a_cycle_is_named() {
+    let err = plan_error(
+        "[stages.a]\nkind = \"signs\"\ninputs = { values = \"b\" }\n[stages.b]\nkind = \"shift\"\nparams = { by = 1.0 }\ninputs = { values = \"a\" }\n",
+    );
+    assert!(err.contains("stage `a` depends on itself: a -> b -> a"), "{err}");
+    assert!(err.starts_with("pipeline.toml:3:1:"), "{err}");
+}
+
+#[test]
+fn sharding_a_plain_kind_or_fixing_the_seed_of_a_deterministic_one_is_refused() {
+    let base = "[stages.n]\nkind = \"numbers\"\nparams = { n = 1 }\n";
+    let err = plan_error(&format!("{base}[stages.s]\nkind = \"signs\"\nshards = 2\ninputs = {{ values = \"n\" }}\n"));
+    assert!(err.contains("kind `signs` computes one artifact and cannot be sharded"), "{err}");
+    let err = plan_error(&format!("{base}[stages.s]\nkind = \"signs\"\nseed = 3\ninputs = {{ values = \"n\" }}\n"));
+    assert!(err.contains("draws no random numbers"), "{err}");
+}
