@@ -157,7 +157,7 @@ pub fn make(
 
         let key = plan.key(id, &input_hashes);
         let reason = match store.record(&key)? {
-            Some(rec) => match store.object_state(&rec.content_hash)? {
+            Some(rec) => match store.object_state_cached(&rec.content_hash)? {
                 ObjectState::Present => {
                     let cut_off = inputs.iter().any(|(_, up)| built.contains(up));
                     available.insert(id, rec.content_hash);
@@ -255,6 +255,7 @@ pub fn make(
         observer.finished(&r);
         report.instances.push(r);
     }
+    store.save_stat_cache()?;
     Ok(report)
 }
 

@@ -82,7 +82,7 @@ pub fn status(
         let key = plan.key(id, &input_hashes);
         st.key = Some(key);
         match store.record(&key)? {
-            Some(rec) => match store.object_state(&rec.content_hash)? {
+            Some(rec) => match store.object_state_cached(&rec.content_hash)? {
                 ObjectState::Present => {
                     st.state = State::Cached;
                     st.content_hash = Some(rec.content_hash);
@@ -112,6 +112,7 @@ pub fn status(
         }
         out.push(st);
     }
+    store.save_stat_cache()?;
     Ok(out)
 }
 

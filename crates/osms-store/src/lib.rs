@@ -7,6 +7,7 @@
 mod codec;
 mod error;
 mod hash;
+mod statcache;
 mod store;
 
 pub use codec::{Artifact, FORMAT_VERSION, Header, MAGIC, decode, encode, read_header};

@@ -18,9 +18,11 @@ use std::fs::{self, File, OpenOptions};
 use std::io::{ErrorKind, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 use serde::{Deserialize, Serialize};
 
+use crate::statcache::{Stamp, StatCache};
 use crate::{Error, Hash, Result, read_header};
 
 const MARKER: &str = "OSMS_STORE";
@@ -118,7 +120,10 @@ pub struct StoreLock {
 #[derive(Debug, Clone)]
 pub struct Store {
     root: PathBuf,
+    stat_cache: Arc<Mutex<Option<StatCache>>>,
 }
+
+const STAT_CACHE: &str = "statcache";
 
 static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
@@ -148,11 +153,18 @@ impl Store {
                 });
             }
             fs::create_dir_all(&root).map_err(|e| Error::io(&root, e))?;
-            let store = Store { root };
+            let store = Store {
+                root,
+                stat_cache: Arc::default(),
+            };
             store.write_atomic(&marker, MARKER_TEXT.as_bytes())?;
             return store.ensure_dirs();
         }
-        Store { root }.ensure_dirs()
+        Store {
+            root,
+            stat_cache: Arc::default(),
+        }
+        .ensure_dirs()
     }
 
     fn ensure_dirs(self) -> Result<Self> {
@@ -276,6 +288,45 @@ impl Store {
             Err(Error::Missing { .. }) => Ok(ObjectState::Missing),
             Err(Error::Damaged { actual, .. }) => Ok(ObjectState::Damaged { actual }),
             Err(e) => Err(e),
+        }
+    }
+
+    /// Like [`Store::object_state`], but trusts an object verified before whose file metadata
+    /// has not changed since (see `statcache.rs`). For deciding whether a cached artifact can be
+    /// reused; reading an object's bytes always re-hashes them.
+    pub fn object_state_cached(&self, hash: &Hash) -> Result<ObjectState> {
+        let path = self.object_path(hash);
+        let stamp = match fs::metadata(&path) {
+            Ok(meta) => Stamp::of(&meta),
+            Err(e) if e.kind() == ErrorKind::NotFound => return Ok(ObjectState::Missing),
+            Err(e) => return Err(Error::io(&path, e)),
+        };
+        let mut guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
+        let cache = guard.get_or_insert_with(|| {
+            self.read_state(STAT_CACHE)
+                .ok()
+                .flatten()
+                .map(|b| StatCache::from_bytes(&b))
+                .unwrap_or_default()
+        });
+        if cache.trusts(hash, &stamp) {
+            return Ok(ObjectState::Present);
+        }
+        let state = self.object_state(hash)?;
+        match state {
+            ObjectState::Present => cache.verified(*hash, stamp),
+            _ => cache.forget(hash),
+        }
+        Ok(state)
+    }
+
+    /// Saves what [`Store::object_state_cached`] learnt. Losing an update (two processes saving
+    /// at once) only costs a re-hash later.
+    pub fn save_stat_cache(&self) -> Result<()> {
+        let guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
+        match guard.as_ref() {
+            Some(cache) if cache.is_dirty() => self.write_state(STAT_CACHE, &cache.to_bytes()),
+            _ => Ok(()),
         }
     }
 
@@ -581,6 +632,39 @@ mod tests {
             problems[..],
             [VerifyProblem::MissingObject { .. }]
         ));
+    }
+
+    #[test]
+    fn cached_state_still_sees_damage_after_the_object_was_trusted() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path()).expect("open");
+        let bytes = encode(&Blob((0..64).collect())).expect("encode");
+        let hash = store.put(&bytes).expect("put");
+        // Wait until the object is old enough to be trusted by its metadata.
+        std::thread::sleep(std::time::Duration::from_millis(2100));
+        assert_eq!(
+            store.object_state_cached(&hash).expect("state"),
+            ObjectState::Present
+        );
+        store.save_stat_cache().expect("save");
+        let reopened = Store::open(dir.path()).expect("open");
+        assert_eq!(
+            reopened.object_state_cached(&hash).expect("state"),
+            ObjectState::Present
+        );
+
+        let mut damaged = bytes.clone();
+        damaged[30] ^= 4;
+        fs::write(store.object_path(&hash), &damaged).expect("write");
+        assert!(matches!(
+            reopened.object_state_cached(&hash).expect("state"),
+            ObjectState::Damaged { .. }
+        ));
+        fs::remove_file(store.object_path(&hash)).expect("remove");
+        assert_eq!(
+            reopened.object_state_cached(&hash).expect("state"),
+            ObjectState::Missing
+        );
     }
 
     #[test]
