@@ -98,6 +98,19 @@ fn seed_sweeps_instantiate_the_seeded_part_once_per_seed_and_share_the_rest() {
 }
 
 #[test]
+fn a_target_with_a_seed_builds_that_instance_only() {
+    let p = Project::engine();
+    let plan = p.plan(Some("tiny")).expect("plan");
+    let opts = MakeOptions { targets: vec!["total@2".into(), "reference".into()], seeds: vec![0, 1], jobs: 2, dry_run: false };
+    let report = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect("make");
+    let names: Vec<&str> = report.instances.iter().map(|r| r.instance.as_str()).collect();
+    assert_eq!(names, ["numbers@2", "reference", "total@2"]);
+    let opts = MakeOptions { targets: vec!["total@two".into()], seeds: vec![0], jobs: 1, dry_run: false };
+    let err = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect_err("bad seed");
+    assert!(err.to_string().contains("`two` is not a seed"), "{err}");
+}
+
+#[test]
 fn dry_run_builds_nothing_and_says_what_would_run() {
     let p = Project::engine();
     let plan = p.plan(Some("tiny")).expect("plan");

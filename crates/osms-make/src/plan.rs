@@ -232,32 +232,40 @@ impl Plan {
             .collect()
     }
 
-    /// The instances needed to build `targets` (stage names; all stages if empty) for `seeds`,
-    /// in dependency order, each once.
+    /// The instances needed to build `targets` for `seeds`, in dependency order, each once. A
+    /// target is a stage name (every seed of `seeds`) or `name@seed` (that seed only); no
+    /// targets means every stage.
     pub fn instances(&self, targets: &[String], seeds: &[u64]) -> Result<Vec<InstanceId>> {
-        let roots: Vec<usize> = if targets.is_empty() {
-            (0..self.stages.len()).collect()
-        } else {
-            targets
-                .iter()
-                .map(|t| {
-                    let name = t.split('@').next().unwrap_or(t);
-                    self.stage_index(name).ok_or_else(|| {
-                        Error::usage(format!(
-                            "unknown target `{t}`\nhint: stages are {}",
-                            list(self.stage_names())
-                        ))
-                    })
-                })
-                .collect::<Result<_>>()?
-        };
-        let mut wanted = BTreeSet::new();
         let mut stack: Vec<InstanceId> = Vec::new();
-        for &seed in seeds {
-            for &r in &roots {
-                stack.push(self.instance(r, seed));
+        if targets.is_empty() {
+            for &seed in seeds {
+                stack.extend((0..self.stages.len()).map(|stage| self.instance(stage, seed)));
             }
         }
+        for target in targets {
+            let (name, seed) = match target.split_once('@') {
+                Some((name, seed)) => {
+                    let seed = seed.parse::<u64>().map_err(|_| {
+                        Error::usage(format!(
+                            "target `{target}`: `{seed}` is not a seed\nhint: write `stage@3`"
+                        ))
+                    })?;
+                    (name, Some(seed))
+                }
+                None => (target.as_str(), None),
+            };
+            let stage = self.stage_index(name).ok_or_else(|| {
+                Error::usage(format!(
+                    "unknown target `{target}`\nhint: stages are {}",
+                    list(self.stage_names())
+                ))
+            })?;
+            match seed {
+                Some(seed) => stack.push(self.instance(stage, seed)),
+                None => stack.extend(seeds.iter().map(|&seed| self.instance(stage, seed))),
+            }
+        }
+        let mut wanted = BTreeSet::new();
         while let Some(id) = stack.pop() {
             if wanted.insert(id) {
                 stack.extend(self.input_instances(id).into_iter().map(|(_, up)| up));

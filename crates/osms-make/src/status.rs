@@ -127,15 +127,12 @@ pub struct Lineage {
 
 /// The lineage of `target` (a stage name, optionally `name@seed`) for `seed`.
 pub fn why(plan: &Plan, store: &Store, target: &str, seed: u64) -> Result<Lineage> {
-    let (name, seed) = match target.split_once('@') {
-        Some((n, s)) => (
-            n,
-            s.parse()
-                .map_err(|_| crate::Error::usage(format!("`{target}`: `{s}` is not a seed")))?,
-        ),
-        None => (target, seed),
-    };
-    let statuses = status(plan, store, &[name.to_string()], &[seed])?;
+    let statuses = status(plan, store, &[target.to_string()], &[seed])?;
+    // `status` resolved the target; its instance comes last in dependency order.
+    let root = statuses
+        .last()
+        .map(|s| s.id)
+        .expect("a target has at least one instance");
     let by_id: BTreeMap<InstanceId, &InstanceStatus> = statuses.iter().map(|s| (s.id, s)).collect();
     fn node(
         plan: &Plan,
@@ -153,9 +150,5 @@ pub fn why(plan: &Plan, store: &Store, target: &str, seed: u64) -> Result<Lineag
                 .collect(),
         }
     }
-    let root = plan.instance(
-        plan.stage_index(name).expect("status checked the target"),
-        seed,
-    );
     Ok(node(plan, &by_id, root, None))
 }

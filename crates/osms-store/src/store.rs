@@ -133,6 +133,11 @@ impl Store {
     /// garbage-collect someone's files.
     pub fn open(root: impl Into<PathBuf>) -> Result<Self> {
         let root = root.into();
+        if root.exists() && !root.is_dir() {
+            return Err(Error::Foreign {
+                reason: format!("{} is a file, not an osms store directory", root.display()),
+            });
+        }
         let marker = root.join(MARKER);
         if !marker.is_file() {
             let empty = match fs::read_dir(&root) {
