@@ -92,10 +92,11 @@ impl Plan {
                     format!(" `{}`", e.path.join("."))
                 };
                 let mut path = e.path.clone();
-                if e.message.starts_with("unknown field") {
-                    if let Some(field) = e.message.split('`').nth(1) {
-                        path.push(field.to_string());
-                    }
+                // serde reports an unknown field at its parent; point at the field itself.
+                if e.message.starts_with("unknown field")
+                    && let Some(field) = e.message.split('`').nth(1)
+                {
+                    path.push(field.to_string());
                 }
                 Error::invalid(
                     pipeline.locate_param(&name, &path),

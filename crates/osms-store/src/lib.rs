@@ -14,5 +14,6 @@ pub use codec::{Artifact, FORMAT_VERSION, Header, MAGIC, decode, encode, read_he
 pub use error::{Error, Result};
 pub use hash::Hash;
 pub use store::{
-    GcReport, ObjectState, Record, ShardOf, Store, StoreLock, VerifyProblem, VerifyReport,
+    GcReport, ObjectState, Record, ShardOf, Store, StoreLock, UnreadableRecord, VerifyProblem,
+    VerifyReport,
 };

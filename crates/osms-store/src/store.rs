@@ -111,6 +111,9 @@ pub struct GcReport {
     pub objects_kept: u64,
 }
 
+/// An index file that did not parse, and why.
+pub type UnreadableRecord = (PathBuf, String);
+
 /// Held while a process may write to the store; released on drop.
 #[derive(Debug)]
 pub struct StoreLock {
@@ -351,7 +354,7 @@ impl Store {
     }
 
     /// All records in key order, with the ones that failed to parse reported separately.
-    pub fn records(&self) -> Result<(Vec<Record>, Vec<(PathBuf, String)>)> {
+    pub fn records(&self) -> Result<(Vec<Record>, Vec<UnreadableRecord>)> {
         let mut good = Vec::new();
         let mut bad = Vec::new();
         for path in sorted_files(&self.root.join("index"))? {
