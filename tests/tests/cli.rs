@@ -54,7 +54,11 @@ fn filter_timings(text: &str) -> String {
             while k < chars.len() && chars[k].is_ascii_digit() {
                 k += 1;
             }
-            if k > j + 1 && k < chars.len() && chars[k] == 's' && (k + 1 == chars.len() || !chars[k + 1].is_ascii_alphanumeric()) {
+            if k > j + 1
+                && k < chars.len()
+                && chars[k] == 's'
+                && (k + 1 == chars.len() || !chars[k + 1].is_ascii_alphanumeric())
+            {
                 out.push_str("[T]s");
                 i = k + 1;
                 continue;
@@ -73,7 +77,10 @@ fn transcript(p: &Project, args: &[&str]) -> (String, Output) {
     let text = format!(
         "$ osms {}\nexit: {}\n--- stdout\n{}--- stderr\n{}",
         args.join(" "),
-        out.status.code().map(|c| c.to_string()).unwrap_or_else(|| "signal".into()),
+        out.status
+            .code()
+            .map(|c| c.to_string())
+            .unwrap_or_else(|| "signal".into()),
         clean(&out.stdout),
         clean(&out.stderr)
     );
@@ -81,7 +88,11 @@ fn transcript(p: &Project, args: &[&str]) -> (String, Output) {
 }
 
 fn session(p: &Project, commands: &[&[&str]]) -> String {
-    commands.iter().map(|args| transcript(p, args).0).collect::<Vec<_>>().join("\n")
+    commands
+        .iter()
+        .map(|args| transcript(p, args).0)
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 fn settings() -> insta::Settings {
@@ -97,12 +108,21 @@ fn make_status_why_ls_show() {
     let p = Project::new(CLI_PIPELINE);
     let mut text = session(
         &p,
-        &[&["status"], &["make"], &["make", "-v"], &["status"], &["status", "-q"], &["why", "total"], &["ls"]],
+        &[
+            &["status"],
+            &["make"],
+            &["make", "-v"],
+            &["status"],
+            &["status", "-q"],
+            &["why", "total"],
+            &["ls"],
+        ],
     );
     let (ls, _) = transcript(&p, &["ls", "--json"]);
     let json_start = ls.find('[').expect("ls --json prints an array");
     let json_end = ls.rfind(']').expect("array end");
-    let records: serde_json::Value = serde_json::from_str(&ls[json_start..=json_end]).expect("ls --json");
+    let records: serde_json::Value =
+        serde_json::from_str(&ls[json_start..=json_end]).expect("ls --json");
     let total = records
         .as_array()
         .and_then(|r| r.iter().find(|r| r["stage"] == "total"))
@@ -114,7 +134,16 @@ fn make_status_why_ls_show() {
 
     p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = 1.5 }"));
     text.push('\n');
-    text.push_str(&session(&p, &[&["status"], &["status", "-q"], &["make", "--dry-run"], &["make"], &["status"]]));
+    text.push_str(&session(
+        &p,
+        &[
+            &["status"],
+            &["status", "-q"],
+            &["make", "--dry-run"],
+            &["make"],
+            &["status"],
+        ],
+    ));
     settings().bind(|| insta::assert_snapshot!("make_status_why_ls_show", text));
 }
 
@@ -123,7 +152,12 @@ fn seed_sweep_and_profiles() {
     let p = Project::new(CLI_PIPELINE);
     let text = session(
         &p,
-        &[&["make", "--seeds", "0,1,2", "-v"], &["status", "--seed", "1", "-v"], &["make", "--profile", "tiny"], &["status", "-p", "tiny"]],
+        &[
+            &["make", "--seeds", "0,1,2", "-v"],
+            &["status", "--seed", "1", "-v"],
+            &["make", "--profile", "tiny"],
+            &["status", "-p", "tiny"],
+        ],
     );
     settings().bind(|| insta::assert_snapshot!("seed_sweep_and_profiles", text));
 }
@@ -133,7 +167,16 @@ fn gc_and_verify() {
     let p = Project::new(CLI_PIPELINE);
     transcript(&p, &["make"]);
     p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = 2.5 }"));
-    let text = session(&p, &[&["make"], &["gc", "--dry-run", "--profile", "small"], &["gc", "--profile", "small"], &["verify"], &["status"]]);
+    let text = session(
+        &p,
+        &[
+            &["make"],
+            &["gc", "--dry-run", "--profile", "small"],
+            &["gc", "--profile", "small"],
+            &["verify"],
+            &["status"],
+        ],
+    );
     settings().bind(|| insta::assert_snapshot!("gc_and_verify", text));
 }
 
@@ -142,7 +185,13 @@ fn user_errors_exit_1_with_a_located_message() {
     let p = Project::new(CLI_PIPELINE);
     let mut text = session(
         &p,
-        &[&["make", "--profile", "huge"], &["make", "totl"], &["why", "total@x"], &["show", "zz"], &["show", "abcdef"]],
+        &[
+            &["make", "--profile", "huge"],
+            &["make", "totl"],
+            &["why", "total@x"],
+            &["show", "zz"],
+            &["show", "abcdef"],
+        ],
     );
     p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = \"half\" }"));
     text.push('\n');
@@ -170,7 +219,12 @@ fn user_errors_exit_1_with_a_located_message() {
 fn doctor_reports_mujoco_from_the_library_itself() {
     let p = Project::new(CLI_PIPELINE);
     let out = p.run(Path::new(BIN), &["doctor", "--json"]);
-    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("doctor --json");
     assert_eq!(report["mujoco_version"], "3.17.0");
     assert_eq!(report["setup_complete"], true);
@@ -184,9 +238,17 @@ fn make_json_reports_every_instance() {
     let p = Project::new(CLI_PIPELINE);
     let out = p.run(Path::new(BIN), &["make", "--json", "-q"]);
     assert_eq!(out.status.code(), Some(0));
-    assert!(out.stderr.is_empty(), "-q prints nothing on stderr: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.stderr.is_empty(),
+        "-q prints nothing on stderr: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("make --json");
     let instances = report["instances"].as_array().expect("instances");
     assert_eq!(instances.len(), 4);
-    assert!(instances.iter().all(|i| i["outcome"] == "built" && i["content_hash"].is_string()));
+    assert!(
+        instances
+            .iter()
+            .all(|i| i["outcome"] == "built" && i["content_hash"].is_string())
+    );
 }

@@ -8,8 +8,14 @@ use osms_tests::{Project, registry};
 
 fn with_shards(numbers: u32, drops: u32) -> String {
     ENGINE_PIPELINE
-        .replace("[stages.numbers]\nkind = \"numbers\"\nshards = 3", &format!("[stages.numbers]\nkind = \"numbers\"\nshards = {numbers}"))
-        .replace("[stages.drops]\nkind = \"drop\"\nshards = 2", &format!("[stages.drops]\nkind = \"drop\"\nshards = {drops}"))
+        .replace(
+            "[stages.numbers]\nkind = \"numbers\"\nshards = 3",
+            &format!("[stages.numbers]\nkind = \"numbers\"\nshards = {numbers}"),
+        )
+        .replace(
+            "[stages.drops]\nkind = \"drop\"\nshards = 2",
+            &format!("[stages.drops]\nkind = \"drop\"\nshards = {drops}"),
+        )
 }
 
 #[test]
@@ -20,13 +26,21 @@ fn outputs_do_not_depend_on_rerun_threads_or_shards() {
     assert_eq!(h1.len(), 7, "{h1:?}");
 
     let two_threads = Project::engine();
-    assert_eq!(hashes(&two_threads.make(Some("tiny"), &[0], 2)), h1, "1 vs 2 threads");
+    assert_eq!(
+        hashes(&two_threads.make(Some("tiny"), &[0], 2)),
+        h1,
+        "1 vs 2 threads"
+    );
 
     for (numbers, drops) in [(1, 1), (5, 4), (6, 3)] {
         let text = with_shards(numbers, drops);
         assert_ne!(text, ENGINE_PIPELINE);
         let p = Project::new(&text);
-        assert_eq!(hashes(&p.make(Some("tiny"), &[0], 2)), h1, "{numbers} and {drops} shards");
+        assert_eq!(
+            hashes(&p.make(Some("tiny"), &[0], 2)),
+            h1,
+            "{numbers} and {drops} shards"
+        );
     }
 
     // A rerun into a fresh store rebuilds every byte identically, keys included.
@@ -34,7 +48,12 @@ fn outputs_do_not_depend_on_rerun_threads_or_shards() {
     let r2 = reference.make(Some("tiny"), &[0], 2);
     assert!(outcomes(&r2).values().all(|o| *o == "built"));
     assert_eq!(hashes(&r2), h1);
-    let keys = |r: &osms_make::MakeReport| r.instances.iter().map(|i| (i.instance.clone(), i.key)).collect::<Vec<_>>();
+    let keys = |r: &osms_make::MakeReport| {
+        r.instances
+            .iter()
+            .map(|i| (i.instance.clone(), i.key))
+            .collect::<Vec<_>>()
+    };
     assert_eq!(keys(&r1), keys(&r2));
 }
 
@@ -43,7 +62,11 @@ fn a_second_make_finds_everything_cached() {
     let p = Project::engine();
     let first = p.make(Some("tiny"), &[0], 2);
     let second = p.make(Some("tiny"), &[0], 2);
-    assert!(outcomes(&second).values().all(|o| *o == "cached"), "{:?}", outcomes(&second));
+    assert!(
+        outcomes(&second).values().all(|o| *o == "cached"),
+        "{:?}",
+        outcomes(&second)
+    );
     assert_eq!(hashes(&first), hashes(&second));
 }
 
@@ -53,7 +76,11 @@ fn changing_a_shard_count_rebuilds_nothing() {
     let first = p.make(Some("tiny"), &[0], 2);
     p.write_pipeline(&with_shards(2, 1));
     let second = p.make(Some("tiny"), &[0], 2);
-    assert!(outcomes(&second).values().all(|o| *o == "cached"), "{:?}", outcomes(&second));
+    assert!(
+        outcomes(&second).values().all(|o| *o == "cached"),
+        "{:?}",
+        outcomes(&second)
+    );
     assert_eq!(hashes(&first), hashes(&second));
 }
 
@@ -101,11 +128,25 @@ fn seed_sweeps_instantiate_the_seeded_part_once_per_seed_and_share_the_rest() {
 fn a_target_with_a_seed_builds_that_instance_only() {
     let p = Project::engine();
     let plan = p.plan(Some("tiny")).expect("plan");
-    let opts = MakeOptions { targets: vec!["total@2".into(), "reference".into()], seeds: vec![0, 1], jobs: 2, dry_run: false };
+    let opts = MakeOptions {
+        targets: vec!["total@2".into(), "reference".into()],
+        seeds: vec![0, 1],
+        jobs: 2,
+        dry_run: false,
+    };
     let report = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect("make");
-    let names: Vec<&str> = report.instances.iter().map(|r| r.instance.as_str()).collect();
+    let names: Vec<&str> = report
+        .instances
+        .iter()
+        .map(|r| r.instance.as_str())
+        .collect();
     assert_eq!(names, ["numbers@2", "reference", "total@2"]);
-    let opts = MakeOptions { targets: vec!["total@two".into()], seeds: vec![0], jobs: 1, dry_run: false };
+    let opts = MakeOptions {
+        targets: vec!["total@two".into()],
+        seeds: vec![0],
+        jobs: 1,
+        dry_run: false,
+    };
     let err = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect_err("bad seed");
     assert!(err.to_string().contains("`two` is not a seed"), "{err}");
 }
@@ -114,10 +155,19 @@ fn a_target_with_a_seed_builds_that_instance_only() {
 fn dry_run_builds_nothing_and_says_what_would_run() {
     let p = Project::engine();
     let plan = p.plan(Some("tiny")).expect("plan");
-    let opts = MakeOptions { targets: vec!["total".into()], seeds: vec![0], jobs: 1, dry_run: true };
+    let opts = MakeOptions {
+        targets: vec!["total".into()],
+        seeds: vec![0],
+        jobs: 1,
+        dry_run: true,
+    };
     let report = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect("dry run");
     let o = outcomes(&report);
-    assert_eq!(o.len(), 2, "target `total` needs numbers and total only: {o:?}");
+    assert_eq!(
+        o.len(),
+        2,
+        "target `total` needs numbers and total only: {o:?}"
+    );
     assert!(o.values().all(|v| *v == "would build"));
     assert!(p.open_store().records().expect("records").0.is_empty());
 }
@@ -134,7 +184,10 @@ impl ItemStage for NumbersV2 {
     type Prepared = ();
     type Item = Vec<f64>;
     type Output = osms_tests::kinds::Numbers;
-    fn prepare(&self, ctx: &osms_make::Ctx<'_, NumbersParams>) -> Result<(), osms_make::StageError> {
+    fn prepare(
+        &self,
+        ctx: &osms_make::Ctx<'_, NumbersParams>,
+    ) -> Result<(), osms_make::StageError> {
         NumbersKind.prepare(ctx)
     }
     fn n_items(&self, ctx: &osms_make::Ctx<'_, NumbersParams>, p: &()) -> usize {
@@ -169,26 +222,52 @@ fn status_names_why_each_stage_would_run() {
     };
     let fresh = status(&p);
     assert!(fresh.iter().all(|s| s.state == State::Missing));
-    assert_eq!(fresh.iter().find(|s| s.instance == "numbers@0").map(|s| s.reasons.clone()), Some(vec![Reason::New]));
+    assert_eq!(
+        fresh
+            .iter()
+            .find(|s| s.instance == "numbers@0")
+            .map(|s| s.reasons.clone()),
+        Some(vec![Reason::New])
+    );
 
     p.make(Some("tiny"), &[0], 2);
     assert!(status(&p).iter().all(|s| s.state == State::Cached));
 
     p.write_pipeline(&ENGINE_PIPELINE.replace("params = { n = 6 }", "params = { n = 7 }"));
     let changed = status(&p);
-    let numbers = changed.iter().find(|s| s.instance == "numbers@0").expect("numbers");
+    let numbers = changed
+        .iter()
+        .find(|s| s.instance == "numbers@0")
+        .expect("numbers");
     assert_eq!(numbers.state, State::Stale);
     match &numbers.reasons[..] {
         [Reason::ParamsChanged { changes }] => {
             assert_eq!(changes.len(), 1);
             assert_eq!(changes[0].param, "n");
-            assert_eq!((changes[0].old.clone(), changes[0].new.clone()), (Some(6.into()), Some(7.into())));
+            assert_eq!(
+                (changes[0].old.clone(), changes[0].new.clone()),
+                (Some(6.into()), Some(7.into()))
+            );
         }
         other => panic!("expected a param change, got {other:?}"),
     }
-    let total = changed.iter().find(|s| s.instance == "total@0").expect("total");
-    assert_eq!(total.reasons, vec![Reason::UpstreamNotUpToDate { input: "numbers@0".into() }]);
-    assert_eq!(changed.iter().find(|s| s.instance == "drops@0").map(|s| s.state), Some(State::Cached));
+    let total = changed
+        .iter()
+        .find(|s| s.instance == "total@0")
+        .expect("total");
+    assert_eq!(
+        total.reasons,
+        vec![Reason::UpstreamNotUpToDate {
+            input: "numbers@0".into()
+        }]
+    );
+    assert_eq!(
+        changed
+            .iter()
+            .find(|s| s.instance == "drops@0")
+            .map(|s| s.state),
+        Some(State::Cached)
+    );
 
     p.write_pipeline(ENGINE_PIPELINE);
     // The test registry with `numbers` at version 2.
@@ -203,15 +282,29 @@ fn status_names_why_each_stage_would_run() {
     assert_eq!(bumped.names(), registry().names());
     p.registry = bumped;
     let after_bump = status(&p);
-    let numbers = after_bump.iter().find(|s| s.instance == "numbers@0").expect("numbers");
-    assert_eq!(numbers.reasons, vec![Reason::CodeVersionBumped { old: 1, new: 2 }]);
+    let numbers = after_bump
+        .iter()
+        .find(|s| s.instance == "numbers@0")
+        .expect("numbers");
+    assert_eq!(
+        numbers.reasons,
+        vec![Reason::CodeVersionBumped { old: 1, new: 2 }]
+    );
     // `reference` is also a `numbers` stage.
-    assert_eq!(after_bump.iter().find(|s| s.instance == "reference").map(|s| s.state), Some(State::Stale));
+    assert_eq!(
+        after_bump
+            .iter()
+            .find(|s| s.instance == "reference")
+            .map(|s| s.state),
+        Some(State::Stale)
+    );
 }
 
 #[test]
 fn a_failing_stage_skips_its_dependents_and_the_rest_is_built() {
-    let p = Project::new(&ENGINE_PIPELINE.replace("params = { n = 6 }", "params = { n = 6, fail_at = 4 }"));
+    let p = Project::new(
+        &ENGINE_PIPELINE.replace("params = { n = 6 }", "params = { n = 6, fail_at = 4 }"),
+    );
     let report = p.make(Some("tiny"), &[0], 2);
     let o = outcomes(&report);
     assert_eq!(o["numbers@0"], "failed");
@@ -231,7 +324,9 @@ fn plan_error(text: &str) -> String {
     let p = Project::new(text);
     match p.plan(Some("small")) {
         Ok(_) => panic!("the pipeline was accepted:\n{text}"),
-        Err(e) => e.to_string().replace(&p.pipeline.display().to_string(), "pipeline.toml"),
+        Err(e) => e
+            .to_string()
+            .replace(&p.pipeline.display().to_string(), "pipeline.toml"),
     }
 }
 
@@ -252,10 +347,17 @@ fn unknown_stage_kind_names_the_stage_and_the_known_kinds() {
 
 #[test]
 fn unknown_param_names_the_field_and_lists_the_valid_ones() {
-    let err = plan_error("[stages.gen]\nkind = \"numbers\"\n\n[stages.gen.params]\nn = 3\nscael = 2.0\n");
-    assert!(err.starts_with("pipeline.toml:6:1: stage `gen` (kind `numbers`), param"), "{err}");
+    let err =
+        plan_error("[stages.gen]\nkind = \"numbers\"\n\n[stages.gen.params]\nn = 3\nscael = 2.0\n");
+    assert!(
+        err.starts_with("pipeline.toml:6:1: stage `gen` (kind `numbers`), param"),
+        "{err}"
+    );
     assert!(err.contains("unknown field `scael`"), "{err}");
-    assert!(err.contains("expected one of `n`, `len`, `scale`, `sleep_ms`, `fail_at`"), "{err}");
+    assert!(
+        err.contains("expected one of `n`, `len`, `scale`, `sleep_ms`, `fail_at`"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -299,15 +401,25 @@ fn a_cycle_is_named() {
     let err = plan_error(
         "[stages.a]\nkind = \"signs\"\ninputs = { values = \"b\" }\n[stages.b]\nkind = \"shift\"\nparams = { by = 1.0 }\ninputs = { values = \"a\" }\n",
     );
-    assert!(err.contains("stage `a` depends on itself: a -> b -> a"), "{err}");
+    assert!(
+        err.contains("stage `a` depends on itself: a -> b -> a"),
+        "{err}"
+    );
     assert!(err.starts_with("pipeline.toml:3:1:"), "{err}");
 }
 
 #[test]
 fn sharding_a_plain_kind_or_fixing_the_seed_of_a_deterministic_one_is_refused() {
     let base = "[stages.n]\nkind = \"numbers\"\nparams = { n = 1 }\n";
-    let err = plan_error(&format!("{base}[stages.s]\nkind = \"signs\"\nshards = 2\ninputs = {{ values = \"n\" }}\n"));
-    assert!(err.contains("kind `signs` computes one artifact and cannot be sharded"), "{err}");
-    let err = plan_error(&format!("{base}[stages.s]\nkind = \"signs\"\nseed = 3\ninputs = {{ values = \"n\" }}\n"));
+    let err = plan_error(&format!(
+        "{base}[stages.s]\nkind = \"signs\"\nshards = 2\ninputs = {{ values = \"n\" }}\n"
+    ));
+    assert!(
+        err.contains("kind `signs` computes one artifact and cannot be sharded"),
+        "{err}"
+    );
+    let err = plan_error(&format!(
+        "{base}[stages.s]\nkind = \"signs\"\nseed = 3\ninputs = {{ values = \"n\" }}\n"
+    ));
     assert!(err.contains("draws no random numbers"), "{err}");
 }

@@ -40,7 +40,11 @@ fn dag(plan: &Plan) -> Vec<DagStage> {
             fixed_seed: s.fixed_seed,
             seed_dependent: s.seed_dependent,
             shards: s.shards,
-            inputs: s.inputs.iter().map(|(slot, up)| (slot.clone(), plan.stages[*up].name.clone())).collect(),
+            inputs: s
+                .inputs
+                .iter()
+                .map(|(slot, up)| (slot.clone(), plan.stages[*up].name.clone()))
+                .collect(),
             params: s.params.json.clone(),
             definition: s.definition.to_hex(),
         })
@@ -83,7 +87,11 @@ fn tiny_outputs() -> Vec<Output> {
     let report = p.make(Some("tiny"), &[0], 2);
     let plan = p.plan(Some("tiny")).expect("plan");
     let h = hashes(&report);
-    assert_eq!(h.len(), report.instances.len(), "every tiny stage must build");
+    assert_eq!(
+        h.len(),
+        report.instances.len(),
+        "every tiny stage must build"
+    );
     report
         .instances
         .iter()

@@ -161,7 +161,10 @@ pub fn make(
                 ObjectState::Present => {
                     let cut_off = inputs.iter().any(|(_, up)| built.contains(up));
                     available.insert(id, rec.content_hash);
-                    heads.update(&name, &rec)?;
+                    // A dry run holds no lock, so it writes nothing but the stat cache.
+                    if !opts.dry_run {
+                        heads.update(&name, &rec)?;
+                    }
                     let r = InstanceReport {
                         instance: name,
                         key: Some(key),

@@ -141,38 +141,38 @@ impl Store {
                 reason: format!("{} is a file, not an osms store directory", root.display()),
             });
         }
-        let marker = root.join(MARKER);
+        let store = Store {
+            root,
+            stat_cache: Arc::default(),
+        };
+        let marker = store.root.join(MARKER);
         if !marker.is_file() {
-            let empty = match fs::read_dir(&root) {
+            let empty = match fs::read_dir(&store.root) {
                 Ok(mut entries) => entries.all(|e| {
                     e.map(|e| e.file_name().to_string_lossy().starts_with('.'))
                         .unwrap_or(false)
                 }),
                 Err(e) if e.kind() == ErrorKind::NotFound => true,
-                Err(e) => return Err(Error::io(&root, e)),
+                Err(e) => return Err(Error::io(&store.root, e)),
             };
-            if !empty {
+            // Another process may have created the store since the first look.
+            if !empty && !marker.is_file() {
                 return Err(Error::Foreign {
                     reason: format!(
                         "{} is a non-empty directory without an {MARKER} marker, so it is not \
                          an osms store; hint: choose an empty or new directory with --store",
-                        root.display()
+                        store.root.display()
                     ),
                 });
             }
-            fs::create_dir_all(&root).map_err(|e| Error::io(&root, e))?;
-            let store = Store {
-                root,
-                stat_cache: Arc::default(),
-            };
-            store.write_atomic(&marker, MARKER_TEXT.as_bytes())?;
-            return store.ensure_dirs();
+            if empty {
+                fs::create_dir_all(&store.root).map_err(|e| Error::io(&store.root, e))?;
+                // The marker goes first, through a dot-file, so an interrupted or concurrent
+                // creation never leaves a directory that looks foreign.
+                store.write_beside(&marker, MARKER_TEXT.as_bytes())?;
+            }
         }
-        Store {
-            root,
-            stat_cache: Arc::default(),
-        }
-        .ensure_dirs()
+        store.ensure_dirs()
     }
 
     fn ensure_dirs(self) -> Result<Self> {
@@ -236,27 +236,33 @@ impl Store {
         Ok(())
     }
 
-    /// Writes `bytes` to `dest` through a fsynced temp file and a rename.
+    /// Writes `bytes` to `dest` through a temp file in `tmp/`. Only for lock holders: taking the
+    /// lock empties `tmp/`.
     fn write_atomic(&self, dest: &Path, bytes: &[u8]) -> Result<()> {
-        let dir = dest.parent().expect("store paths have a parent");
-        fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         let tmp_dir = self.root.join("tmp");
         fs::create_dir_all(&tmp_dir).map_err(|e| Error::io(&tmp_dir, e))?;
         let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-        let tmp = tmp_dir.join(format!("{}-{n}", std::process::id()));
-        let result = (|| {
-            let mut file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
-            file.write_all(bytes).map_err(|e| Error::io(&tmp, e))?;
-            file.sync_all().map_err(|e| Error::io(&tmp, e))?;
-            fs::rename(&tmp, dest).map_err(|e| Error::io(dest, e))?;
-            File::open(dir)
-                .and_then(|d| d.sync_all())
-                .map_err(|e| Error::io(dir, e))
-        })();
-        if result.is_err() {
-            let _ = fs::remove_file(&tmp);
-        }
-        result
+        write_via(
+            &tmp_dir.join(format!("{}-{n}", std::process::id())),
+            dest,
+            bytes,
+        )
+    }
+
+    /// Like `write_atomic`, for writers that do not hold the lock: the temp file is a dot-file
+    /// beside `dest`, out of reach of the lock holder's clean-up of `tmp/`.
+    fn write_beside(&self, dest: &Path, bytes: &[u8]) -> Result<()> {
+        let dir = dest.parent().expect("store paths have a parent");
+        let name = dest
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
+        write_via(
+            &dir.join(format!(".{name}.tmp-{}-{n}", std::process::id())),
+            dest,
+            bytes,
+        )
     }
 
     /// Stores `bytes` and returns their content hash. An intact copy already present is kept;
@@ -333,7 +339,10 @@ impl Store {
     pub fn save_stat_cache(&self) -> Result<()> {
         let guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
         match guard.as_ref() {
-            Some(cache) if cache.is_dirty() => self.write_state(STAT_CACHE, &cache.to_bytes()),
+            // `status` saves it without holding the lock.
+            Some(cache) if cache.is_dirty() => {
+                self.write_beside(&self.root.join("state").join(STAT_CACHE), &cache.to_bytes())
+            }
             _ => Ok(()),
         }
     }
@@ -395,6 +404,7 @@ impl Store {
         Ok(names)
     }
 
+    /// Replaces a state file. Callers hold the lock.
     pub fn write_state(&self, name: &str, bytes: &[u8]) -> Result<()> {
         self.write_atomic(&self.root.join("state").join(name), bytes)
     }
@@ -495,6 +505,26 @@ impl Store {
         }
         Ok(report)
     }
+}
+
+/// Writes `bytes` to `tmp`, fsyncs it, renames it to `dest` and fsyncs the directory, so a crash
+/// leaves the old file or the new one, never a partial one.
+fn write_via(tmp: &Path, dest: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = dest.parent().expect("store paths have a parent");
+    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let result = (|| {
+        let mut file = File::create(tmp).map_err(|e| Error::io(tmp, e))?;
+        file.write_all(bytes).map_err(|e| Error::io(tmp, e))?;
+        file.sync_all().map_err(|e| Error::io(tmp, e))?;
+        fs::rename(tmp, dest).map_err(|e| Error::io(dest, e))?;
+        File::open(dir)
+            .and_then(|d| d.sync_all())
+            .map_err(|e| Error::io(dir, e))
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(tmp);
+    }
+    result
 }
 
 fn parse_record(path: &Path, bytes: &[u8]) -> Result<Record> {

@@ -55,7 +55,8 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
         );
         if !report.problems.is_empty() {
             eprintln!(
-                "hint: `osms make` rebuilds damaged or missing artifacts; `osms gc` removes stray ones"
+                "hint: `osms make` rebuilds damaged or missing stage outputs; `osms gc` removes stray \
+                 objects and the shards of finished stages"
             );
         }
     }

@@ -1,0 +1,804 @@
+//! Crash safety and store integrity through the real command line: `kill -9` at arbitrary
+//! points, concurrent makers, damaged, truncated and deleted objects, and files that do not
+//! belong in a store.
+//!
+//! Every test drives `osms-test` (the `osms` CLI with the test kinds registered) as a separate
+//! process. Nothing here asserts on durations: delays only choose where a kill lands, and every
+//! assertion holds wherever it lands.
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Output, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use osms_store::Hash;
+use osms_tests::Project;
+use osms_tests::project::ENGINE_PIPELINE;
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_osms-test");
+
+const WAITING: &str = "waiting for another osms process";
+
+// ---------------------------------------------------------------------------------------------
+// Running the binary
+
+/// `osms-test --pipeline P --store S --no-progress ARGS`, with no osms variables inherited from
+/// the environment the tests run in.
+fn command_with_store(pipeline: &Path, store: &Path, args: &[&str]) -> Command {
+    let mut c = Command::new(BIN);
+    c.arg("--pipeline")
+        .arg(pipeline)
+        .arg("--store")
+        .arg(store)
+        .arg("--no-progress")
+        .args(args)
+        .env_remove("OSMS_NO_PROGRESS")
+        .env_remove("OSMS_LOG")
+        .env_remove("OSMS_PIPELINE")
+        .env_remove("OSMS_STORE")
+        .current_dir(pipeline.parent().expect("pipeline.toml has a parent"));
+    c
+}
+
+fn command(p: &Project, args: &[&str]) -> Command {
+    command_with_store(&p.pipeline, &p.store, args)
+}
+
+/// Runs to completion, as `Project::run` does; built on [`command`] so that the same flags serve
+/// processes that are spawned, killed or pointed at another store.
+fn run(p: &Project, args: &[&str]) -> Output {
+    command(p, args).output().expect("run osms-test")
+}
+
+fn shown(args: &[&str], out: &Output) -> String {
+    format!(
+        "osms-test {}\nexit: {:?}\n--- stdout\n{}--- stderr\n{}",
+        args.join(" "),
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// Runs and asserts the exit code.
+fn run_expect(p: &Project, args: &[&str], code: i32) -> Output {
+    let out = run(p, args);
+    assert_eq!(
+        out.status.code(),
+        Some(code),
+        "expected exit code {code}:\n{}",
+        shown(args, &out)
+    );
+    out
+}
+
+fn run_ok(p: &Project, args: &[&str]) -> Output {
+    run_expect(p, args, 0)
+}
+
+fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn json(out: &Output) -> Value {
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("stdout is not JSON ({e}):\n{}", stdout(out)))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reading `make --json`, `status --json` and `ls --json`
+
+/// One entry of a `make --json` report.
+#[derive(Debug, Clone)]
+struct Inst {
+    outcome: String,
+    reason: Option<String>,
+    content_hash: Option<String>,
+}
+
+fn report(out: &Output) -> BTreeMap<String, Inst> {
+    let v = json(out);
+    let instances = v["instances"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no `instances` in the make report:\n{}", stdout(out)));
+    let mut map = BTreeMap::new();
+    for i in instances {
+        let name = i["instance"].as_str().expect("instance name").to_string();
+        let inst = Inst {
+            outcome: i["outcome"].as_str().expect("outcome").to_string(),
+            reason: i["reason"].as_str().map(str::to_string),
+            content_hash: i["content_hash"].as_str().map(str::to_string),
+        };
+        assert!(
+            map.insert(name.clone(), inst).is_none(),
+            "{name} twice in a report"
+        );
+    }
+    map
+}
+
+/// Instance -> content hash, every instance of the report required to have one.
+fn report_hashes(r: &BTreeMap<String, Inst>) -> BTreeMap<String, String> {
+    r.iter()
+        .map(|(name, i)| {
+            let hash = i
+                .content_hash
+                .clone()
+                .unwrap_or_else(|| panic!("{name} has no content hash: {i:?}"));
+            (name.clone(), hash)
+        })
+        .collect()
+}
+
+fn outcome_counts(r: &BTreeMap<String, Inst>) -> BTreeMap<String, usize> {
+    let mut counts = BTreeMap::new();
+    for i in r.values() {
+        *counts.entry(i.outcome.clone()).or_insert(0) += 1;
+    }
+    counts
+}
+
+/// Stage key -> (stage, content hash) of every record in the store, shards included.
+fn records(p: &Project) -> BTreeMap<String, (String, String)> {
+    let out = run_ok(p, &["ls", "--json"]);
+    json(&out)
+        .as_array()
+        .expect("ls --json prints an array")
+        .iter()
+        .map(|r| {
+            let s = |f: &str| {
+                r[f].as_str()
+                    .unwrap_or_else(|| panic!("record without {f}: {r}"))
+            };
+            (
+                s("key").to_string(),
+                (s("stage").to_string(), s("content_hash").to_string()),
+            )
+        })
+        .collect()
+}
+
+fn object_path(store: &Path, hex: &str) -> PathBuf {
+    store.join("objects").join(&hex[..2]).join(hex)
+}
+
+fn dir_entries(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .expect("read dir")
+        .map(|e| {
+            e.expect("dir entry")
+                .file_name()
+                .to_string_lossy()
+                .into_owned()
+        })
+        .collect();
+    names.sort();
+    names
+}
+
+/// Seeded stages take `sleep_ms` per item, so a make lasts long enough to be killed mid-stage.
+/// `numbers_n` items in `numbers_shards` shards; `reference` (a fixed seed, shared by every run
+/// seed) sleeps too.
+fn sleepy_pipeline(numbers_n: u32, numbers_shards: u32, sleep_ms: u32) -> String {
+    format!(
+        r#"# Crash tests: the engine pipeline's shape with items that sleep.
+[pipeline]
+seed = 0
+
+[stages.numbers]
+kind = "numbers"
+shards = {numbers_shards}
+params = {{ n = {numbers_n}, len = 4, scale = 1.0, sleep_ms = {sleep_ms} }}
+
+[stages.signs]
+kind = "signs"
+inputs = {{ values = "numbers" }}
+
+[stages.sign_total]
+kind = "sum"
+inputs = {{ values = "signs" }}
+
+[stages.total]
+kind = "sum"
+inputs = {{ values = "numbers" }}
+
+[stages.reference]
+kind = "numbers"
+seed = 7
+shards = 4
+params = {{ n = 12, len = 2, sleep_ms = {sleep_ms} }}
+
+[stages.drops]
+kind = "drop"
+shards = 2
+params = {{ n = 4, steps = 300 }}
+
+[stages.report]
+kind = "combine"
+inputs = {{ total = "total", drops = "drops", reference = "reference" }}
+"#
+    )
+}
+
+fn kill_and_wait(child: &mut Child) -> ExitStatus {
+    // SIGKILL on Unix; Ok if the child has exited already.
+    child.kill().expect("kill osms-test");
+    child.wait().expect("wait for osms-test")
+}
+
+// ---------------------------------------------------------------------------------------------
+// 1. kill -9
+
+#[test]
+fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashes() {
+    const KILLS: u64 = 24;
+    // Two attempts per run seed: the second resumes what the first left (and may be killed in
+    // turn), and every run seed brings new work, so later kills still land mid-build.
+    let seed_of = |i: u64| i / 2;
+    let seeds: Vec<String> = (0..KILLS.div_ceil(2)).map(|s| s.to_string()).collect();
+    let seeds_arg = seeds.join(",");
+    let pipeline = sleepy_pipeline(64, 8, 20);
+
+    let reference = Project::new(&pipeline);
+    let ref_args = ["make", "--jobs", "2", "--json", "--seeds", &seeds_arg];
+    let ref_out = run_ok(&reference, &ref_args);
+    let ref_report = report(&ref_out);
+    assert!(
+        ref_report.values().all(|i| i.outcome == "built"),
+        "{ref_report:?}"
+    );
+    let ref_hashes = report_hashes(&ref_report);
+    // Six seeded stages per run seed and `reference` once.
+    assert_eq!(
+        ref_hashes.len(),
+        6 * seeds.len() + 1,
+        "{:?}",
+        ref_hashes.keys()
+    );
+
+    let p = Project::new(&pipeline);
+    // The store exists before the first kill: killing its creation is tested on its own in
+    // `a_store_being_created_is_never_taken_for_a_foreign_directory`.
+    run_ok(&p, &["verify"]);
+
+    let mut killed = 0;
+    for i in 0..KILLS {
+        let mut rng = osms_make::rng::stream(0, "crash test", "kill delay", i);
+        let delay = osms_make::rng::uniform(&mut rng, 0.0, 1.2);
+        let seed = seed_of(i).to_string();
+        let mut child = command(&p, &["make", "--jobs", "2", "--seed", &seed])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("spawn osms-test make");
+        std::thread::sleep(Duration::from_secs_f64(delay));
+        let status = kill_and_wait(&mut child);
+        // Killed, or finished (successfully) before the kill: nothing else.
+        let what = match status.code() {
+            None => {
+                killed += 1;
+                "killed"
+            }
+            Some(0) => "finished",
+            Some(c) => panic!("make --seed {seed} exited with {c} before it was killed"),
+        };
+        let verify = run(&p, &["verify"]);
+        assert_eq!(
+            verify.status.code(),
+            Some(0),
+            "verify after kill {i} (seed {seed}, {:.0} ms, {what}):\n{}",
+            delay * 1000.0,
+            shown(&["verify"], &verify)
+        );
+        eprintln!(
+            "kill {i:2}: seed {seed:>2}, after {:4.0} ms: {what:8} -> verify ok, {}",
+            delay * 1000.0,
+            stderr(&verify).trim()
+        );
+    }
+    eprintln!("{killed} of {KILLS} makes were killed before they finished");
+
+    let args = ["make", "--jobs", "2", "--json", "--seeds", &seeds_arg];
+    let out = run_ok(&p, &args);
+    let resumed = report(&out);
+    eprintln!("resuming make: {:?}", outcome_counts(&resumed));
+    assert!(
+        resumed
+            .values()
+            .all(|i| i.outcome == "built" || i.outcome == "cached" || i.outcome == "cut_off"),
+        "{}",
+        shown(&args, &out)
+    );
+    assert_eq!(
+        report_hashes(&resumed),
+        ref_hashes,
+        "resumed vs uninterrupted"
+    );
+    // Every record, shards included, names the same content under the same key.
+    assert_eq!(
+        records(&p),
+        records(&reference),
+        "index after kills vs uninterrupted"
+    );
+    run_ok(&p, &["verify"]);
+    let status = json(&run_ok(&p, &["status", "--json", "--seeds", &seeds_arg]));
+    for s in status.as_array().expect("status array") {
+        assert_eq!(s["state"], "cached", "{s}");
+    }
+}
+
+/// A make killed while it creates its store, or two processes creating one store at once, must
+/// leave a directory that is an osms store (or nothing), never one every later command refuses
+/// as foreign.
+#[test]
+fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
+    let p = Project::new(&sleepy_pipeline(4, 2, 0));
+
+    // Kill points 0, 0.5, 1, ... 20 ms after the start cover the creation of the store in any
+    // start-up time of the binary; the first make that gets further builds on it.
+    for step in 0..=40u64 {
+        let store = p.dir.path().join(format!("killed-{step}"));
+        let mut child = command_with_store(&p.pipeline, &store, &["make", "--jobs", "1"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("spawn osms-test make");
+        std::thread::sleep(Duration::from_micros(500 * step));
+        kill_and_wait(&mut child);
+        let left = if store.exists() {
+            dir_entries(&store)
+        } else {
+            vec![]
+        };
+        let verify = command_with_store(&p.pipeline, &store, &["verify"])
+            .output()
+            .expect("run verify");
+        assert_eq!(
+            verify.status.code(),
+            Some(0),
+            "verify of a store whose creation was killed after {} us (it holds {left:?}):\n{}",
+            500 * step,
+            shown(&["verify"], &verify)
+        );
+    }
+
+    // Two processes opening a store that does not exist yet.
+    for round in 0..10 {
+        let store = p.dir.path().join(format!("concurrent-{round}"));
+        let spawn = || {
+            command_with_store(&p.pipeline, &store, &["status"])
+                .stdin(Stdio::null())
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .expect("spawn osms-test status")
+        };
+        let (a, b) = (spawn(), spawn());
+        for child in [a, b] {
+            let out = child.wait_with_output().expect("wait");
+            assert_eq!(
+                out.status.code(),
+                Some(0),
+                "round {round}: two processes creating {} at once:\n{}",
+                store.display(),
+                shown(&["status"], &out)
+            );
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 2. Concurrent makers
+
+/// Spawns `make --jobs 1 --json` with stdout and stderr piped; a thread forwards stderr lines
+/// to `events` as `(who, Some(line))` and ends with `(who, None)`, returning them all.
+fn spawn_maker(
+    p: &Project,
+    who: usize,
+    events: mpsc::Sender<(usize, Option<String>)>,
+) -> (Child, std::thread::JoinHandle<Vec<String>>) {
+    let mut child = command(p, &["make", "--jobs", "1", "--json"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn osms-test make");
+    let err = child.stderr.take().expect("piped stderr");
+    let reader = std::thread::spawn(move || {
+        let mut lines = Vec::new();
+        for line in BufReader::new(err).lines() {
+            let line = line.expect("read stderr");
+            let _ = events.send((who, Some(line.clone())));
+            lines.push(line);
+        }
+        let _ = events.send((who, None));
+        lines
+    });
+    (child, reader)
+}
+
+/// Both makers' reports and stderr, after both exited 0.
+fn finish_makers(
+    makers: Vec<(Child, std::thread::JoinHandle<Vec<String>>)>,
+) -> Vec<(BTreeMap<String, Inst>, String)> {
+    makers
+        .into_iter()
+        .enumerate()
+        .map(|(who, (child, reader))| {
+            let out = child.wait_with_output().expect("wait for make");
+            let err = reader.join().expect("stderr reader").join("\n");
+            assert_eq!(
+                out.status.code(),
+                Some(0),
+                "maker {who}:\nstdout:\n{}\nstderr:\n{err}",
+                stdout(&out)
+            );
+            (report(&out), err)
+        })
+        .collect()
+}
+
+/// One maker built every instance, the other found every instance cached, and the hashes agree
+/// with each other and with `expected`.
+fn check_makers_agree(
+    results: &[(BTreeMap<String, Inst>, String)],
+    expected: &BTreeMap<String, String>,
+) -> usize {
+    assert_eq!(results.len(), 2);
+    let all = |r: &BTreeMap<String, Inst>, o: &str| r.values().all(|i| i.outcome == o);
+    let builder = match (all(&results[0].0, "built"), all(&results[1].0, "built")) {
+        (true, false) => 0,
+        (false, true) => 1,
+        _ => panic!(
+            "exactly one maker must build everything:\n{:?}\n{:?}\nstderr 0:\n{}\nstderr 1:\n{}",
+            results[0].0, results[1].0, results[0].1, results[1].1
+        ),
+    };
+    let other = &results[1 - builder];
+    assert!(
+        all(&other.0, "cached"),
+        "the maker that did not build must find everything cached: {:?}\nstderr:\n{}",
+        other.0,
+        other.1
+    );
+    assert_eq!(&report_hashes(&results[0].0), expected, "maker 0");
+    assert_eq!(&report_hashes(&results[1].0), expected, "maker 1");
+    builder
+}
+
+fn check_store_complete(p: &Project) {
+    let status = json(&run_ok(p, &["status", "--json"]));
+    let status = status.as_array().expect("status array");
+    assert_eq!(status.len(), 7);
+    for s in status {
+        assert_eq!(s["state"], "cached", "{s}");
+    }
+    run_ok(p, &["verify"]);
+}
+
+#[test]
+fn two_concurrent_makers_serialise_and_agree() {
+    // About 0.5 s with one thread: 24 items of 20 ms.
+    let pipeline = sleepy_pipeline(24, 4, 20);
+    let reference = Project::new(&pipeline);
+    let expected = report_hashes(&report(&run_ok(
+        &reference,
+        &["make", "--jobs", "1", "--json"],
+    )));
+    assert_eq!(expected.len(), 7);
+
+    // (a) Started together: whichever takes the lock first builds, the other waits for it (or,
+    // started late, finds everything cached without waiting).
+    let p = Project::new(&pipeline);
+    // Created first: two processes creating one store is the subject of
+    // `a_store_being_created_is_never_taken_for_a_foreign_directory`.
+    run_ok(&p, &["verify"]);
+    let (tx, rx) = mpsc::channel();
+    let makers = vec![spawn_maker(&p, 0, tx.clone()), spawn_maker(&p, 1, tx)];
+    drop(rx);
+    let results = finish_makers(makers);
+    let builder = check_makers_agree(&results, &expected);
+    eprintln!(
+        "racing makers: maker {builder} built; the other {}",
+        if results[1 - builder].1.contains(WAITING) {
+            "waited for the lock, then found everything cached"
+        } else {
+            "found everything cached without waiting"
+        }
+    );
+    assert!(
+        !results[builder].1.contains(WAITING),
+        "the builder never waits: the store was unlocked until one of them took it:\n{}",
+        results[builder].1
+    );
+    check_store_complete(&p);
+
+    // (b) Contention made certain: the test holds the lock until both makers say they wait, so
+    // both are blocked on it when it is released.
+    let p = Project::new(&pipeline);
+    let store = p.open_store();
+    let lock = store.lock(|| {}).expect("take the store lock");
+    let (tx, rx) = mpsc::channel();
+    let makers = vec![spawn_maker(&p, 0, tx.clone()), spawn_maker(&p, 1, tx)];
+    let mut waiting = [false; 2];
+    let mut seen = [Vec::new(), Vec::new()];
+    while waiting != [true, true] {
+        let (who, line) = rx.recv().expect("both stderr readers report");
+        match line {
+            Some(line) => {
+                waiting[who] |= line.contains(WAITING);
+                seen[who].push(line);
+            }
+            None => panic!(
+                "maker {who} ended without waiting for the lock the test holds:\n{}",
+                seen[who].join("\n")
+            ),
+        }
+    }
+    drop(lock);
+    let results = finish_makers(makers);
+    for (who, (_, err)) in results.iter().enumerate() {
+        assert!(err.contains(WAITING), "maker {who}:\n{err}");
+    }
+    let builder = check_makers_agree(&results, &expected);
+    eprintln!(
+        "blocked makers: maker {builder} built, the other waited and found everything cached"
+    );
+    check_store_complete(&p);
+}
+
+/// `status` takes no lock, but may save what it learnt about objects; a command taking the lock
+/// meanwhile (and clearing `tmp/`, where writes are in flight) must not make it fail.
+#[test]
+fn status_alongside_locking_commands_always_succeeds() {
+    const ROUNDS: u64 = 20;
+    let p = Project::new(&sleepy_pipeline(4, 2, 0));
+    let seeds: Vec<String> = (0..ROUNDS).map(|s| s.to_string()).collect();
+    run_ok(&p, &["make", "--jobs", "2", "--seeds", &seeds.join(",")]);
+    // Old objects are the ones a status may remember as verified (and so save something).
+    std::thread::sleep(Duration::from_secs(3));
+    for round in 0..ROUNDS {
+        let seed = round.to_string();
+        let args = ["status", "--seed", &seed];
+        let status = command(&p, &args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("spawn osms-test status");
+        for _ in 0..3 {
+            run_ok(&p, &["verify"]);
+        }
+        let out = status.wait_with_output().expect("wait for status");
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "round {round}: status while verify takes the lock:\n{}",
+            shown(&args, &out)
+        );
+        assert!(
+            stdout(&out).contains("up to date"),
+            "{}",
+            shown(&args, &out)
+        );
+    }
+    run_ok(&p, &["verify"]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// 3. Damaged, truncated and deleted objects
+
+#[test]
+fn damaged_and_truncated_objects_are_detected_reported_and_rebuilt() {
+    let p = Project::new(ENGINE_PIPELINE);
+    let make = ["make", "--profile", "tiny", "--jobs", "2", "--json"];
+    let first = report(&run_ok(&p, &make));
+    let hashes = report_hashes(&first);
+    assert_eq!(hashes.len(), 7, "{hashes:?}");
+    let target = "numbers@0";
+    let hex = hashes[target].clone();
+    let short = &hex[..12];
+    let path = object_path(&p.store, &hex);
+    let original = std::fs::read(&path).expect("read the object of numbers@0");
+    assert_eq!(Hash::of(&original).to_hex(), hex);
+    assert!(original.len() > 16, "{} bytes", original.len());
+    // Let the objects age, then read them all again, so that anything remembering verified
+    // objects by their file metadata (and distrusting files changed moments before) trusts
+    // them when they are damaged: damage must be found all the same.
+    std::thread::sleep(Duration::from_secs(3));
+    let cached = report(&run_ok(&p, &make));
+    assert!(cached.values().all(|i| i.outcome == "cached"), "{cached:?}");
+    run_ok(&p, &["status", "--profile", "tiny"]);
+    run_ok(&p, &["verify"]);
+
+    type Harm = fn(&Path, &[u8]);
+    let harms: [(&str, Harm, &str); 3] = [
+        (
+            "one bit flipped",
+            |path, bytes| {
+                let mut b = bytes.to_vec();
+                let mid = b.len() / 2;
+                b[mid] ^= 0x08;
+                std::fs::write(path, b).expect("write");
+            },
+            "damaged",
+        ),
+        (
+            "truncated to half",
+            |path, bytes| std::fs::write(path, &bytes[..bytes.len() / 2]).expect("write"),
+            "damaged",
+        ),
+        (
+            "deleted",
+            |path, _| std::fs::remove_file(path).expect("remove"),
+            "missing",
+        ),
+    ];
+
+    for (what, harm, word) in harms {
+        harm(&path, &original);
+
+        let verify = run_expect(&p, &["verify"], 1);
+        let text = stdout(&verify);
+        assert!(
+            text.contains(short) && text.contains(word),
+            "{what}: verify must name {short} as {word}:\n{}",
+            shown(&["verify"], &verify)
+        );
+        let vj = json(&run_expect(&p, &["verify", "--json"], 1));
+        let problems = vj["problems"].as_array().expect("problems");
+        assert_eq!(problems.len(), 1, "{what}: {vj}");
+        let tag = if word == "damaged" {
+            "damaged_object"
+        } else {
+            "missing_object"
+        };
+        assert_eq!(problems[0]["problem"], tag, "{what}: {vj}");
+        assert_eq!(problems[0]["hash"], hex.as_str(), "{what}: {vj}");
+
+        let args = ["status", "--profile", "tiny"];
+        let status = run_ok(&p, &args);
+        let line = stdout(&status)
+            .lines()
+            .find(|l| l.contains(target))
+            .map(str::to_string)
+            .unwrap_or_else(|| {
+                panic!(
+                    "{what}: status does not list {target}:\n{}",
+                    shown(&args, &status)
+                )
+            });
+        assert!(
+            line.starts_with("missing")
+                && line.contains(short)
+                && line.contains(&format!("is {word}")),
+            "{what}: {line}"
+        );
+        let sj = json(&run_ok(&p, &["status", "--profile", "tiny", "--json"]));
+        let st = sj
+            .as_array()
+            .expect("status array")
+            .iter()
+            .find(|s| s["instance"] == target)
+            .expect("numbers@0 in status")
+            .clone();
+        assert_eq!(st["state"], "missing", "{what}: {st}");
+        assert_eq!(
+            st["reasons"][0]["reason"],
+            format!("object_{word}"),
+            "{what}: {st}"
+        );
+
+        let out = run_ok(&p, &make);
+        let again = report(&out);
+        let inst = &again[target];
+        assert_eq!(inst.outcome, "built", "{what}: {inst:?}");
+        let reason = inst.reason.clone().unwrap_or_default();
+        assert!(reason.contains(word), "{what}: reason `{reason}`");
+        for (name, i) in &again {
+            if name != target {
+                assert!(
+                    i.outcome == "cached" || i.outcome == "cut_off",
+                    "{what}: only {target} is rebuilt, but {name} is {i:?}"
+                );
+            }
+        }
+        assert_eq!(report_hashes(&again), hashes, "{what}: rebuilt hashes");
+        let repaired = std::fs::read(&path).expect("read the rebuilt object");
+        assert_eq!(Hash::of(&repaired).to_hex(), hex, "{what}");
+        assert_eq!(repaired, original, "{what}");
+        run_ok(&p, &["verify"]);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 4. Files that are not osms's
+
+#[test]
+fn foreign_file_in_store_is_refused() {
+    let p = Project::new(ENGINE_PIPELINE);
+
+    // (a) A directory of someone else's is not taken for a store, whatever the command.
+    let theirs = p.dir.path().join("my-documents");
+    std::fs::create_dir(&theirs).expect("mkdir");
+    let notes = theirs.join("notes.txt");
+    let content = "shopping: milk, bread\n";
+    std::fs::write(&notes, content).expect("write notes");
+    for args in [
+        &["make", "--profile", "tiny"][..],
+        &["verify"],
+        &["gc"],
+        &["status"],
+    ] {
+        let out = command_with_store(&p.pipeline, &theirs, args)
+            .output()
+            .expect("run osms-test");
+        assert_eq!(out.status.code(), Some(1), "{}", shown(args, &out));
+        assert!(
+            stderr(&out).contains("not an osms store"),
+            "{}",
+            shown(args, &out)
+        );
+        assert_eq!(dir_entries(&theirs), ["notes.txt"], "{args:?}");
+        assert_eq!(
+            std::fs::read_to_string(&notes).expect("read notes"),
+            content
+        );
+    }
+
+    // (b) Inside a real store: a file named by its own hash that is no artifact, and a file whose
+    // name is no hash at all.
+    run_ok(&p, &["make", "--profile", "tiny"]);
+    run_ok(&p, &["verify"]);
+    let junk = b"these bytes were never an osms artifact\n";
+    let hex = Hash::of(junk).to_hex();
+    let foreign = object_path(&p.store, &hex);
+    std::fs::create_dir_all(foreign.parent().expect("parent")).expect("mkdir");
+    std::fs::write(&foreign, junk).expect("write foreign object");
+    let stray = p.store.join("objects").join("ab").join("README");
+    std::fs::create_dir_all(stray.parent().expect("parent")).expect("mkdir");
+    std::fs::write(&stray, "not an object\n").expect("write README");
+
+    let out = run_expect(&p, &["verify"], 1);
+    let text = stdout(&out);
+    let line_with = |word: &str| {
+        text.lines()
+            .find(|l| l.starts_with(word))
+            .map(str::to_string)
+    };
+    let foreign_line =
+        line_with("foreign").unwrap_or_else(|| panic!("{}", shown(&["verify"], &out)));
+    assert!(foreign_line.contains(&hex), "{foreign_line}");
+    let stray_line = line_with("stray").unwrap_or_else(|| panic!("{}", shown(&["verify"], &out)));
+    assert!(stray_line.contains("README"), "{stray_line}");
+    assert!(
+        stderr(&out).contains("2 problem(s)"),
+        "{}",
+        shown(&["verify"], &out)
+    );
+
+    let vj = json(&run_expect(&p, &["verify", "--json"], 1));
+    let mut tags: Vec<&str> = vj["problems"]
+        .as_array()
+        .expect("problems")
+        .iter()
+        .map(|pr| pr["problem"].as_str().expect("problem tag"))
+        .collect();
+    tags.sort_unstable();
+    assert_eq!(tags, ["foreign_object", "stray_file"], "{vj}");
+
+    // Neither file is read as an artifact nor touched by make.
+    let again = report(&run_ok(&p, &["make", "--profile", "tiny", "--json"]));
+    assert!(again.values().all(|i| i.outcome == "cached"), "{again:?}");
+    assert_eq!(std::fs::read(&foreign).expect("read foreign"), junk);
+    assert!(stray.is_file());
+}
