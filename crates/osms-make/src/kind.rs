@@ -216,11 +216,20 @@ fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
     })
 }
 
-fn typed_params<P: 'static>(params: &ParsedParams) -> &P {
-    params
-        .typed
-        .downcast_ref::<P>()
-        .expect("params were parsed by the same kind")
+impl RunEnv<'_> {
+    fn ctx<P: 'static>(&self) -> Ctx<'_, P> {
+        Ctx {
+            params: self
+                .params
+                .typed
+                .downcast_ref::<P>()
+                .expect("params were parsed by the same kind"),
+            stage: self.stage,
+            seed: self.seed,
+            inputs: self.inputs,
+            progress: self.progress,
+        }
+    }
 }
 
 struct Plain<S>(S);
@@ -251,13 +260,7 @@ impl<S: Stage> DynKind for Plain<S> {
         parse_typed::<S::Params>(value)
     }
     fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
-        let ctx = Ctx {
-            params: typed_params::<S::Params>(env.params),
-            stage: env.stage,
-            seed: env.seed,
-            inputs: env.inputs,
-            progress: env.progress,
-        };
+        let ctx = env.ctx::<S::Params>();
         Ok(encode(&self.0.run(&ctx)?)?)
     }
     fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
@@ -281,13 +284,7 @@ impl<S: ItemStage> DynKind for Itemised<S> {
         parse_typed::<S::Params>(value)
     }
     fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
-        let ctx = Ctx {
-            params: typed_params::<S::Params>(env.params),
-            stage: env.stage,
-            seed: env.seed,
-            inputs: env.inputs,
-            progress: env.progress,
-        };
+        let ctx = env.ctx::<S::Params>();
         let prepared = self.0.prepare(&ctx)?;
         let n = self.0.n_items(&ctx, &prepared);
         env.progress.set_total(n as u64);
