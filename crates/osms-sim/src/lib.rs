@@ -1,17 +1,61 @@
 //! The MuJoCo catching world: xArm7 + ORCA-like hand + ten objects as MJCF, task conditions,
 //! domain randomisation, control loop, contacts, metrics and success, scripted catcher.
 
+mod error;
 pub mod mjcf;
 pub mod robot;
 pub mod spec;
+pub mod world;
 
+pub use error::{Result, SimError};
 pub use spec::{ObjectFamily, ObjectSize, ObjectVariant, WorldSpec};
+pub use world::{GeomClass, Ids, World};
 
 #[cfg(test)]
 mod tests {
     use mujoco_rs::prelude::*;
 
     use super::*;
+
+    #[test]
+    fn home_posture_is_collision_free_and_holds_still() {
+        let world = World::new(WorldSpec::default()).expect("world");
+        let v = ObjectVariant::all()[3];
+        let model = world.model(v);
+        let mut data = model.make_data();
+        world.set_home(&mut data);
+        // Park the object far away so only robot contacts could appear.
+        data.qpos_mut()[world.ids.object_qpos..world.ids.object_qpos + 3]
+            .copy_from_slice(&[3.0, 3.0, 1.0]);
+        let home: Vec<f64> = world
+            .spec
+            .arm_home_rad
+            .iter()
+            .chain(world.spec.hand_home_rad.iter())
+            .copied()
+            .collect();
+        data.ctrl_mut().copy_from_slice(&home);
+        data.forward();
+        assert_eq!(data.ffi().ncon, 0, "contacts at home");
+        // Gravity-loaded servos hold the posture: after 1 s every joint is within 0.05 rad.
+        for _ in 0..500 {
+            data.step();
+        }
+        for (i, &adr) in world.ids.arm_qpos.iter().enumerate() {
+            let err = (data.qpos()[adr] - world.spec.arm_home_rad[i]).abs();
+            assert!(err < 0.05, "arm joint {i} sagged by {err} rad");
+        }
+        let p = world.home_palm_pos;
+        assert!(
+            (p[0] - 0.58).abs() < 0.03 && p[1].abs() < 0.03 && (p[2] - 0.93).abs() < 0.03,
+            "palm at {p:?}"
+        );
+        assert!(
+            world.home_palm_normal[0] > 0.95,
+            "palm normal {:?}",
+            world.home_palm_normal
+        );
+    }
 
     #[test]
     fn every_variant_compiles() {

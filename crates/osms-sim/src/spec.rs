@@ -172,3 +172,26 @@ impl WorldSpec {
         self.timestep_secs * f64::from(self.substeps)
     }
 }
+
+impl WorldSpec {
+    /// Checks what serde cannot: positive times and masses, ordered ranges.
+    pub fn validate(&self) -> Result<(), crate::SimError> {
+        let bad = |what: &str| Err(crate::SimError::Spec(what.to_string()));
+        if !(self.timestep_secs > 0.0 && self.timestep_secs <= 0.01) {
+            return bad("timestep_secs must be in (0, 0.01]");
+        }
+        if self.substeps == 0 {
+            return bad("substeps must be at least 1");
+        }
+        let [lo, hi] = self.object_mass_kg;
+        if !(lo > 0.0 && lo <= hi) {
+            return bad("object_mass_kg must be [low, high] with 0 < low <= high");
+        }
+        if !(self.friction > 0.0 && self.contact_timeconst_secs > 0.0 && self.impratio >= 1.0) {
+            return bad(
+                "friction and contact_timeconst_secs must be positive and impratio at least 1",
+            );
+        }
+        Ok(())
+    }
+}
