@@ -5,6 +5,9 @@
 //! palm frame has z along the fingers (continuing the flange's z axis), x across the palm (index
 //! at -x, pinky at +x) and y along the palm normal: the palm faces +y and fingers flex toward it.
 //!
+//! Every robot body has `gravcomp="1"`: like the xArm's own controller, the servos act on top of
+//! gravity compensation, so the home posture is an equilibrium and a held palm does not sag.
+//!
 //! Contact bitmasks make the classes of `contacts.rs` separable and keep pointless pairs out of
 //! the collision pipeline: the world collides with the object only; arm links with the object
 //! and with the palm and fingers (self-collision); the hand's mount (adapter and servo tower)
@@ -122,7 +125,7 @@ fn arm_and_hand(x: &mut Xml, spec: &WorldSpec) {
             .map(|q| format!(" quat=\"{} {} {} {}\"", q[0], q[1], q[2], q[3]))
             .unwrap_or_default();
         x.open(&format!(
-            "<body name=\"{}\" pos=\"{}\"{quat}>",
+            "<body name=\"{}\" pos=\"{}\"{quat} gravcomp=\"1\">",
             link.name,
             v3(link.pos)
         ));
@@ -176,11 +179,11 @@ fn hand(x: &mut Xml) {
     x.line(&format!(
         "<geom name=\"hand_adapter\" type=\"cylinder\" fromto=\"0 0 0 0 0 0.02\" size=\"0.04\" mass=\"0.05\" {MOUNT_CONTACT} rgba=\"0.2 0.2 0.2 1\"/>"
     ));
-    x.open("<body name=\"hand_tower\" pos=\"0 0 0.02\">");
+    x.open("<body name=\"hand_tower\" pos=\"0 0 0.02\" gravcomp=\"1\">");
     x.line(&format!(
         "<geom name=\"hand_tower_geom\" type=\"box\" pos=\"0 0 0.045\" size=\"0.035 0.03 0.045\" mass=\"0.9\" {MOUNT_CONTACT} rgba=\"0.2 0.2 0.2 1\"/>"
     ));
-    x.open("<body name=\"hand_palm\" pos=\"0 0 0.1\">");
+    x.open("<body name=\"hand_palm\" pos=\"0 0 0.1\" gravcomp=\"1\">");
     x.line(&joint("hand_wrist", "1 0 0").replace("damping=\"0.1\"", "damping=\"0.5\""));
     x.line(&format!(
         "<geom name=\"hand_palm_geom\" type=\"box\" pos=\"0.004 0 0.042\" size=\"0.044 0.011 0.042\" mass=\"0.05\" {HAND_CONTACT} friction=\"1 0.005 0.001\" rgba=\"0.95 0.6 0.4 1\"/>"
@@ -191,7 +194,7 @@ fn hand(x: &mut Xml) {
     for f in &FINGERS {
         let n = f.name;
         x.open(&format!(
-            "<body name=\"hand_{n}_base\" pos=\"{}\">",
+            "<body name=\"hand_{n}_base\" pos=\"{}\" gravcomp=\"1\">",
             v3(f.abd_pos)
         ));
         x.line(&joint(&format!("hand_{n}_abd"), "0 1 0"));
@@ -200,7 +203,7 @@ fn hand(x: &mut Xml) {
             f.abd_to_mcp
         ));
         x.open(&format!(
-            "<body name=\"hand_{n}_proximal\" pos=\"0 0 {}\">",
+            "<body name=\"hand_{n}_proximal\" pos=\"0 0 {}\" gravcomp=\"1\">",
             f.abd_to_mcp
         ));
         x.line(&joint(&format!("hand_{n}_mcp"), flex));
@@ -209,7 +212,7 @@ fn hand(x: &mut Xml) {
             f.proximal
         ));
         x.open(&format!(
-            "<body name=\"hand_{n}_distal\" pos=\"0 0 {}\">",
+            "<body name=\"hand_{n}_distal\" pos=\"0 0 {}\" gravcomp=\"1\">",
             f.proximal
         ));
         x.line(&joint(&format!("hand_{n}_pip"), flex));
@@ -223,7 +226,7 @@ fn hand(x: &mut Xml) {
     // The thumb leaves the palm toward -x and +z (rotated -50° about y) and flexes toward +y.
     let [cmc_to_abd, abd_to_mcp, mcp_to_dip, dip_to_tip] = THUMB_SEGMENTS;
     x.open(&format!(
-        "<body name=\"hand_thumb_base\" pos=\"{}\" euler=\"0 -0.8727 0\">",
+        "<body name=\"hand_thumb_base\" pos=\"{}\" euler=\"0 -0.8727 0\" gravcomp=\"1\">",
         v3(THUMB_CMC_POS)
     ));
     x.line(&joint("hand_thumb_cmc", "0 0 1"));
@@ -231,21 +234,21 @@ fn hand(x: &mut Xml) {
         "<geom name=\"hand_thumb_base_geom\" type=\"sphere\" size=\"0.01\" mass=\"0.005\" {HAND_CONTACT} rgba=\"0.95 0.6 0.4 1\"/>"
     ));
     x.open(&format!(
-        "<body name=\"hand_thumb_abd_link\" pos=\"0 0 {cmc_to_abd}\">"
+        "<body name=\"hand_thumb_abd_link\" pos=\"0 0 {cmc_to_abd}\" gravcomp=\"1\">"
     ));
     x.line(&joint("hand_thumb_abd", "0 1 0"));
     x.line(&format!(
         "<geom name=\"hand_thumb_abd_geom\" type=\"capsule\" fromto=\"0 0 0 0 0 {abd_to_mcp}\" size=\"0.009\" mass=\"0.012\" {HAND_CONTACT} rgba=\"0.95 0.6 0.4 1\"/>"
     ));
     x.open(&format!(
-        "<body name=\"hand_thumb_proximal\" pos=\"0 0 {abd_to_mcp}\">"
+        "<body name=\"hand_thumb_proximal\" pos=\"0 0 {abd_to_mcp}\" gravcomp=\"1\">"
     ));
     x.line(&joint("hand_thumb_mcp", flex));
     x.line(&format!(
         "<geom name=\"hand_thumb_proximal_geom\" type=\"capsule\" fromto=\"0 0 0 0 0 {mcp_to_dip}\" size=\"0.009\" mass=\"0.012\" {HAND_CONTACT} rgba=\"0.95 0.6 0.4 1\"/>"
     ));
     x.open(&format!(
-        "<body name=\"hand_thumb_distal\" pos=\"0 0 {mcp_to_dip}\">"
+        "<body name=\"hand_thumb_distal\" pos=\"0 0 {mcp_to_dip}\" gravcomp=\"1\">"
     ));
     x.line(&joint("hand_thumb_dip", flex));
     x.line(&format!(
@@ -265,7 +268,8 @@ fn object(x: &mut Xml, spec: &WorldSpec, variant: ObjectVariant) {
         "cylinder" | "capsule" => format!("{} {}", size[0], size[1]),
         _ => v3(size),
     };
-    let mass = 0.5 * (spec.object_mass_kg[0] + spec.object_mass_kg[1]);
+    // A nominal mass; every rollout sets ω's mass (and scales the inertia with it).
+    let mass = 0.05;
     x.open(&format!(
         "<body name=\"{}\" pos=\"1 0 1\">",
         crate::mjcf::OBJECT_BODY

@@ -15,12 +15,12 @@ pub struct ArmLink {
     pub damping: f64,
 }
 
-const TWO_PI: f64 = 6.28319;
-
 /// Joints 1, 3, 5 and 7 turn ±2π on the real arm; a catching arm gets ±π, which keeps the
 /// joint-limit failure meaningful and loses no reachable pose.
-const HALF_TURN: f64 = TWO_PI / 2.0;
+const HALF_TURN: f64 = std::f64::consts::PI;
 
+// The published limits are decimal figures (e.g. j6's 3.14159), not approximations of π.
+#[allow(clippy::approx_constant)]
 pub const ARM: [ArmLink; 7] = [
     ArmLink {
         name: "arm_link1",

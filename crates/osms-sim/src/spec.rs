@@ -137,8 +137,6 @@ pub struct WorldSpec {
     /// Hand posture at rest (rad, in actuator order: wrist; thumb cmc, abd, mcp, dip; index,
     /// middle, ring, pinky abd, mcp, pip): a slightly curled open hand.
     pub hand_home_rad: [f64; 17],
-    /// Object mass range (kg).
-    pub object_mass_kg: [f64; 2],
     /// Sliding friction of the object and the hand.
     pub friction: f64,
     /// Contact time constant of object contacts (s): softer contacts absorb impacts.
@@ -160,7 +158,6 @@ impl Default for WorldSpec {
                 0.0, 0.2, 0.2, // ring
                 0.0, 0.2, 0.2, // pinky
             ],
-            object_mass_kg: [0.04, 0.06],
             friction: 0.8,
             contact_timeconst_secs: 0.01,
         }
@@ -182,10 +179,6 @@ impl WorldSpec {
         }
         if self.substeps == 0 {
             return bad("substeps must be at least 1");
-        }
-        let [lo, hi] = self.object_mass_kg;
-        if !(lo > 0.0 && lo <= hi) {
-            return bad("object_mass_kg must be [low, high] with 0 < low <= high");
         }
         if !(self.friction > 0.0 && self.contact_timeconst_secs > 0.0 && self.impratio >= 1.0) {
             return bad(

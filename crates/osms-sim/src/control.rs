@@ -1,0 +1,185 @@
+//! Actions and their mapping to joint position targets, and domain randomisation.
+//!
+//! An action has 24 channels in [-1, 1]: 7 arm channels, then 17 hand channels in actuator order
+//! (wrist; thumb cmc, abd, mcp, dip; index, middle, ring, pinky abd, mcp, pip).
+//!
+//! - **Arm channels are bounded delta targets**: the servo target of arm joint i moves by
+//!   `a_i · arm_max_delta_rad` per control step from its previous target, clamped to the joint's
+//!   range. A zero arm action holds the current targets (no drift under gravity).
+//! - **Hand channels are absolute targets** over the joint's range: `lo + (a + 1) / 2 · (hi - lo)`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::robot::{ARM, hand_ranges_rad};
+
+pub const N_ARM: usize = 7;
+pub const N_HAND: usize = 17;
+pub const N_ACTION: usize = N_ARM + N_HAND;
+
+pub type Action = [f64; N_ACTION];
+
+/// How actions become servo targets. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControlSpec {
+    /// Largest change of an arm joint target per control step (rad); 0.06 rad at 50 Hz is
+    /// 3 rad/s, about the xArm7's joint speed limit.
+    pub arm_max_delta_rad: f64,
+}
+
+impl Default for ControlSpec {
+    fn default() -> Self {
+        ControlSpec {
+            arm_max_delta_rad: 0.06,
+        }
+    }
+}
+
+/// Joint ranges in action order.
+pub fn joint_ranges() -> [[f64; 2]; N_ACTION] {
+    let mut r = [[0.0; 2]; N_ACTION];
+    for (i, link) in ARM.iter().enumerate() {
+        r[i] = link.range_rad;
+    }
+    r[N_ARM..].copy_from_slice(&hand_ranges_rad());
+    r
+}
+
+/// New servo targets from the previous ones and an (already validated) action.
+pub fn targets(spec: &ControlSpec, previous: &[f64; N_ACTION], action: &Action) -> [f64; N_ACTION] {
+    let ranges = joint_ranges();
+    let mut out = [0.0; N_ACTION];
+    for i in 0..N_ACTION {
+        let [lo, hi] = ranges[i];
+        out[i] = if i < N_ARM {
+            (previous[i] + action[i] * spec.arm_max_delta_rad).clamp(lo, hi)
+        } else {
+            lo + 0.5 * (action[i] + 1.0) * (hi - lo)
+        };
+    }
+    out
+}
+
+/// The action that holds the arm's targets and asks the hand for the posture `hand_rad`.
+pub fn hold_action(hand_rad: &[f64; N_HAND]) -> Action {
+    let ranges = joint_ranges();
+    let mut a = [0.0; N_ACTION];
+    for i in 0..N_HAND {
+        let [lo, hi] = ranges[N_ARM + i];
+        a[N_ARM + i] = (2.0 * (hand_rad[i] - lo) / (hi - lo) - 1.0).clamp(-1.0, 1.0);
+    }
+    a
+}
+
+/// Domain randomisation (paper, section V-A). Each effect is switched on by a non-zero size.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DrSpec {
+    /// Standard deviation of the noise on the observed object position (m).
+    pub object_position_noise_m: f64,
+    /// Largest observation delay (control steps), drawn per rollout in 0..=max.
+    pub max_observation_delay_steps: u32,
+    /// Largest actuation delay (control steps), drawn per rollout in 0..=max.
+    pub max_actuation_delay_steps: u32,
+    /// Standard deviation of the noise added to every executed action channel.
+    pub actuation_noise: f64,
+    /// Servo gains are scaled per rollout by a factor uniform in [1 - g, 1 + g].
+    pub gain_variation: f64,
+    /// Probability that a control step lasts one physics step more or less than nominal.
+    pub timing_jitter_prob: f64,
+    /// Object friction and contact time constant are scaled per rollout by factors uniform in
+    /// [1 - v, 1 + v].
+    pub friction_variation: f64,
+    pub contact_timeconst_variation: f64,
+}
+
+impl Default for DrSpec {
+    /// Off: the world as specified. Pipelines switch effects on per stage.
+    fn default() -> Self {
+        DrSpec {
+            object_position_noise_m: 0.0,
+            max_observation_delay_steps: 0,
+            max_actuation_delay_steps: 0,
+            actuation_noise: 0.0,
+            gain_variation: 0.0,
+            timing_jitter_prob: 0.0,
+            friction_variation: 0.0,
+            contact_timeconst_variation: 0.0,
+        }
+    }
+}
+
+impl DrSpec {
+    /// The settings the paper trains and evaluates students under.
+    pub fn paper() -> Self {
+        DrSpec {
+            object_position_noise_m: 0.005,
+            max_observation_delay_steps: 1,
+            max_actuation_delay_steps: 1,
+            actuation_noise: 0.02,
+            gain_variation: 0.1,
+            timing_jitter_prob: 0.05,
+            friction_variation: 0.2,
+            contact_timeconst_variation: 0.3,
+        }
+    }
+}
+
+/// The per-rollout draws of domain randomisation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DrDraw {
+    pub observation_delay_steps: u32,
+    pub actuation_delay_steps: u32,
+    pub gain_scale: f64,
+    pub friction_scale: f64,
+    pub contact_timeconst_scale: f64,
+}
+
+impl DrDraw {
+    pub fn none() -> Self {
+        DrDraw {
+            observation_delay_steps: 0,
+            actuation_delay_steps: 0,
+            gain_scale: 1.0,
+            friction_scale: 1.0,
+            contact_timeconst_scale: 1.0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hand_mapping_spans_the_range_and_hold_action_inverts_it() {
+        let spec = ControlSpec::default();
+        let ranges = joint_ranges();
+        let prev = [0.0; N_ACTION];
+        let lo = targets(&spec, &prev, &[-1.0; N_ACTION]);
+        let hi = targets(&spec, &prev, &[1.0; N_ACTION]);
+        for i in N_ARM..N_ACTION {
+            assert!((lo[i] - ranges[i][0]).abs() < 1e-12 && (hi[i] - ranges[i][1]).abs() < 1e-12);
+        }
+        let hand: [f64; N_HAND] = std::array::from_fn(|i| 0.1 + 0.01 * i as f64);
+        let t = targets(&spec, &prev, &hold_action(&hand));
+        for i in 0..N_HAND {
+            assert!((t[N_ARM + i] - hand[i]).abs() < 1e-12);
+        }
+        assert!(
+            t[..N_ARM].iter().all(|x| *x == 0.0),
+            "a hold action keeps the arm targets"
+        );
+    }
+
+    #[test]
+    fn arm_deltas_are_bounded_and_clamped_to_the_range() {
+        let spec = ControlSpec::default();
+        let ranges = joint_ranges();
+        let mut prev = [0.0; N_ACTION];
+        prev[3] = ranges[3][1] - 0.01;
+        let t = targets(&spec, &prev, &[1.0; N_ACTION]);
+        assert!((t[0] - spec.arm_max_delta_rad).abs() < 1e-12);
+        assert_eq!(t[3], ranges[3][1]);
+    }
+}

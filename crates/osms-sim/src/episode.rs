@@ -1,0 +1,545 @@
+//! One rollout: a per-rollout model copy (ω's mass, contact randomisation), the 50 Hz control
+//! loop with domain randomisation, observations, the record, and exact snapshot/restore.
+//!
+//! Per control step: observe → the policy acts (privileged policies may read the simulator) →
+//! hooks may replace the arm channels with an open-loop snippet and perturb the executed action →
+//! actuation noise and delay → servo targets → 10 physics steps (±1 with timing jitter), each
+//! evaluated by the [`Evaluator`].
+
+use std::collections::VecDeque;
+
+use mujoco_rs::mujoco_c::mjtState;
+use mujoco_rs::prelude::*;
+use osms_make::rng::{self, StreamRng};
+use serde::{Deserialize, Serialize};
+
+use crate::conditions::TaskCondition;
+use crate::control::{
+    Action, ControlSpec, DrDraw, DrSpec, N_ACTION, N_ARM, N_HAND, hold_action, joint_ranges,
+    targets,
+};
+use crate::metrics::{Evaluator, Failure, Metrics, Outcome, StepState, SuccessSpec, scan};
+use crate::world::{World, palm_normal};
+
+/// Everything about how rollouts run, besides the world and ω.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RolloutSpec {
+    pub control: ControlSpec,
+    pub dr: DrSpec,
+    pub success: SuccessSpec,
+    /// Keep the privileged observation of every step in the record.
+    pub record_privileged: bool,
+}
+
+/// Length of a deployable observation frame: arm q, q̇ (7 + 7), hand q, q̇ (17 + 17), observed
+/// object position (3), previous executed action (24).
+pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + N_ACTION;
+/// Length of a privileged frame: arm and hand q, q̇ (48), object position, quaternion, linear
+/// and angular velocity (13), palm position, normal and velocity (9), admissible normal force
+/// and contact count (2), ω's mass and variant one-hot (11), time (1).
+pub const PRIVILEGED_LEN: usize = 48 + 13 + 9 + 2 + 11 + 1;
+
+/// What a policy sees at a control step. Privileged policies may also read `data`.
+pub struct PolicyView<'a> {
+    pub step: usize,
+    pub time_secs: f64,
+    pub deployable: &'a [f64],
+    pub privileged: &'a [f64],
+    pub world: &'a World,
+    pub condition: &'a TaskCondition,
+    pub data: &'a MjData<Box<MjModel>>,
+}
+
+pub trait Policy {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action;
+}
+
+/// Points where the method changes a rollout from outside the policy.
+pub trait Hooks {
+    /// May replace the arm channels of the intended action (an OSW snippet ζ).
+    fn override_arm(&mut self, _step: usize, _action: &mut Action) {}
+    /// May perturb the action that is executed (modelled student action errors).
+    fn perturb(&mut self, _step: usize, _action: &mut Action) {}
+    /// Sees the simulator after every physics step (contacts and kinematics then describe the
+    /// state before that step's integration).
+    fn after_physics_step(&mut self, _data: &MjData<Box<MjModel>>) {}
+}
+
+/// No hooks.
+pub struct NoHooks;
+impl Hooks for NoHooks {}
+
+/// A finished rollout, compact: per-step arrays are `f32`, flattened with the stated widths.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RolloutRecord {
+    pub condition: TaskCondition,
+    pub dr: DrDraw,
+    pub steps: usize,
+    /// Intended actions (the policy's, after any arm override), 24 per step.
+    pub intended: Vec<f32>,
+    /// Executed actions (after perturbation, actuation noise and delay), 24 per step.
+    pub executed: Vec<f32>,
+    /// Deployable observation frames, [`DEPLOYABLE_LEN`] per step.
+    pub deployable: Vec<f32>,
+    /// Privileged frames, [`PRIVILEGED_LEN`] per step, if recorded.
+    pub privileged: Vec<f32>,
+    /// Palm and object position and velocity, 3 each per step.
+    pub palm_pos: Vec<f32>,
+    pub palm_vel: Vec<f32>,
+    pub object_pos: Vec<f32>,
+    pub object_vel: Vec<f32>,
+    /// Largest summed admissible normal force within the step (N).
+    pub normal_force: Vec<f32>,
+    pub phase: Vec<u8>,
+    pub metrics: Metrics,
+    pub outcome: Outcome,
+}
+
+/// Controller and randomisation state: with the MuJoCo state, all a resumed rollout needs.
+#[derive(Debug, Clone, PartialEq)]
+struct Controller {
+    targets: [f64; N_ACTION],
+    executed: Action,
+    pending_actions: VecDeque<Action>,
+    pending_object_pos: VecDeque<[f64; 3]>,
+}
+
+/// An exact copy of an episode's state at the start of a control step.
+#[derive(Clone)]
+pub struct Snapshot {
+    mj_state: Box<[f64]>,
+    controller: Controller,
+    rng: StreamRng,
+    evaluator: Evaluator,
+    record_steps: usize,
+    step: usize,
+}
+
+pub struct Episode<'w> {
+    world: &'w World,
+    spec: &'w RolloutSpec,
+    condition: TaskCondition,
+    dr: DrDraw,
+    data: MjData<Box<MjModel>>,
+    controller: Controller,
+    rng: StreamRng,
+    evaluator: Evaluator,
+    record: RolloutRecord,
+    step: usize,
+}
+
+const STATE: u32 = mjtState::mjSTATE_INTEGRATION as u32;
+
+fn push3(v: &mut Vec<f32>, x: [f64; 3]) {
+    v.extend(x.iter().map(|c| *c as f32));
+}
+
+impl<'w> Episode<'w> {
+    /// Sets up a rollout of `condition`; `rng` is the rollout's own stream (DR draws and noise).
+    pub fn new(
+        world: &'w World,
+        spec: &'w RolloutSpec,
+        condition: TaskCondition,
+        mut rng: StreamRng,
+    ) -> Self {
+        let dr_spec = &spec.dr;
+        let scale = |rng: &mut StreamRng, v: f64| {
+            if v > 0.0 {
+                rng::uniform(rng, 1.0 - v, 1.0 + v)
+            } else {
+                1.0
+            }
+        };
+        let delay = |rng: &mut StreamRng, max: u32| {
+            if max > 0 {
+                rng::below(rng, u64::from(max) + 1) as u32
+            } else {
+                0
+            }
+        };
+        let dr = DrDraw {
+            observation_delay_steps: delay(&mut rng, dr_spec.max_observation_delay_steps),
+            actuation_delay_steps: delay(&mut rng, dr_spec.max_actuation_delay_steps),
+            gain_scale: scale(&mut rng, dr_spec.gain_variation),
+            friction_scale: scale(&mut rng, dr_spec.friction_variation),
+            contact_timeconst_scale: scale(&mut rng, dr_spec.contact_timeconst_variation),
+        };
+
+        let ids = &world.ids;
+        let mut model = world.model(condition.variant).clone();
+        let body = ids.object_body;
+        let ratio = condition.mass_kg / model.body_mass()[body];
+        model.body_mass_mut()[body] = condition.mass_kg;
+        for c in &mut model.body_inertia_mut()[body] {
+            *c *= ratio;
+        }
+        model.geom_friction_mut()[ids.object_geom][0] *= dr.friction_scale;
+        model.geom_solref_mut()[ids.object_geom][0] *= dr.contact_timeconst_scale;
+
+        let mut data = MjData::new(Box::new(model));
+        let ranges = joint_ranges();
+        let mut posture = [0.0; N_ACTION];
+        for i in 0..N_ARM {
+            posture[i] = (world.spec.arm_home_rad[i] + condition.arm_perturbation_rad[i])
+                .clamp(ranges[i][0], ranges[i][1]);
+        }
+        for i in 0..N_HAND {
+            posture[N_ARM + i] = (world.spec.hand_home_rad[i] + condition.hand_perturbation_rad[i])
+                .clamp(ranges[N_ARM + i][0], ranges[N_ARM + i][1]);
+        }
+        {
+            let qpos = data.qpos_mut();
+            for i in 0..N_ARM {
+                qpos[ids.arm_qpos[i]] = posture[i];
+            }
+            for i in 0..N_HAND {
+                qpos[ids.hand_qpos[i]] = posture[N_ARM + i];
+            }
+            let o = ids.object_qpos;
+            qpos[o..o + 3].copy_from_slice(&condition.launch_pos_m);
+            qpos[o + 3..o + 7].copy_from_slice(&[1.0, 0.0, 0.0, 0.0]);
+        }
+        {
+            let qvel = data.qvel_mut();
+            qvel.fill(0.0);
+            let d = ids.object_dof;
+            qvel[d..d + 3].copy_from_slice(&condition.launch_vel_mps);
+        }
+        data.ctrl_mut().copy_from_slice(&posture);
+        data.forward();
+
+        let hand_home: [f64; N_HAND] = std::array::from_fn(|i| posture[N_ARM + i]);
+        let hold = hold_action(&hand_home);
+        let controller = Controller {
+            targets: posture,
+            executed: hold,
+            pending_actions: VecDeque::from(vec![hold; dr.actuation_delay_steps as usize]),
+            pending_object_pos: VecDeque::new(),
+        };
+        let record = RolloutRecord {
+            condition: condition.clone(),
+            dr: dr.clone(),
+            steps: 0,
+            intended: Vec::new(),
+            executed: Vec::new(),
+            deployable: Vec::new(),
+            privileged: Vec::new(),
+            palm_pos: Vec::new(),
+            palm_vel: Vec::new(),
+            object_pos: Vec::new(),
+            object_vel: Vec::new(),
+            normal_force: Vec::new(),
+            phase: Vec::new(),
+            metrics: Evaluator::new(spec.success.clone()).finish().1,
+            outcome: Outcome {
+                failures: Vec::new(),
+            },
+        };
+        Episode {
+            world,
+            spec,
+            condition,
+            dr,
+            data,
+            controller,
+            rng,
+            evaluator: Evaluator::new(spec.success.clone()),
+            record,
+            step: 0,
+        }
+    }
+
+    pub fn is_done(&self) -> bool {
+        self.evaluator.is_done()
+    }
+
+    pub fn step_index(&self) -> usize {
+        self.step
+    }
+
+    pub fn data(&self) -> &MjData<Box<MjModel>> {
+        &self.data
+    }
+
+    fn palm_velocity(&self, qvel: &[f64]) -> [f64; 3] {
+        let (jacp, _) = self.data.jac_site(true, false, self.world.ids.palm_site);
+        let nv = qvel.len();
+        std::array::from_fn(|r| (0..nv).map(|c| jacp[r * nv + c] * qvel[c]).sum())
+    }
+
+    /// The observation at the start of a control step. Kinematics are recomputed first
+    /// (`mj_step` leaves them one physics step behind the state), which leaves the integration
+    /// state untouched, so a restored episode observes exactly what an uninterrupted one does.
+    fn observe(&mut self) -> Frame {
+        self.data.forward();
+        let ids = &self.world.ids;
+        let qpos = self.data.qpos();
+        let qvel = self.data.qvel();
+        let mut robot = Vec::with_capacity(48);
+        robot.extend(ids.arm_qpos.iter().map(|&a| qpos[a]));
+        robot.extend(ids.arm_dof.iter().map(|&a| qvel[a]));
+        robot.extend(ids.hand_qpos.iter().map(|&a| qpos[a]));
+        robot.extend(ids.hand_dof.iter().map(|&a| qvel[a]));
+        let (o, d) = (ids.object_qpos, ids.object_dof);
+        let object_pos = [qpos[o], qpos[o + 1], qpos[o + 2]];
+        let object_vel = [qvel[d], qvel[d + 1], qvel[d + 2]];
+        let site = ids.palm_site;
+        let palm_pos = self.data.site_xpos()[site];
+        let normal = palm_normal(&self.data.site_xmat()[site]);
+        let palm_vel = self.palm_velocity(qvel);
+        let contacts = scan(&self.data, &ids.geom_class);
+
+        let mut privileged = robot.clone();
+        privileged.extend(&qpos[o..o + 7]);
+        privileged.extend(&qvel[d..d + 6]);
+        privileged.extend(palm_pos);
+        privileged.extend(normal);
+        privileged.extend(palm_vel);
+        privileged.push(contacts.admissible_force_n);
+        privileged.push(contacts.admissible_contacts as f64);
+        privileged.push(self.condition.mass_kg);
+        privileged
+            .extend((0..10).map(|v| f64::from(u8::from(v == self.condition.variant.index()))));
+        privileged.push(self.data.time());
+
+        // Deployable: the object's position only, delayed and noisy.
+        self.controller.pending_object_pos.push_back(object_pos);
+        while self.controller.pending_object_pos.len()
+            > self.dr.observation_delay_steps as usize + 1
+        {
+            self.controller.pending_object_pos.pop_front();
+        }
+        let mut seen = self.controller.pending_object_pos[0];
+        let noise = self.spec.dr.object_position_noise_m;
+        if noise > 0.0 {
+            for c in &mut seen {
+                *c += noise * rng::normal(&mut self.rng);
+            }
+        }
+        let mut deployable = robot;
+        deployable.extend(seen);
+        deployable.extend(self.controller.executed);
+        Frame {
+            deployable,
+            privileged,
+            palm_pos,
+            palm_vel,
+            object_pos,
+            object_vel,
+        }
+    }
+
+    /// Runs one control step. Returns false once the episode is over.
+    pub fn step(&mut self, policy: &mut dyn Policy, hooks: &mut dyn Hooks) -> bool {
+        if self.is_done() {
+            return false;
+        }
+        let frame = self.observe();
+        let view = PolicyView {
+            step: self.step,
+            time_secs: self.data.time(),
+            deployable: &frame.deployable,
+            privileged: &frame.privileged,
+            world: self.world,
+            condition: &self.condition,
+            data: &self.data,
+        };
+        let mut intended = policy.act(&view);
+        hooks.override_arm(self.step, &mut intended);
+        let mut executed = intended;
+        hooks.perturb(self.step, &mut executed);
+        if executed
+            .iter()
+            .any(|a| !a.is_finite() || a.abs() > 1.0 + 1e-9)
+        {
+            self.evaluator.abort(Failure::InvalidAction);
+            self.push_record(&frame, &intended, &executed, 0.0);
+            return false;
+        }
+        let noise = self.spec.dr.actuation_noise;
+        if noise > 0.0 {
+            for a in &mut executed {
+                *a = (*a + noise * rng::normal(&mut self.rng)).clamp(-1.0, 1.0);
+            }
+        }
+        self.controller.pending_actions.push_back(executed);
+        let applied = self
+            .controller
+            .pending_actions
+            .pop_front()
+            .unwrap_or(executed);
+        self.controller.targets = targets(&self.spec.control, &self.controller.targets, &applied);
+        self.controller.executed = applied;
+
+        let mut substeps = self.world.spec.substeps;
+        let jitter = self.spec.dr.timing_jitter_prob;
+        if jitter > 0.0 && rng::uniform01(&mut self.rng) < jitter {
+            substeps = if rng::uniform01(&mut self.rng) < 0.5 {
+                substeps - 1
+            } else {
+                substeps + 1
+            }
+            .max(1);
+        }
+        let mut step_force: f64 = 0.0;
+        for _ in 0..substeps {
+            step_force = step_force.max(self.physics_step());
+            hooks.after_physics_step(&self.data);
+            if self.is_done() {
+                break;
+            }
+        }
+        self.push_record(&frame, &intended, &applied, step_force);
+        self.step += 1;
+        !self.is_done()
+    }
+
+    fn push_record(&mut self, frame: &Frame, intended: &Action, executed: &Action, force: f64) {
+        let r = &mut self.record;
+        r.steps += 1;
+        r.intended.extend(intended.iter().map(|a| *a as f32));
+        r.executed.extend(executed.iter().map(|a| *a as f32));
+        r.deployable
+            .extend(frame.deployable.iter().map(|a| *a as f32));
+        if self.spec.record_privileged {
+            r.privileged
+                .extend(frame.privileged.iter().map(|a| *a as f32));
+        }
+        push3(&mut r.palm_pos, frame.palm_pos);
+        push3(&mut r.palm_vel, frame.palm_vel);
+        push3(&mut r.object_pos, frame.object_pos);
+        push3(&mut r.object_vel, frame.object_vel);
+        r.normal_force.push(force as f32);
+        r.phase.push(self.evaluator.phase() as u8);
+    }
+
+    /// One physics step, evaluated; returns the summed admissible normal force.
+    fn physics_step(&mut self) -> f64 {
+        let ids = &self.world.ids;
+        // Gain variation: a servo with gain g·kp toward target c acts like one with gain kp
+        // toward q + g (c - q), recomputed every physics step.
+        let g = self.dr.gain_scale;
+        let joints: Vec<usize> = ids
+            .arm_qpos
+            .iter()
+            .chain(ids.hand_qpos.iter())
+            .copied()
+            .collect();
+        for (i, &adr) in joints.iter().enumerate() {
+            let q = self.data.qpos()[adr];
+            self.data.ctrl_mut()[i] = q + g * (self.controller.targets[i] - q);
+        }
+        let qvel_before = self.data.qvel().to_vec();
+        let time = self.data.time();
+        self.data.step();
+
+        let unstable = self.data.warning().iter().any(|w| w.number > 0)
+            || self
+                .data
+                .qpos()
+                .iter()
+                .chain(self.data.qvel().iter())
+                .any(|v| !v.is_finite());
+        if unstable {
+            self.evaluator.abort(Failure::Instability);
+            return 0.0;
+        }
+        // After mj_step, contacts and kinematics describe the state before integration.
+        let contacts = scan(&self.data, &ids.geom_class);
+        let site = ids.palm_site;
+        let d = ids.object_dof;
+        let state = StepState {
+            time_secs: time,
+            control_step: self.step,
+            object_pos: self.data.xpos()[ids.object_body],
+            object_vel: [qvel_before[d], qvel_before[d + 1], qvel_before[d + 2]],
+            palm_pos: self.data.site_xpos()[site],
+            palm_vel: self.palm_velocity(&qvel_before),
+            palm_normal: palm_normal(&self.data.site_xmat()[site]),
+        };
+        let ranges = joint_ranges();
+        let margin = self.spec.success.joint_limit_margin_rad;
+        let q = self.data.qpos();
+        // Arm joints and the wrist; fingers curling onto their limits around a small object
+        // are part of a grasp.
+        let joint_ok = (0..=N_ARM)
+            .map(|i| {
+                if i < N_ARM {
+                    (ids.arm_qpos[i], ranges[i])
+                } else {
+                    (ids.hand_qpos[0], ranges[N_ARM])
+                }
+            })
+            .all(|(adr, [lo, hi])| q[adr] > lo + margin && q[adr] < hi - margin);
+        self.evaluator.physics_step(&state, &contacts, joint_ok);
+        contacts.admissible_force_n
+    }
+
+    /// An exact copy of the state at the start of the next control step.
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot {
+            mj_state: self.data.state(STATE),
+            controller: self.controller.clone(),
+            rng: self.rng.clone(),
+            evaluator: self.evaluator.clone(),
+            record_steps: self.record.steps,
+            step: self.step,
+        }
+    }
+
+    /// Returns to `snapshot`, taken from this episode (same world, spec and ω).
+    pub fn restore(&mut self, snapshot: &Snapshot) {
+        self.data
+            .set_state(&snapshot.mj_state, STATE)
+            .expect("a snapshot of this model restores");
+        self.controller = snapshot.controller.clone();
+        self.rng = snapshot.rng.clone();
+        self.evaluator = snapshot.evaluator.clone();
+        self.step = snapshot.step;
+        let n = snapshot.record_steps;
+        let r = &mut self.record;
+        r.steps = n;
+        r.intended.truncate(n * N_ACTION);
+        r.executed.truncate(n * N_ACTION);
+        r.deployable.truncate(n * DEPLOYABLE_LEN);
+        r.privileged.truncate(if self.spec.record_privileged {
+            n * PRIVILEGED_LEN
+        } else {
+            0
+        });
+        for v in [
+            &mut r.palm_pos,
+            &mut r.palm_vel,
+            &mut r.object_pos,
+            &mut r.object_vel,
+        ] {
+            v.truncate(n * 3);
+        }
+        r.normal_force.truncate(n);
+        r.phase.truncate(n);
+    }
+
+    /// Runs to the end and returns the record.
+    pub fn run(mut self, policy: &mut dyn Policy, hooks: &mut dyn Hooks) -> RolloutRecord {
+        while self.step(policy, hooks) {}
+        self.finish()
+    }
+
+    pub fn finish(mut self) -> RolloutRecord {
+        let (outcome, metrics) = self.evaluator.finish();
+        self.record.outcome = outcome;
+        self.record.metrics = metrics;
+        self.record
+    }
+}
+
+/// One control step's observation and the state recorded with it.
+struct Frame {
+    deployable: Vec<f64>,
+    privileged: Vec<f64>,
+    palm_pos: [f64; 3],
+    palm_vel: [f64; 3],
+    object_pos: [f64; 3],
+    object_vel: [f64; 3],
+}

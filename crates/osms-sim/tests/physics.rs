@@ -1,0 +1,376 @@
+//! The world against independent truths: closed-form flight and impact, a separate summation of
+//! contact forces, the failure taxonomy on constructed throws, exact snapshot/restore, and
+//! thread-count independence.
+
+use mujoco_rs::prelude::*;
+use osms_make::rng;
+use osms_sim::conditions::{GRAVITY_MPS2, launch_velocity, sample};
+use osms_sim::control::{N_ARM, N_HAND, hold_action};
+use osms_sim::episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutSpec};
+use osms_sim::{
+    Action, ConditionSpec, Failure, ObjectFamily, ObjectSize, ObjectVariant, TaskCondition, World,
+    WorldSpec,
+};
+
+fn world() -> World {
+    World::new(WorldSpec::default()).expect("world")
+}
+
+/// Holds the arm still and the hand at a fixed posture.
+struct Hold(Action);
+impl Policy for Hold {
+    fn act(&mut self, _: &PolicyView<'_>) -> Action {
+        self.0
+    }
+}
+
+fn open_hand() -> Hold {
+    Hold(hold_action(&[0.0; N_HAND]))
+}
+
+fn throw(variant: ObjectVariant, from: [f64; 3], vel: [f64; 3]) -> TaskCondition {
+    TaskCondition {
+        variant,
+        mass_kg: 0.05,
+        launch_pos_m: from,
+        launch_vel_mps: vel,
+        lateral_offset_m: 0.0,
+        crossing_time_secs: 0.0,
+        arm_perturbation_rad: [0.0; N_ARM],
+        hand_perturbation_rad: [0.0; N_HAND],
+    }
+}
+
+fn sphere_small() -> ObjectVariant {
+    ObjectVariant {
+        family: ObjectFamily::Sphere,
+        size: ObjectSize::Small,
+    }
+}
+
+#[test]
+fn free_flight_matches_the_integrators_closed_form_and_the_parabola() {
+    let w = world();
+    let dt = w.spec.timestep_secs;
+    for v in ObjectVariant::all() {
+        let mut data = w.model(v).make_data();
+        w.set_home(&mut data);
+        let (x0, v0) = ([2.0, 2.0, 3.0], [1.0, -0.5, 2.0]);
+        let o = w.ids.object_qpos;
+        data.qpos_mut()[o..o + 3].copy_from_slice(&x0);
+        data.qvel_mut()[w.ids.object_dof..w.ids.object_dof + 3].copy_from_slice(&v0);
+        let n = 250; // 0.5 s
+        for _ in 0..n {
+            data.step();
+        }
+        let t = n as f64 * dt;
+        for k in 0..3 {
+            let g = if k == 2 { -GRAVITY_MPS2 } else { 0.0 };
+            let x = data.qpos()[o + k];
+            // Semi-implicit Euler: v += g dt, then x += v dt, n times.
+            let discrete = x0[k] + v0[k] * t + g * dt * dt * (n * (n + 1)) as f64 / 2.0;
+            assert!(
+                (x - discrete).abs() < 1e-9,
+                "{v} axis {k}: {x} vs {discrete}"
+            );
+            let parabola = x0[k] + v0[k] * t + 0.5 * g * t * t;
+            let bound = GRAVITY_MPS2 * dt * t / 2.0 + 1e-9;
+            assert!(
+                (x - parabola).abs() <= bound,
+                "{v} axis {k}: off the parabola by {}",
+                (x - parabola).abs()
+            );
+        }
+    }
+}
+
+#[test]
+fn a_throw_into_the_static_open_palm_hits_when_the_closed_form_says() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let r = 0.025; // the small sphere's radius
+    let n = w.home_palm_normal;
+    // Aim 15 mm toward the pinky side of the palm centre, clear of the thumb's base.
+    let palm = {
+        let mut data = w.model(sphere_small()).make_data();
+        w.set_home(&mut data);
+        data.forward();
+        let m = data.site_xmat()[w.ids.palm_site];
+        let p = w.home_palm_pos;
+        [
+            p[0] + 0.015 * m[0],
+            p[1] + 0.015 * m[3],
+            p[2] + 0.015 * m[6],
+        ]
+    };
+    // The sphere's centre reaches palm + r·n (touching the palm plane) at exactly T.
+    let target = [palm[0] + r * n[0], palm[1] + r * n[1], palm[2] + r * n[2]];
+    let from = [
+        palm[0] + 0.6 * n[0],
+        palm[1] + 0.6 * n[1],
+        palm[2] + 0.6 * n[2] + 0.1,
+    ];
+    let t_impact = 0.2;
+    let vel = launch_velocity(from, target, t_impact);
+    let rec = Episode::new(
+        &w,
+        &spec,
+        throw(sphere_small(), from, vel),
+        rng::stream(0, "t", "x", 0),
+    )
+    .run(&mut open_hand(), &mut NoHooks);
+    let m = &rec.metrics;
+    let dt = w.spec.timestep_secs;
+    let t_c = m.contact_time_secs.expect("the palm is touched");
+    assert!(
+        t_c >= t_impact - 1e-9 && t_c <= t_impact + dt + 1e-9,
+        "t_c = {t_c}, closed form {t_impact}"
+    );
+    let v_at = [vel[0], vel[1], vel[2] - GRAVITY_MPS2 * t_impact];
+    let speed = (v_at[0].powi(2) + v_at[1].powi(2) + v_at[2].powi(2)).sqrt();
+    let v_rel = m.contact_speed_mps.expect("v_rel");
+    // One physics step of gravity plus the holding servo's residual palm motion.
+    assert!(
+        (v_rel - speed).abs() < GRAVITY_MPS2 * dt + 0.01,
+        "v_rel {v_rel} vs {speed}"
+    );
+}
+
+/// Sums admissible normal forces itself, from geom names and `mj_contactForce`.
+#[derive(Default)]
+struct ForceLog {
+    samples: Vec<(f64, f64)>,
+}
+impl Hooks for ForceLog {
+    fn after_physics_step(&mut self, data: &MjData<Box<MjModel>>) {
+        let model = data.model();
+        let mut total = 0.0;
+        for (i, c) in data.contact().iter().enumerate() {
+            let name = |g: i32| {
+                model
+                    .id_to_name(MjtObjBase::mjOBJ_GEOM, g as usize)
+                    .unwrap_or("")
+                    .to_string()
+            };
+            let (a, b) = (name(c.geom[0]), name(c.geom[1]));
+            let hand =
+                |s: &str| s.starts_with("hand_") && s != "hand_adapter" && s != "hand_tower_geom";
+            if (a == "object_geom" && hand(&b)) || (b == "object_geom" && hand(&a)) {
+                total += data.contact_force(i)[0];
+            }
+        }
+        // Contacts describe the state before the step's integration.
+        self.samples
+            .push((data.time() - model.opt().timestep, total));
+    }
+}
+
+#[test]
+fn f_max_equals_a_separate_summation_of_contact_normal_forces() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let n = w.home_palm_normal;
+    let palm = w.home_palm_pos;
+    let r = 0.025;
+    let target = [palm[0] + r * n[0], palm[1] + r * n[1], palm[2] + r * n[2]];
+    let from = [
+        palm[0] + 0.8 * n[0],
+        palm[1] + 0.8 * n[1],
+        palm[2] + 0.8 * n[2] + 0.2,
+    ];
+    let vel = launch_velocity(from, target, 0.25);
+    let mut log = ForceLog::default();
+    let rec = Episode::new(
+        &w,
+        &spec,
+        throw(sphere_small(), from, vel),
+        rng::stream(0, "t", "x", 1),
+    )
+    .run(&mut open_hand(), &mut log);
+    let t_c = rec.metrics.contact_time_secs.expect("contact");
+    let window = spec.success.eval_window_secs;
+    let expected = log
+        .samples
+        .iter()
+        .filter(|(t, _)| *t >= t_c - 1e-12 && *t <= t_c + window + 1e-12)
+        .map(|(_, f)| *f)
+        .fold(0.0, f64::max);
+    assert!(expected > 0.0);
+    assert!(
+        (rec.metrics.max_force_n - expected).abs() < 1e-9,
+        "{} vs {expected}",
+        rec.metrics.max_force_n
+    );
+}
+
+#[test]
+fn a_throw_at_the_forearm_is_a_forbidden_contact() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let mut data = w.model(sphere_small()).make_data();
+    w.set_home(&mut data);
+    data.forward();
+    let link = w
+        .model(sphere_small())
+        .name_to_id(MjtObjBase::mjOBJ_BODY, "arm_link4")
+        .expect("link4");
+    let elbow = data.xpos()[link];
+    let from = [elbow[0] + 0.8, elbow[1], elbow[2] + 0.1];
+    let vel = launch_velocity(from, elbow, 0.25);
+    let rec = Episode::new(
+        &w,
+        &spec,
+        throw(sphere_small(), from, vel),
+        rng::stream(0, "t", "x", 2),
+    )
+    .run(&mut open_hand(), &mut NoHooks);
+    assert_eq!(
+        rec.outcome.failures,
+        vec![Failure::ForbiddenContactArm],
+        "{:?}",
+        rec.metrics
+    );
+    assert!(!rec.outcome.completion());
+}
+
+#[test]
+fn an_object_released_onto_the_open_palm_is_dropped() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let n = w.home_palm_normal;
+    let palm = w.home_palm_pos;
+    // Just in front of the palm face and above the palm centre, drifting into it.
+    let from = [palm[0] + 0.03 * n[0], palm[1], palm[2] + 0.06];
+    let vel = [-0.2 * n[0], 0.0, 0.0];
+    let rec = Episode::new(
+        &w,
+        &spec,
+        throw(sphere_small(), from, vel),
+        rng::stream(0, "t", "x", 3),
+    )
+    .run(&mut open_hand(), &mut NoHooks);
+    assert!(
+        rec.metrics.contact_time_secs.is_some(),
+        "the palm is touched first: {:?}",
+        rec.outcome
+    );
+    assert!(
+        rec.outcome.failures.contains(&Failure::Drop),
+        "{:?}",
+        rec.outcome
+    );
+    assert!(!rec.outcome.completion());
+}
+
+#[test]
+fn driving_a_joint_into_its_limit_is_a_joint_limit_failure() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let mut action = hold_action(&w.spec.hand_home_rad);
+    action[3] = 1.0; // the elbow toward its upper limit
+    let rec = Episode::new(
+        &w,
+        &spec,
+        throw(sphere_small(), [3.0, 3.0, 3.0], [0.0; 3]),
+        rng::stream(0, "t", "x", 4),
+    )
+    .run(&mut Hold(action), &mut NoHooks);
+    assert_eq!(rec.outcome.failures, vec![Failure::JointLimit]);
+}
+
+#[test]
+fn a_nan_action_is_an_invalid_action_failure_not_a_panic() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let mut action = hold_action(&w.spec.hand_home_rad);
+    action[10] = f64::NAN;
+    let rec = Episode::new(
+        &w,
+        &spec,
+        throw(sphere_small(), [3.0, 3.0, 3.0], [0.0; 3]),
+        rng::stream(0, "t", "x", 5),
+    )
+    .run(&mut Hold(action), &mut NoHooks);
+    assert_eq!(rec.outcome.failures, vec![Failure::InvalidAction]);
+    assert_eq!(rec.steps, 1);
+}
+
+fn sampled(i: u64, w: &World) -> TaskCondition {
+    sample(
+        &ConditionSpec::default(),
+        w.home_palm_pos,
+        &mut rng::stream(0, "test", "omega", i),
+    )
+    .expect("ω")
+}
+
+#[test]
+fn restoring_a_snapshot_reproduces_the_trajectory_bit_for_bit() {
+    let w = world();
+    // Every source of randomness on, so the snapshot must carry the generator too.
+    let spec = RolloutSpec {
+        dr: osms_sim::control::DrSpec::paper(),
+        record_privileged: true,
+        ..RolloutSpec::default()
+    };
+    let cond = sampled(7, &w);
+    let mut policy = Hold(hold_action(&w.spec.hand_home_rad));
+    let full = Episode::new(&w, &spec, cond.clone(), rng::stream(0, "t", "roll", 7))
+        .run(&mut policy, &mut NoHooks);
+    assert!(full.steps >= 6, "{} steps", full.steps);
+
+    let mut ep = Episode::new(&w, &spec, cond, rng::stream(0, "t", "roll", 7));
+    for _ in 0..full.steps / 2 {
+        ep.step(&mut policy, &mut NoHooks);
+    }
+    let snap = ep.snapshot();
+    // Wander off: a different action for a while, then come back to the snapshot.
+    let mut other = Hold([0.3; osms_sim::N_ACTION]);
+    for _ in 0..8 {
+        ep.step(&mut other, &mut NoHooks);
+    }
+    ep.restore(&snap);
+    let resumed = ep.run(&mut policy, &mut NoHooks);
+    let bytes = |r: &osms_sim::RolloutRecord| postcard::to_stdvec(r).expect("encode");
+    assert_eq!(bytes(&full), bytes(&resumed));
+}
+
+#[test]
+fn rollouts_do_not_depend_on_the_thread_count() {
+    use rayon::prelude::*;
+    let w = world();
+    let spec = RolloutSpec {
+        dr: osms_sim::control::DrSpec::paper(),
+        ..RolloutSpec::default()
+    };
+    let run_all = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        let records: Vec<osms_sim::RolloutRecord> = pool.install(|| {
+            (0..64u64)
+                .into_par_iter()
+                .map(|i| {
+                    let mut policy = Hold(hold_action(&w.spec.hand_home_rad));
+                    Episode::new(&w, &spec, sampled(i, &w), rng::stream(0, "t", "roll", i))
+                        .run(&mut policy, &mut NoHooks)
+                })
+                .collect()
+        });
+        blake3::hash(&postcard::to_stdvec(&records).expect("encode"))
+    };
+    assert_eq!(run_all(1), run_all(2));
+}
+
+#[test]
+fn every_world_variant_loads_from_a_file_with_mujocos_own_parser() {
+    let w = world();
+    let dir = tempfile::tempdir().expect("dir");
+    for v in ObjectVariant::all() {
+        let path = dir.path().join(format!("{v}.xml"));
+        std::fs::write(&path, w.xml(v)).expect("write");
+        let model = MjModel::from_xml(&path).unwrap_or_else(|e| panic!("{v}: {e}"));
+        assert_eq!(model.ffi().nu, 24);
+    }
+}
