@@ -37,6 +37,10 @@ impl Progress for NoProgress {
 /// A short, human-readable description of an artifact for `osms show`.
 pub trait Summarize {
     fn summary(&self) -> serde_json::Value;
+    /// A longer text rendering (e.g. a Markdown table), if the artifact has one.
+    fn text(&self) -> Option<String> {
+        None
+    }
 }
 
 /// A stage that computes one artifact.
@@ -174,6 +178,8 @@ pub trait DynKind: Send + Sync {
     fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError>;
     /// Decodes an output artifact of this kind and summarises it.
     fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error>;
+    /// Decodes an output artifact of this kind and renders its text, if it has one.
+    fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error>;
 }
 
 /// A param that did not deserialize: where (path of keys inside `params`) and why.
@@ -266,6 +272,9 @@ impl<S: Stage> DynKind for Plain<S> {
     fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
         Ok(decode::<S::Output>(bytes)?.summary())
     }
+    fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error> {
+        Ok(decode::<S::Output>(bytes)?.text())
+    }
 }
 
 impl<S: ItemStage> DynKind for Itemised<S> {
@@ -328,6 +337,9 @@ impl<S: ItemStage> DynKind for Itemised<S> {
     }
     fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
         Ok(decode::<S::Output>(bytes)?.summary())
+    }
+    fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error> {
+        Ok(decode::<S::Output>(bytes)?.text())
     }
 }
 

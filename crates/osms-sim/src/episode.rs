@@ -39,6 +39,8 @@ pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + N_ACTION;
 /// and angular velocity (13), palm position, normal and velocity (9), admissible normal force
 /// and contact count (2), ω's mass and variant one-hot (11), time (1).
 pub const PRIVILEGED_LEN: usize = 48 + 13 + 9 + 2 + 11 + 1;
+/// Index of the admissible contact count in a privileged frame.
+pub const PRIVILEGED_CONTACT_COUNT: usize = 48 + 13 + 9 + 1;
 
 /// What a policy sees at a control step. Privileged policies may also read `data`.
 pub struct PolicyView<'a> {

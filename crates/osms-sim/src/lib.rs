@@ -1,6 +1,7 @@
 //! The MuJoCo catching world: xArm7 + ORCA-like hand + ten objects as MJCF, task conditions,
 //! domain randomisation, control loop, contacts, metrics and success, scripted catcher.
 
+pub mod catcher;
 pub mod conditions;
 pub mod control;
 pub mod episode;
@@ -9,6 +10,7 @@ pub mod metrics;
 pub mod mjcf;
 pub mod robot;
 pub mod spec;
+pub mod stages;
 pub mod world;
 
 pub use conditions::{ConditionSpec, TaskCondition};

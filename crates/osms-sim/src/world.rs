@@ -121,16 +121,29 @@ impl World {
     /// Builds and compiles the ten variants.
     pub fn new(spec: WorldSpec) -> Result<Self> {
         spec.validate()?;
+        let xml = ObjectVariant::all()
+            .into_iter()
+            .map(|v| mjcf::world_xml(&spec, v))
+            .collect();
+        Self::from_xml(spec, xml)
+    }
+
+    /// Compiles the given MJCF texts (one per variant, in [`ObjectVariant::all`] order), e.g.
+    /// those stored in a `world` artifact.
+    pub fn from_xml(spec: WorldSpec, xml: Vec<String>) -> Result<Self> {
+        if xml.len() != ObjectVariant::all().len() {
+            return Err(SimError::Spec(format!(
+                "a world has 10 object variants, not {}",
+                xml.len()
+            )));
+        }
         let mut models = Vec::new();
-        let mut xml = Vec::new();
-        for variant in ObjectVariant::all() {
-            let text = mjcf::world_xml(&spec, variant);
-            let model = MjModel::from_xml_string(&text).map_err(|e| SimError::Compile {
+        for (variant, text) in ObjectVariant::all().into_iter().zip(&xml) {
+            let model = MjModel::from_xml_string(text).map_err(|e| SimError::Compile {
                 variant: variant.to_string(),
                 message: e.to_string(),
             })?;
             models.push(model);
-            xml.push(text);
         }
         let ids0 = ids(&models[0])?;
         for (variant, model) in ObjectVariant::all().into_iter().zip(&models) {
@@ -168,6 +181,10 @@ impl World {
 
     pub fn xml(&self, variant: ObjectVariant) -> &str {
         &self.xml[variant.index()]
+    }
+
+    pub fn all_xml(&self) -> &[String] {
+        &self.xml
     }
 
     /// Puts the robot in its home posture with zero velocity; the object is left where it is.

@@ -69,6 +69,28 @@ pub enum Command {
     Doctor(JsonArg),
     /// List the stage kinds this osms knows, with their inputs and code versions
     Kinds(JsonArg),
+    /// The simulated world
+    #[command(subcommand)]
+    World(WorldCommand),
+}
+
+#[derive(Debug, Subcommand)]
+pub enum WorldCommand {
+    /// Print the exact MJCF of the world (the `world` stage's params under the profile)
+    Dump(WorldDumpArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct WorldDumpArgs {
+    /// Profile overlaying the params [default: the pipeline's default_profile]
+    #[arg(long, short = 'p')]
+    pub profile: Option<String>,
+    /// Which object variant's model, e.g. `sphere-small`
+    #[arg(long, default_value = "sphere-large")]
+    pub object: String,
+    /// The stage of kind `world` to read params from [default: the only one]
+    #[arg(long)]
+    pub stage: Option<String>,
 }
 
 #[derive(Debug, Args)]

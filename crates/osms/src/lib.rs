@@ -17,10 +17,12 @@ use osms_make::Registry;
 
 pub use context::Context;
 
-/// The stage kinds osms ships. The pipeline's domain stages (world, teacher, method, report)
+/// The stage kinds osms ships. The pipeline's later stages (teacher, method, students, report)
 /// register here as their crates land.
 pub fn registry() -> Registry {
-    Registry::new()
+    let mut registry = Registry::new();
+    osms_sim::stages::register(&mut registry);
+    registry
 }
 
 /// Exit codes, as uv: 0 success, 1 the user's input or the pipeline failed, 2 internal error.

@@ -59,6 +59,10 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
     }
     let bytes = store.get(&first.content_hash)?;
     let header = read_header(&bytes)?;
+    let text = match (ctx.registry.get(&first.kind), first.shard) {
+        (Some(kind), None) => kind.text(&bytes)?,
+        _ => None,
+    };
     let summary = match (ctx.registry.get(&first.kind), first.shard) {
         (_, Some(shard)) => {
             serde_json::json!({ "shard of": shard.stage_key, "items": format!("{}..{}", shard.start, shard.end) })
@@ -114,6 +118,10 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
             }
         }
         other => println!("  {other}"),
+    }
+    if let Some(text) = text {
+        println!();
+        print!("{text}");
     }
     Ok(ExitCode::SUCCESS)
 }

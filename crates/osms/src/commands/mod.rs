@@ -6,6 +6,7 @@ mod inspect;
 mod make;
 mod status;
 mod verify;
+mod world;
 
 use std::process::ExitCode;
 
@@ -31,6 +32,7 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
         Command::Ls(args) => inspect::ls(&ctx, args.json),
         Command::Verify(args) => verify::run(&ctx, args.json),
         Command::Gc(args) => gc::run(&ctx, &args),
+        Command::World(crate::cli::WorldCommand::Dump(args)) => world::dump(&ctx, &args),
         Command::Doctor(_) | Command::Kinds(_) => unreachable!("handled above"),
     }
 }

@@ -1,0 +1,261 @@
+//! The scripted privileged catcher: the prior the PPO teacher builds on. It predicts the
+//! object's ballistic flight, picks the point of the flight closest to the palm's home position
+//! as the interception point, moves the palm there facing the incoming object with
+//! damped-least-squares IK on MuJoCo's site Jacobian, and closes the fingers when the object
+//! arrives. It makes no attempt to soften the impact: that is what the teacher has to learn.
+
+use serde::{Deserialize, Serialize};
+
+use crate::conditions::GRAVITY_MPS2;
+use crate::control::{Action, ControlSpec, N_ACTION, N_ARM, N_HAND, hold_action};
+use crate::episode::{Policy, PolicyView};
+use crate::world::palm_normal;
+
+/// The catcher's params. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CatcherSpec {
+    /// Damping λ of the damped-least-squares IK.
+    pub ik_damping: f64,
+    /// Fraction of the palm pose error corrected per control step.
+    pub gain: f64,
+    /// Largest palm position error acted on per step (m), so far targets do not saturate.
+    pub max_step_error_m: f64,
+    /// Close the fingers once the object is this close to the palm centre (m).
+    pub close_distance_m: f64,
+    /// Finger posture while waiting (rad, hand joint order).
+    pub open_hand_rad: [f64; N_HAND],
+    /// Finger posture when closing (rad).
+    pub closed_hand_rad: [f64; N_HAND],
+    /// Horizon of the interception search (s).
+    pub horizon_secs: f64,
+    /// How far the palm turns from its home orientation toward facing the incoming object
+    /// (0: keep the home orientation, 1: face the object).
+    pub facing_blend: f64,
+}
+
+impl Default for CatcherSpec {
+    fn default() -> Self {
+        CatcherSpec {
+            ik_damping: 0.05,
+            gain: 0.5,
+            max_step_error_m: 0.05,
+            close_distance_m: 0.07,
+            open_hand_rad: [
+                0.0, 0.0, 0.4, 0.0, 0.0, 0.0, 0.1, 0.1, 0.0, 0.1, 0.1, 0.0, 0.1, 0.1, 0.0, 0.1, 0.1,
+            ],
+            closed_hand_rad: [
+                0.0, 0.3, 0.9, 1.0, 1.0, 0.0, 1.4, 1.5, 0.0, 1.4, 1.5, 0.0, 1.4, 1.5, 0.0, 1.4, 1.5,
+            ],
+            horizon_secs: 1.0,
+            facing_blend: 0.0,
+        }
+    }
+}
+
+pub struct ScriptedCatcher {
+    spec: CatcherSpec,
+    control: ControlSpec,
+    closed: bool,
+}
+
+impl ScriptedCatcher {
+    pub fn new(spec: CatcherSpec, control: ControlSpec) -> Self {
+        ScriptedCatcher {
+            spec,
+            control,
+            closed: false,
+        }
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+fn norm(a: [f64; 3]) -> f64 {
+    libm::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+}
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Solves `a x = b` for a small dense system by Gaussian elimination with partial pivoting
+/// (fixed operation order, so the result is the same on every machine).
+fn solve<const N: usize>(mut a: [[f64; N]; N], mut b: [f64; N]) -> [f64; N] {
+    for col in 0..N {
+        let pivot = (col..N)
+            .max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))
+            .unwrap_or(col);
+        a.swap(col, pivot);
+        b.swap(col, pivot);
+        let d = a[col][col];
+        if d.abs() < 1e-300 {
+            continue;
+        }
+        let pivot_row = a[col];
+        for row in col + 1..N {
+            let f = a[row][col] / d;
+            for (x, p) in a[row][col..].iter_mut().zip(&pivot_row[col..]) {
+                *x -= f * p;
+            }
+            b[row] -= f * b[col];
+        }
+    }
+    let mut x = [0.0; N];
+    for row in (0..N).rev() {
+        let mut s = b[row];
+        for k in row + 1..N {
+            s -= a[row][k] * x[k];
+        }
+        x[row] = if a[row][row].abs() < 1e-300 {
+            0.0
+        } else {
+            s / a[row][row]
+        };
+    }
+    x
+}
+
+/// Damped least squares: dq = Jᵀ (J Jᵀ + λ² I)⁻¹ e for a 6 × 7 Jacobian.
+pub fn dls_step(jac: &[[f64; N_ARM]; 6], err: [f64; 6], damping: f64) -> [f64; N_ARM] {
+    let mut jjt = [[0.0; 6]; 6];
+    for (r, row) in jjt.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = (0..N_ARM).map(|k| jac[r][k] * jac[c][k]).sum::<f64>()
+                + if r == c { damping * damping } else { 0.0 };
+        }
+    }
+    let y = solve(jjt, err);
+    std::array::from_fn(|k| (0..6).map(|r| jac[r][k] * y[r]).sum())
+}
+
+impl Policy for ScriptedCatcher {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        let data = view.data;
+        let ids = &view.world.ids;
+        let qpos = data.qpos();
+        let qvel = data.qvel();
+        let (o, d) = (ids.object_qpos, ids.object_dof);
+        let p = [qpos[o], qpos[o + 1], qpos[o + 2]];
+        let v = [qvel[d], qvel[d + 1], qvel[d + 2]];
+        let palm = data.site_xpos()[ids.palm_site];
+        let normal = palm_normal(&data.site_xmat()[ids.palm_site]);
+
+        // Interception: the predicted flight point closest to the palm's home position.
+        let home = view.world.home_palm_pos;
+        let at = |t: f64| {
+            [
+                p[0] + v[0] * t,
+                p[1] + v[1] * t,
+                p[2] + v[2] * t - 0.5 * GRAVITY_MPS2 * t * t,
+            ]
+        };
+        let dt = 0.005;
+        let steps = (self.spec.horizon_secs / dt) as usize;
+        let t_star = (0..=steps)
+            .map(|i| i as f64 * dt)
+            .min_by(|a, b| norm(sub(at(*a), home)).total_cmp(&norm(sub(at(*b), home))))
+            .unwrap_or(0.0);
+        let meet = at(t_star);
+        let v_meet = [v[0], v[1], v[2] - GRAVITY_MPS2 * t_star];
+        let speed = norm(v_meet).max(1e-9);
+        let facing = [-v_meet[0] / speed, -v_meet[1] / speed, -v_meet[2] / speed];
+        let radius = view.condition.variant.geom().1[0];
+        let want = [
+            meet[0] + radius * facing[0],
+            meet[1] + radius * facing[1],
+            meet[2] + radius * facing[2],
+        ];
+
+        let mut e_pos = sub(want, palm);
+        let size = norm(e_pos);
+        if size > self.spec.max_step_error_m {
+            let s = self.spec.max_step_error_m / size;
+            e_pos = [e_pos[0] * s, e_pos[1] * s, e_pos[2] * s];
+        }
+        let b = self.spec.facing_blend;
+        let h = view.world.home_palm_normal;
+        let blend = [
+            (1.0 - b) * h[0] + b * facing[0],
+            (1.0 - b) * h[1] + b * facing[1],
+            (1.0 - b) * h[2] + b * facing[2],
+        ];
+        let bn = norm(blend).max(1e-9);
+        let e_rot = cross(normal, [blend[0] / bn, blend[1] / bn, blend[2] / bn]);
+        let g = self.spec.gain;
+        let err = [
+            g * e_pos[0],
+            g * e_pos[1],
+            g * e_pos[2],
+            g * e_rot[0],
+            g * e_rot[1],
+            g * e_rot[2],
+        ];
+        let (jacp, jacr) = data.jac_site(true, true, ids.palm_site);
+        let nv = qvel.len();
+        let mut jac = [[0.0; N_ARM]; 6];
+        for (k, &dof) in ids.arm_dof.iter().enumerate() {
+            for r in 0..3 {
+                jac[r][k] = jacp[r * nv + dof];
+                jac[r + 3][k] = jacr[r * nv + dof];
+            }
+        }
+        let dq = dls_step(&jac, err, self.spec.ik_damping);
+
+        let dist = norm(sub(p, palm));
+        let touching = view
+            .privileged
+            .get(crate::episode::PRIVILEGED_CONTACT_COUNT)
+            .is_some_and(|n| *n > 0.0);
+        if dist < self.spec.close_distance_m || touching {
+            self.closed = true;
+        }
+        let hand = if self.closed {
+            &self.spec.closed_hand_rad
+        } else {
+            &self.spec.open_hand_rad
+        };
+        let mut action = hold_action(hand);
+        let max = self.control.arm_max_delta_rad;
+        for k in 0..N_ARM {
+            action[k] = (dq[k] / max).clamp(-1.0, 1.0);
+        }
+        debug_assert_eq!(action.len(), N_ACTION);
+        action
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dls_reduces_to_the_pseudo_inverse_for_an_invertible_square_block() {
+        // J = [I6 | 0]: any e maps to dq = e / (1 + λ²) on the first six joints.
+        let mut jac = [[0.0; N_ARM]; 6];
+        for (i, row) in jac.iter_mut().enumerate() {
+            row[i] = 1.0;
+        }
+        let e = [1.0, -2.0, 0.5, 0.0, 3.0, -1.0];
+        let dq = dls_step(&jac, e, 0.1);
+        for i in 0..6 {
+            assert!((dq[i] - e[i] / 1.01).abs() < 1e-12);
+        }
+        assert_eq!(dq[6], 0.0);
+    }
+
+    #[test]
+    fn solve_matches_a_known_system() {
+        let a = [[4.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 4.0]];
+        let x = [1.0, 2.0, 3.0];
+        let b = std::array::from_fn(|r| (0..3).map(|c| a[r][c] * x[c]).sum());
+        let got = solve(a, b);
+        for i in 0..3 {
+            assert!((got[i] - x[i]).abs() < 1e-12);
+        }
+    }
+}

@@ -1,0 +1,344 @@
+//! The simulator's stage kinds: `world`, `conditions` (e.g. the held-out evaluation set) and
+//! `eval_scripted` (the scripted catcher's evaluation table).
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use osms_make::rng::StreamRng;
+use osms_make::{Ctx, ItemStage, Stage, StageError, Summarize};
+use osms_store::Artifact;
+use serde::{Deserialize, Serialize};
+
+use crate::catcher::{CatcherSpec, ScriptedCatcher};
+use crate::conditions::{ConditionSpec, TaskCondition, sample};
+use crate::episode::{Episode, NoHooks, RolloutSpec};
+use crate::metrics::{Failure, Metrics, Outcome};
+use crate::spec::{ObjectVariant, WorldSpec};
+use crate::world::World;
+
+/// The world: its spec and the exact MJCF of every object variant.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorldArtifact {
+    pub spec: WorldSpec,
+    /// MJCF per variant, in [`ObjectVariant::all`] order.
+    pub xml: Vec<String>,
+    pub home_palm_pos: [f64; 3],
+    pub home_palm_normal: [f64; 3],
+}
+
+impl Artifact for WorldArtifact {
+    const TYPE_TAG: &'static str = "sim.world";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+impl Summarize for WorldArtifact {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::json!({
+            "variants": ObjectVariant::all().iter().map(ToString::to_string).collect::<Vec<_>>(),
+            "timestep_secs": self.spec.timestep_secs,
+            "control_hz": 1.0 / self.spec.control_dt_secs(),
+            "home_palm_pos_m": self.home_palm_pos,
+            "home_palm_normal": self.home_palm_normal,
+            "mjcf_bytes": self.xml.iter().map(String::len).sum::<usize>(),
+        })
+    }
+}
+
+impl WorldArtifact {
+    pub fn world(&self) -> Result<World, StageError> {
+        Ok(World::from_xml(self.spec.clone(), self.xml.clone())?)
+    }
+}
+
+/// Builds the MJCF of the ten variants and checks that MuJoCo compiles each.
+pub struct WorldStage;
+impl Stage for WorldStage {
+    const KIND: &'static str = "world";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [&'static str] = &[];
+    const DOC: &'static str =
+        "the MuJoCo catching world: xArm7 + ORCA-like hand + ten objects (MJCF per object)";
+    type Params = WorldSpec;
+    type Output = WorldArtifact;
+
+    fn run(&self, ctx: &Ctx<'_, WorldSpec>) -> Result<WorldArtifact, StageError> {
+        let world = World::new(ctx.params.clone())?;
+        Ok(WorldArtifact {
+            spec: world.spec.clone(),
+            xml: world.all_xml().to_vec(),
+            home_palm_pos: world.home_palm_pos,
+            home_palm_normal: world.home_palm_normal,
+        })
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConditionsParams {
+    /// How many conditions.
+    pub n: u32,
+    #[serde(default)]
+    pub sampler: ConditionSpec,
+}
+
+/// A list of task conditions ω.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Conditions {
+    pub items: Vec<TaskCondition>,
+}
+
+impl Artifact for Conditions {
+    const TYPE_TAG: &'static str = "sim.conditions";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+impl Summarize for Conditions {
+    fn summary(&self) -> serde_json::Value {
+        let n = self.items.len().max(1) as f64;
+        let mut per_variant: BTreeMap<String, usize> = BTreeMap::new();
+        for c in &self.items {
+            *per_variant.entry(c.variant.to_string()).or_default() += 1;
+        }
+        serde_json::json!({
+            "conditions": self.items.len(),
+            "mean_speed_mps": self.items.iter().map(TaskCondition::speed_mps).sum::<f64>() / n,
+            "mean_abs_lateral_offset_m": self.items.iter().map(|c| c.lateral_offset_m.abs()).sum::<f64>() / n,
+            "per_variant": per_variant,
+        })
+    }
+}
+
+/// Samples task conditions; condition `i` draws from stream ("item", i).
+pub struct ConditionsStage;
+impl ItemStage for ConditionsStage {
+    const KIND: &'static str = "conditions";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &["world"];
+    const DOC: &'static str = "task conditions ω (object, mass, launch, posture perturbation)";
+    type Params = ConditionsParams;
+    type Prepared = [f64; 3];
+    type Item = TaskCondition;
+    type Output = Conditions;
+
+    fn prepare(&self, ctx: &Ctx<'_, ConditionsParams>) -> Result<[f64; 3], StageError> {
+        Ok(ctx.input::<WorldArtifact>("world")?.home_palm_pos)
+    }
+    fn n_items(&self, ctx: &Ctx<'_, ConditionsParams>, _: &[f64; 3]) -> usize {
+        ctx.params.n as usize
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, ConditionsParams>,
+        palm: &[f64; 3],
+        _: usize,
+        rng: &mut StreamRng,
+    ) -> Result<TaskCondition, StageError> {
+        Ok(sample(&ctx.params.sampler, *palm, rng)?)
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, ConditionsParams>,
+        _: [f64; 3],
+        items: Vec<TaskCondition>,
+    ) -> Result<Conditions, StageError> {
+        Ok(Conditions { items })
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalParams {
+    pub rollout: RolloutSpec,
+    pub catcher: CatcherSpec,
+}
+
+/// What an evaluation keeps of one rollout.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalRow {
+    pub variant: ObjectVariant,
+    pub lateral_offset_m: f64,
+    pub steps: u32,
+    pub metrics: Metrics,
+    pub outcome: Outcome,
+}
+
+/// Per-rollout rows and the table over family × size.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Evaluation {
+    pub rows: Vec<EvalRow>,
+}
+
+impl Artifact for Evaluation {
+    const TYPE_TAG: &'static str = "sim.evaluation";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+/// One line of the evaluation table.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TableLine {
+    pub group: String,
+    pub rollouts: usize,
+    pub success_rate: f64,
+    pub completion_rate: f64,
+    /// Means over catch completions only, as in the paper.
+    pub contact_speed_mps: Option<f64>,
+    pub max_force_n: Option<f64>,
+    pub follow_through_m: Option<f64>,
+    pub failures: BTreeMap<String, usize>,
+}
+
+impl Evaluation {
+    pub fn table(&self) -> Vec<TableLine> {
+        let mut groups: BTreeMap<ObjectVariant, Vec<&EvalRow>> = BTreeMap::new();
+        for r in &self.rows {
+            groups.entry(r.variant).or_default().push(r);
+        }
+        let mut lines: Vec<TableLine> = groups
+            .iter()
+            .map(|(v, rows)| line(&v.to_string(), rows))
+            .collect();
+        lines.push(line("all", &self.rows.iter().collect::<Vec<_>>()));
+        lines
+    }
+}
+
+fn line(group: &str, rows: &[&EvalRow]) -> TableLine {
+    let n = rows.len().max(1) as f64;
+    let completions: Vec<&&EvalRow> = rows.iter().filter(|r| r.outcome.completion()).collect();
+    let mean = |f: &dyn Fn(&EvalRow) -> Option<f64>| {
+        let v: Vec<f64> = completions.iter().filter_map(|r| f(r)).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    let mut failures = BTreeMap::new();
+    for r in rows {
+        for f in &r.outcome.failures {
+            *failures.entry(f.name().to_string()).or_default() += 1;
+        }
+    }
+    TableLine {
+        group: group.to_string(),
+        rollouts: rows.len(),
+        success_rate: rows.iter().filter(|r| r.outcome.success()).count() as f64 / n,
+        completion_rate: completions.len() as f64 / n,
+        contact_speed_mps: mean(&|r| r.metrics.contact_speed_mps),
+        max_force_n: mean(&|r| Some(r.metrics.max_force_n)),
+        follow_through_m: mean(&|r| Some(r.metrics.follow_through_m)),
+        failures,
+    }
+}
+
+impl Summarize for Evaluation {
+    fn summary(&self) -> serde_json::Value {
+        let all = self.table().pop();
+        serde_json::json!({
+            "rollouts": self.rows.len(),
+            "success_rate": all.as_ref().map(|l| l.success_rate),
+            "completion_rate": all.as_ref().map(|l| l.completion_rate),
+        })
+    }
+
+    fn text(&self) -> Option<String> {
+        let opt =
+            |v: Option<f64>, p: usize| v.map(|x| format!("{x:.p$}")).unwrap_or_else(|| "-".into());
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "| object | n | success | completion | v_rel (m/s) | f_max (N) | l_max (m) |"
+        );
+        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+        let table = self.table();
+        for l in &table {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {:.1}% | {:.1}% | {} | {} | {} |",
+                l.group,
+                l.rollouts,
+                100.0 * l.success_rate,
+                100.0 * l.completion_rate,
+                opt(l.contact_speed_mps, 2),
+                opt(l.max_force_n, 1),
+                opt(l.follow_through_m, 3)
+            );
+        }
+        let _ = writeln!(
+            out,
+            "\nFailures (a rollout can fail several impact criteria):\n"
+        );
+        let _ = writeln!(out, "| failure | all |");
+        let _ = writeln!(out, "|---|---:|");
+        if let Some(all) = table.last() {
+            for f in Failure::ALL {
+                let _ = writeln!(
+                    out,
+                    "| {} | {} |",
+                    f.name(),
+                    all.failures.get(f.name()).copied().unwrap_or(0)
+                );
+            }
+        }
+        Some(out)
+    }
+}
+
+/// Rolls the scripted catcher out on every condition; rollout `i` draws from ("item", i).
+pub struct EvalScriptedStage;
+impl ItemStage for EvalScriptedStage {
+    const KIND: &'static str = "eval_scripted";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &["world", "conditions"];
+    const DOC: &'static str =
+        "the scripted privileged catcher evaluated on a condition set (table per family x size)";
+    type Params = EvalParams;
+    type Prepared = (World, Conditions);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
+    fn prepare(&self, ctx: &Ctx<'_, EvalParams>) -> Result<(World, Conditions), StageError> {
+        Ok((
+            ctx.input::<WorldArtifact>("world")?.world()?,
+            ctx.input("conditions")?,
+        ))
+    }
+    fn n_items(&self, _: &Ctx<'_, EvalParams>, (_, conditions): &(World, Conditions)) -> usize {
+        conditions.items.len()
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, EvalParams>,
+        (world, conditions): &(World, Conditions),
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<EvalRow, StageError> {
+        let p = ctx.params;
+        let condition = conditions.items[index].clone();
+        let mut catcher = ScriptedCatcher::new(p.catcher.clone(), p.rollout.control.clone());
+        let record =
+            Episode::new(world, &p.rollout, condition, rng.clone()).run(&mut catcher, &mut NoHooks);
+        Ok(EvalRow {
+            variant: record.condition.variant,
+            lateral_offset_m: record.condition.lateral_offset_m,
+            steps: record.steps as u32,
+            metrics: record.metrics,
+            outcome: record.outcome,
+        })
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, EvalParams>,
+        _: (World, Conditions),
+        rows: Vec<EvalRow>,
+    ) -> Result<Evaluation, StageError> {
+        Ok(Evaluation { rows })
+    }
+}
+
+/// Registers the simulator's stage kinds.
+pub fn register(registry: &mut osms_make::Registry) {
+    registry
+        .register(WorldStage)
+        .register_itemised(ConditionsStage)
+        .register_itemised(EvalScriptedStage);
+}
