@@ -220,9 +220,13 @@ impl Policy for ScriptedCatcher {
             &self.spec.open_hand_rad
         };
         let mut action = hold_action(hand);
-        let max = self.control.arm_max_delta_rad;
-        for k in 0..N_ARM {
-            action[k] = (dq[k] / max).clamp(-1.0, 1.0);
+        // Once closing, the arm holds still: re-aiming at the object's predicted fall would
+        // pull the palm out from under it.
+        if !self.closed {
+            let max = self.control.arm_max_delta_rad;
+            for k in 0..N_ARM {
+                action[k] = (dq[k] / max).clamp(-1.0, 1.0);
+            }
         }
         debug_assert_eq!(action.len(), N_ACTION);
         action

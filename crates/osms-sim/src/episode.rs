@@ -129,6 +129,10 @@ pub struct Episode<'w> {
     evaluator: Evaluator,
     record: RolloutRecord,
     step: usize,
+    /// Ranges of the arm joints and the wrist, for the joint-limit check.
+    ranges: [[f64; 2]; N_ARM + 1],
+    /// qvel before the current physics step (reused buffer).
+    qvel_before: Vec<f64>,
 }
 
 const STATE: u32 = mjtState::mjSTATE_INTEGRATION as u32;
@@ -210,6 +214,7 @@ impl<'w> Episode<'w> {
         }
         data.ctrl_mut().copy_from_slice(&posture);
         data.forward();
+        let nv = data.qvel().len();
 
         let hand_home: [f64; N_HAND] = std::array::from_fn(|i| posture[N_ARM + i]);
         let hold = hold_action(&hand_home);
@@ -249,6 +254,8 @@ impl<'w> Episode<'w> {
             evaluator: Evaluator::new(spec.success.clone()),
             record,
             step: 0,
+            ranges: std::array::from_fn(|i| ranges[i]),
+            qvel_before: vec![0.0; nv],
         }
     }
 
@@ -265,9 +272,7 @@ impl<'w> Episode<'w> {
     }
 
     fn palm_velocity(&self, qvel: &[f64]) -> [f64; 3] {
-        let (jacp, _) = self.data.jac_site(true, false, self.world.ids.palm_site);
-        let nv = qvel.len();
-        std::array::from_fn(|r| (0..nv).map(|c| jacp[r * nv + c] * qvel[c]).sum())
+        site_velocity(&self.data, self.world.ids.palm_site, qvel)
     }
 
     /// The observation at the start of a control step. Kinematics are recomputed first
@@ -422,17 +427,11 @@ impl<'w> Episode<'w> {
         // Gain variation: a servo with gain g·kp toward target c acts like one with gain kp
         // toward q + g (c - q), recomputed every physics step.
         let g = self.dr.gain_scale;
-        let joints: Vec<usize> = ids
-            .arm_qpos
-            .iter()
-            .chain(ids.hand_qpos.iter())
-            .copied()
-            .collect();
-        for (i, &adr) in joints.iter().enumerate() {
+        for (i, &adr) in ids.arm_qpos.iter().chain(ids.hand_qpos.iter()).enumerate() {
             let q = self.data.qpos()[adr];
             self.data.ctrl_mut()[i] = q + g * (self.controller.targets[i] - q);
         }
-        let qvel_before = self.data.qvel().to_vec();
+        self.qvel_before.copy_from_slice(self.data.qvel());
         let time = self.data.time();
         self.data.step();
 
@@ -451,30 +450,29 @@ impl<'w> Episode<'w> {
         let contacts = scan(&self.data, &ids.geom_class);
         let site = ids.palm_site;
         let d = ids.object_dof;
+        let qv = &self.qvel_before;
         let state = StepState {
             time_secs: time,
             control_step: self.step,
             object_pos: self.data.xpos()[ids.object_body],
-            object_vel: [qvel_before[d], qvel_before[d + 1], qvel_before[d + 2]],
+            object_vel: [qv[d], qv[d + 1], qv[d + 2]],
             palm_pos: self.data.site_xpos()[site],
-            palm_vel: self.palm_velocity(&qvel_before),
             palm_normal: palm_normal(&self.data.site_xmat()[site]),
         };
-        let ranges = joint_ranges();
         let margin = self.spec.success.joint_limit_margin_rad;
         let q = self.data.qpos();
         // Arm joints and the wrist; fingers curling onto their limits around a small object
         // are part of a grasp.
-        let joint_ok = (0..=N_ARM)
-            .map(|i| {
-                if i < N_ARM {
-                    (ids.arm_qpos[i], ranges[i])
-                } else {
-                    (ids.hand_qpos[0], ranges[N_ARM])
-                }
-            })
-            .all(|(adr, [lo, hi])| q[adr] > lo + margin && q[adr] < hi - margin);
-        self.evaluator.physics_step(&state, &contacts, joint_ok);
+        let joint_ok = ids
+            .arm_qpos
+            .iter()
+            .chain(std::iter::once(&ids.hand_qpos[0]))
+            .zip(&self.ranges)
+            .all(|(&adr, [lo, hi])| q[adr] > lo + margin && q[adr] < hi - margin);
+        let (data, world) = (&self.data, self.world);
+        let mut palm_vel = || site_velocity(data, world.ids.palm_site, qv);
+        self.evaluator
+            .physics_step(&state, &contacts, joint_ok, &mut palm_vel);
         contacts.admissible_force_n
     }
 
@@ -534,6 +532,13 @@ impl<'w> Episode<'w> {
         self.record.metrics = metrics;
         self.record
     }
+}
+
+/// The linear velocity of a site from its Jacobian and `qvel`.
+fn site_velocity(data: &MjData<Box<MjModel>>, site: usize, qvel: &[f64]) -> [f64; 3] {
+    let (jacp, _) = data.jac_site(true, false, site);
+    let nv = qvel.len();
+    std::array::from_fn(|r| (0..nv).map(|c| jacp[r * nv + c] * qvel[c]).sum())
 }
 
 /// One control step's observation and the state recorded with it.

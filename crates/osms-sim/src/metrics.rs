@@ -211,7 +211,8 @@ pub fn scan<M: ModelType>(data: &MjData<M>, classes: &[GeomClass]) -> ContactSca
     out
 }
 
-/// The state S_t the evaluator sees at one physics step.
+/// The state S_t the evaluator sees at one physics step. The palm's velocity costs a Jacobian,
+/// so the evaluator asks for it only when it needs it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepState {
     pub time_secs: f64,
@@ -219,7 +220,6 @@ pub struct StepState {
     pub object_pos: [f64; 3],
     pub object_vel: [f64; 3],
     pub palm_pos: [f64; 3],
-    pub palm_vel: [f64; 3],
     pub palm_normal: [f64; 3],
 }
 
@@ -238,7 +238,6 @@ fn norm(a: [f64; 3]) -> f64 {
 pub struct Evaluator {
     spec: SuccessSpec,
     failures: Vec<Failure>,
-    previous: Option<StepState>,
     first_contact: Option<(f64, usize)>,
     contact_speed: Option<f64>,
     incoming_dir: [f64; 3],
@@ -257,7 +256,6 @@ impl Evaluator {
         Evaluator {
             spec,
             failures: Vec::new(),
-            previous: None,
             first_contact: None,
             contact_speed: None,
             incoming_dir: [0.0; 3],
@@ -292,12 +290,18 @@ impl Evaluator {
     }
 
     /// Updates the criteria with one physics step; `joint_margin_ok` says whether every arm and
-    /// wrist joint is inside its range by the margin.
-    pub fn physics_step(&mut self, s: &StepState, scan: &ContactScan, joint_margin_ok: bool) {
+    /// wrist joint is inside its range by the margin; `palm_vel` computes the palm's velocity
+    /// at S_t.
+    pub fn physics_step(
+        &mut self,
+        s: &StepState,
+        scan: &ContactScan,
+        joint_margin_ok: bool,
+        palm_vel: &mut dyn FnMut() -> [f64; 3],
+    ) {
         if self.done {
             return;
         }
-        let rel = sub(s.object_vel, s.palm_vel);
         let dist = norm(sub(s.object_pos, s.palm_pos));
         if dist < self.closest.0 {
             self.closest = (dist, s.control_step);
@@ -314,11 +318,12 @@ impl Evaluator {
         match self.first_contact {
             None => {
                 if scan.touches(|c| c.is_admissible()) {
-                    let before = self.previous.unwrap_or(*s);
-                    let before_rel = sub(before.object_vel, before.palm_vel);
+                    // Contact forces act only in this step's integration, so the velocities of
+                    // S_t are those immediately before t_c.
+                    let rel = sub(s.object_vel, palm_vel());
                     self.first_contact = Some((s.time_secs, s.control_step));
-                    self.contact_speed = Some(norm(before_rel));
-                    let v = before.object_vel;
+                    self.contact_speed = Some(norm(rel));
+                    let v = s.object_vel;
                     let n = norm(v).max(1e-12);
                     self.incoming_dir = [v[0] / n, v[1] / n, v[2] / n];
                     self.contact_palm_pos = s.palm_pos;
@@ -349,6 +354,7 @@ impl Evaluator {
                 if scan.touches(|c| c == GeomClass::World) {
                     self.fail(Failure::Drop);
                 } else if dist > self.spec.release_distance_m && scan.admissible_contacts == 0 {
+                    let rel = sub(s.object_vel, palm_vel());
                     let away =
                         dot(rel, s.palm_normal) >= self.spec.rebound_normal_fraction * norm(rel);
                     self.fail(if away {
@@ -368,7 +374,6 @@ impl Evaluator {
             // Nothing decided the episode in time: the object was never caught.
             self.fail(Failure::Drop);
         }
-        self.previous = Some(*s);
     }
 
     /// The outcome and metrics once the episode is over.
