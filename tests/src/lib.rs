@@ -6,6 +6,7 @@
 //! threads); `pipelines/engine.toml` wires them into a pipeline with `tiny`, `small` and
 //! `paper` profiles.
 
+pub mod golden;
 pub mod kinds;
 pub mod project;
 
