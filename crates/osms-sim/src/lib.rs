@@ -6,6 +6,7 @@ pub mod conditions;
 pub mod control;
 pub mod episode;
 mod error;
+pub mod ffi;
 pub mod metrics;
 pub mod mjcf;
 pub mod robot;

@@ -31,6 +31,7 @@ pub(crate) const EXIT_INTERNAL: u8 = 2;
 
 /// Parses the command line and runs it with `registry`.
 pub fn main_with(registry: Registry) -> ExitCode {
+    osms_sim::ffi::route_mujoco_logs_at_startup();
     let cli = cli::Cli::parse();
     init_logging(&cli.global);
     match commands::run(cli, registry) {
