@@ -1,8 +1,10 @@
 //! The scripted privileged catcher: the prior the PPO teacher builds on. It predicts the
-//! object's ballistic flight, picks the point of the flight closest to the palm's home position
-//! as the interception point, moves the palm there facing the incoming object with
-//! damped-least-squares IK on MuJoCo's site Jacobian, and closes the fingers when the object
-//! arrives. It makes no attempt to soften the impact: that is what the teacher has to learn.
+//! object's ballistic flight, picks the flight point closest to where the object's centre rests
+//! on the palm at home, moves the palm under it (upward-facing, as at home) with
+//! damped-least-squares IK on MuJoCo's site Jacobian, closes the fingers when the object
+//! arrives and then holds the arm. The wrist's servo tower, which stands above the palm's base,
+//! stops an object sliding across the palm. It makes no attempt to soften the impact: that is
+//! what the teacher has to learn.
 
 use serde::{Deserialize, Serialize};
 
@@ -145,8 +147,13 @@ impl Policy for ScriptedCatcher {
         let palm = data.site_xpos()[ids.palm_site];
         let normal = palm_normal(&data.site_xmat()[ids.palm_site]);
 
-        // Interception: the predicted flight point closest to the palm's home position.
+        // The desired palm normal: home, turned by `facing_blend` toward the incoming object.
+        let home_normal = view.world.home_palm_normal;
+        let radius = view.condition.variant.geom().1[0];
+        // Interception: the predicted flight point closest to where the object's centre is when
+        // it rests on the palm at home.
         let home = view.world.home_palm_pos;
+        let aim: [f64; 3] = std::array::from_fn(|k| home[k] + radius * home_normal[k]);
         let at = |t: f64| {
             [
                 p[0] + v[0] * t,
@@ -158,18 +165,18 @@ impl Policy for ScriptedCatcher {
         let steps = (self.spec.horizon_secs / dt) as usize;
         let t_star = (0..=steps)
             .map(|i| i as f64 * dt)
-            .min_by(|a, b| norm(sub(at(*a), home)).total_cmp(&norm(sub(at(*b), home))))
+            .min_by(|a, b| norm(sub(at(*a), aim)).total_cmp(&norm(sub(at(*b), aim))))
             .unwrap_or(0.0);
         let meet = at(t_star);
         let v_meet = [v[0], v[1], v[2] - GRAVITY_MPS2 * t_star];
         let speed = norm(v_meet).max(1e-9);
         let facing = [-v_meet[0] / speed, -v_meet[1] / speed, -v_meet[2] / speed];
-        let radius = view.condition.variant.geom().1[0];
-        let want = [
-            meet[0] + radius * facing[0],
-            meet[1] + radius * facing[1],
-            meet[2] + radius * facing[2],
-        ];
+        let b = self.spec.facing_blend;
+        let blend: [f64; 3] = std::array::from_fn(|k| (1.0 - b) * home_normal[k] + b * facing[k]);
+        let bn = norm(blend).max(1e-9);
+        let want_normal = [blend[0] / bn, blend[1] / bn, blend[2] / bn];
+        // The palm sits one radius behind the object's centre along its normal.
+        let want: [f64; 3] = std::array::from_fn(|k| meet[k] - radius * want_normal[k]);
 
         let mut e_pos = sub(want, palm);
         let size = norm(e_pos);
@@ -177,15 +184,7 @@ impl Policy for ScriptedCatcher {
             let s = self.spec.max_step_error_m / size;
             e_pos = [e_pos[0] * s, e_pos[1] * s, e_pos[2] * s];
         }
-        let b = self.spec.facing_blend;
-        let h = view.world.home_palm_normal;
-        let blend = [
-            (1.0 - b) * h[0] + b * facing[0],
-            (1.0 - b) * h[1] + b * facing[1],
-            (1.0 - b) * h[2] + b * facing[2],
-        ];
-        let bn = norm(blend).max(1e-9);
-        let e_rot = cross(normal, [blend[0] / bn, blend[1] / bn, blend[2] / bn]);
+        let e_rot = cross(normal, want_normal);
         let g = self.spec.gain;
         let err = [
             g * e_pos[0],

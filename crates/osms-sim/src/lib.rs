@@ -58,11 +58,11 @@ mod tests {
         }
         let p = world.home_palm_pos;
         assert!(
-            (p[0] - 0.58).abs() < 0.03 && p[1].abs() < 0.03 && (p[2] - 0.93).abs() < 0.03,
+            (p[0] - 0.52).abs() < 0.03 && p[1].abs() < 0.03 && (p[2] - 0.87).abs() < 0.03,
             "palm at {p:?}"
         );
         assert!(
-            world.home_palm_normal[0] > 0.95,
+            world.home_palm_normal[2] > 0.99,
             "palm normal {:?}",
             world.home_palm_normal
         );

@@ -130,9 +130,10 @@ pub struct WorldSpec {
     /// MuJoCo's impratio: a larger value makes frictional grasps stiffer.
     pub impratio: f64,
     /// Arm posture at rest before a throw (rad, joints 1–7). The default puts the palm centre at
-    /// about (0.58, 0, 0.93) m facing the thrower (+x, tilted 13° down) with the fingers up and
-    /// every joint at least 0.68 rad inside its range (found by a grid search over MuJoCo's
-    /// forward kinematics).
+    /// about (0.52, 0, 0.87) m facing up, fingers toward the thrower (+x), every joint at least
+    /// 0.7 rad inside its range (a grid search over MuJoCo's forward kinematics). Palm up is the
+    /// paper's setting: the lateral offset is measured where the object crosses the palm's
+    /// horizontal plane.
     pub arm_home_rad: [f64; 7],
     /// Hand posture at rest (rad, in actuator order: wrist; thumb cmc, abd, mcp, dip; index,
     /// middle, ring, pinky abd, mcp, pip): a slightly curled open hand.
@@ -149,7 +150,7 @@ impl Default for WorldSpec {
             timestep_secs: 0.002,
             substeps: 10,
             impratio: 10.0,
-            arm_home_rad: [0.0, 1.1, 0.0, 3.0, 0.0, -1.0, 1.55],
+            arm_home_rad: [0.0, -0.45, 0.0, 1.225, 0.0, 0.123, -1.55],
             hand_home_rad: [
                 0.0, // wrist
                 0.0, 0.35, 0.2, 0.2, // thumb cmc, abd, mcp, dip

@@ -267,11 +267,12 @@ fn driving_a_joint_into_its_limit_is_a_joint_limit_failure() {
     let w = world();
     let spec = RolloutSpec::default();
     let mut action = hold_action(&w.spec.hand_home_rad);
-    action[3] = 1.0; // the elbow toward its upper limit
+    action[3] = -1.0; // the elbow toward its lower limit, 1.4 rad from home
+    // The object falls far away for 1.4 s, long after the joint reaches its limit.
     let rec = Episode::new(
         &w,
         &spec,
-        throw(sphere_small(), [3.0, 3.0, 3.0], [0.0; 3]),
+        throw(sphere_small(), [3.0, 3.0, 10.0], [0.0; 3]),
         rng::stream(0, "t", "x", 4),
     )
     .run(&mut Hold(action), &mut NoHooks);
