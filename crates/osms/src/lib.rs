@@ -44,12 +44,14 @@ pub fn main_with(registry: Registry) -> ExitCode {
 }
 
 fn init_logging(global: &cli::Global) {
+    // MuJoCo's own messages (targets `mujoco`, `mujoco::<topic>`) include compile timings at
+    // info level: show its warnings and errors only, unless asked to be verbose.
     let default = if global.quiet {
         "error"
     } else if global.verbose {
         "debug"
     } else {
-        "info"
+        "info,mujoco=warn"
     };
     let filter = tracing_subscriber::EnvFilter::try_from_env("OSMS_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
