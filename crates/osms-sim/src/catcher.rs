@@ -46,11 +46,14 @@ impl Default for CatcherSpec {
             open_hand_rad: [
                 0.0, 0.0, 0.4, 0.0, 0.0, 0.0, 0.1, 0.1, 0.0, 0.1, 0.1, 0.0, 0.1, 0.1, 0.0, 0.1, 0.1,
             ],
+            // Fully flexed fingers and an opposed thumb: the servos squeeze with all the force
+            // their position error allows.
             closed_hand_rad: [
-                0.0, 0.3, 0.9, 1.0, 1.0, 0.0, 1.4, 1.5, 0.0, 1.4, 1.5, 0.0, 1.4, 1.5, 0.0, 1.4, 1.5,
+                0.0, 0.5, 0.95, 1.7, 1.8, 0.0, 1.74, 1.86, 0.0, 1.74, 1.86, 0.0, 1.74, 1.86, 0.0,
+                1.74, 1.86,
             ],
             horizon_secs: 1.0,
-            facing_blend: 0.0,
+            facing_blend: 0.15,
         }
     }
 }

@@ -184,6 +184,10 @@ impl<'w> Episode<'w> {
         model.geom_solref_mut()[ids.object_geom][0] *= dr.contact_timeconst_scale;
 
         let mut data = MjData::new(Box::new(model));
+        // Mass-derived constants were computed at compile time; without this, gravity acts on
+        // the new mass but the inertia stays the old one. It uses `data` as scratch, so it comes
+        // before the initial state is set.
+        data.set_const();
         let ranges = joint_ranges();
         let mut posture = [0.0; N_ACTION];
         for i in 0..N_ARM {

@@ -286,7 +286,7 @@ impl Summarize for Evaluation {
 pub struct EvalScriptedStage;
 impl ItemStage for EvalScriptedStage {
     const KIND: &'static str = "eval_scripted";
-    const CODE_VERSION: u32 = 2;
+    const CODE_VERSION: u32 = 3;
     const USES_RNG: bool = true;
     const INPUTS: &'static [&'static str] = &["world", "conditions"];
     const DOC: &'static str =

@@ -85,6 +85,28 @@ fn free_flight_matches_the_integrators_closed_form_and_the_parabola() {
 }
 
 #[test]
+fn objects_of_any_mass_fall_at_g_in_an_episode() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    for mass in [0.04, 0.05, 0.06] {
+        let mut cond = throw(sphere_small(), [3.0, 3.0, 5.0], [0.0; 3]);
+        cond.mass_kg = mass;
+        let mut ep = Episode::new(&w, &spec, cond, rng::stream(0, "t", "mass", 0));
+        let mut policy = Hold(hold_action(&w.spec.hand_home_rad));
+        for _ in 0..10 {
+            ep.step(&mut policy, &mut NoHooks);
+        }
+        let d = ep.data();
+        let vz = d.qvel()[w.ids.object_dof + 2];
+        assert!(
+            (vz + GRAVITY_MPS2 * d.time()).abs() < 1e-9,
+            "mass {mass}: vz {vz} after {} s",
+            d.time()
+        );
+    }
+}
+
+#[test]
 fn a_throw_into_the_static_open_palm_hits_when_the_closed_form_says() {
     let w = world();
     let spec = RolloutSpec::default();
