@@ -34,12 +34,15 @@ pub struct CatcherSpec {
     /// How far the palm turns from its home orientation toward facing the incoming object
     /// (0: keep the home orientation, 1: face the object).
     pub facing_blend: f64,
+    /// Meet the object this far from the palm centre toward the fingertips (m): it lands on the
+    /// palm rather than on the wrist's tower, then slides back against the tower.
+    pub aim_toward_fingers_m: f64,
 }
 
 impl Default for CatcherSpec {
     fn default() -> Self {
         CatcherSpec {
-            ik_damping: 0.05,
+            ik_damping: 0.1,
             gain: 0.5,
             max_step_error_m: 0.05,
             close_distance_m: 0.07,
@@ -54,6 +57,7 @@ impl Default for CatcherSpec {
             ],
             horizon_secs: 1.0,
             facing_blend: 0.15,
+            aim_toward_fingers_m: 0.01,
         }
     }
 }
@@ -156,7 +160,13 @@ impl Policy for ScriptedCatcher {
         // Interception: the predicted flight point closest to where the object's centre is when
         // it rests on the palm at home.
         let home = view.world.home_palm_pos;
-        let aim: [f64; 3] = std::array::from_fn(|k| home[k] + radius * home_normal[k]);
+        let fingers = {
+            let m = data.site_xmat()[ids.palm_site];
+            [m[2], m[5], m[8]]
+        };
+        let a = self.spec.aim_toward_fingers_m;
+        let aim: [f64; 3] =
+            std::array::from_fn(|k| home[k] + radius * home_normal[k] + a * fingers[k]);
         let at = |t: f64| {
             [
                 p[0] + v[0] * t,
@@ -179,7 +189,8 @@ impl Policy for ScriptedCatcher {
         let bn = norm(blend).max(1e-9);
         let want_normal = [blend[0] / bn, blend[1] / bn, blend[2] / bn];
         // The palm sits one radius behind the object's centre along its normal.
-        let want: [f64; 3] = std::array::from_fn(|k| meet[k] - radius * want_normal[k]);
+        let want: [f64; 3] =
+            std::array::from_fn(|k| meet[k] - radius * want_normal[k] - a * fingers[k]);
 
         let mut e_pos = sub(want, palm);
         let size = norm(e_pos);

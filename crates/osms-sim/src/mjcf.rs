@@ -159,7 +159,10 @@ fn arm_and_hand(x: &mut Xml, spec: &WorldSpec) {
 }
 
 /// The hand on a flange adapter: a 20 mm adapter disc, the 0.9 kg servo tower (100 mm from the
-/// tower's origin to the wrist axis), the wrist, the palm and the five fingers.
+/// tower's origin to the wrist axis), the wrist, the palm and the five fingers. The tower's box
+/// sits toward the palm side (as the servos and tendons of a tendon-driven hand do), so its face
+/// stands 39 mm above the palm surface and stops an object sliding across the palm toward the
+/// wrist.
 fn hand(x: &mut Xml) {
     let ranges = hand_ranges_rad();
     let range = |name: &str| {
@@ -181,7 +184,7 @@ fn hand(x: &mut Xml) {
     ));
     x.open("<body name=\"hand_tower\" pos=\"0 0 0.02\" gravcomp=\"1\">");
     x.line(&format!(
-        "<geom name=\"hand_tower_geom\" type=\"box\" pos=\"0 0 0.045\" size=\"0.035 0.03 0.045\" mass=\"0.9\" {MOUNT_CONTACT} rgba=\"0.2 0.2 0.2 1\"/>"
+        "<geom name=\"hand_tower_geom\" type=\"box\" pos=\"0 0.02 0.045\" size=\"0.035 0.03 0.045\" mass=\"0.9\" {MOUNT_CONTACT} rgba=\"0.2 0.2 0.2 1\"/>"
     ));
     x.open("<body name=\"hand_palm\" pos=\"0 0 0.1\" gravcomp=\"1\">");
     x.line(&joint("hand_wrist", "1 0 0").replace("damping=\"0.1\"", "damping=\"0.5\""));

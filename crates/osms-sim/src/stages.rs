@@ -54,7 +54,7 @@ impl WorldArtifact {
 pub struct WorldStage;
 impl Stage for WorldStage {
     const KIND: &'static str = "world";
-    const CODE_VERSION: u32 = 1;
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = false;
     const INPUTS: &'static [&'static str] = &[];
     const DOC: &'static str =
@@ -286,7 +286,7 @@ impl Summarize for Evaluation {
 pub struct EvalScriptedStage;
 impl ItemStage for EvalScriptedStage {
     const KIND: &'static str = "eval_scripted";
-    const CODE_VERSION: u32 = 3;
+    const CODE_VERSION: u32 = 4;
     const USES_RNG: bool = true;
     const INPUTS: &'static [&'static str] = &["world", "conditions"];
     const DOC: &'static str =
