@@ -22,7 +22,7 @@ use crate::metrics::{Evaluator, Failure, Metrics, Outcome, StepState, SuccessSpe
 use crate::world::{World, palm_normal};
 
 /// Everything about how rollouts run, besides the world and ω.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RolloutSpec {
     pub control: ControlSpec,
@@ -30,6 +30,20 @@ pub struct RolloutSpec {
     pub success: SuccessSpec,
     /// Keep the privileged observation of every step in the record.
     pub record_privileged: bool,
+    /// How many deployable frames (the current one included) a policy sees.
+    pub history_steps: usize,
+}
+
+impl Default for RolloutSpec {
+    fn default() -> Self {
+        RolloutSpec {
+            control: ControlSpec::default(),
+            dr: DrSpec::default(),
+            success: SuccessSpec::default(),
+            record_privileged: false,
+            history_steps: 4,
+        }
+    }
 }
 
 /// Length of a deployable observation frame: arm q, q̇ (7 + 7), hand q, q̇ (17 + 17), observed
@@ -47,6 +61,8 @@ pub struct PolicyView<'a> {
     pub step: usize,
     pub time_secs: f64,
     pub deployable: &'a [f64],
+    /// The last `history_steps` deployable frames, oldest first, ending with `deployable`.
+    pub history: &'a VecDeque<Vec<f64>>,
     pub privileged: &'a [f64],
     pub world: &'a World,
     pub condition: &'a TaskCondition,
@@ -105,6 +121,7 @@ struct Controller {
     executed: Action,
     pending_actions: VecDeque<Action>,
     pending_object_pos: VecDeque<[f64; 3]>,
+    history: VecDeque<Vec<f64>>,
 }
 
 /// An exact copy of an episode's state at the start of a control step.
@@ -227,6 +244,7 @@ impl<'w> Episode<'w> {
             executed: hold,
             pending_actions: VecDeque::from(vec![hold; dr.actuation_delay_steps as usize]),
             pending_object_pos: VecDeque::new(),
+            history: VecDeque::new(),
         };
         let record = RolloutRecord {
             condition: condition.clone(),
@@ -347,10 +365,15 @@ impl<'w> Episode<'w> {
             return false;
         }
         let frame = self.observe();
+        self.controller.history.push_back(frame.deployable.clone());
+        while self.controller.history.len() > self.spec.history_steps.max(1) {
+            self.controller.history.pop_front();
+        }
         let view = PolicyView {
             step: self.step,
             time_secs: self.data.time(),
             deployable: &frame.deployable,
+            history: &self.controller.history,
             privileged: &frame.privileged,
             world: self.world,
             condition: &self.condition,

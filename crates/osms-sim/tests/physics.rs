@@ -301,6 +301,49 @@ fn driving_a_joint_into_its_limit_is_a_joint_limit_failure() {
     assert_eq!(rec.outcome.failures, vec![Failure::JointLimit]);
 }
 
+/// Checks what the policy sees of the past.
+struct HistoryCheck {
+    hold: Action,
+    seen: Vec<usize>,
+}
+impl Policy for HistoryCheck {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        assert_eq!(
+            view.history.back().map(Vec::as_slice),
+            Some(view.deployable)
+        );
+        assert!(
+            view.history
+                .iter()
+                .all(|f| f.len() == osms_sim::episode::DEPLOYABLE_LEN)
+        );
+        self.seen.push(view.history.len());
+        self.hold
+    }
+}
+
+#[test]
+fn policies_see_the_last_frames_oldest_first() {
+    let w = world();
+    let spec = RolloutSpec {
+        history_steps: 3,
+        ..RolloutSpec::default()
+    };
+    let mut policy = HistoryCheck {
+        hold: hold_action(&w.spec.hand_home_rad),
+        seen: Vec::new(),
+    };
+    let rec = Episode::new(
+        &w,
+        &spec,
+        throw(sphere_small(), [3.0, 3.0, 3.0], [0.0; 3]),
+        rng::stream(0, "t", "h", 0),
+    )
+    .run(&mut policy, &mut NoHooks);
+    assert!(rec.steps > 5);
+    assert_eq!(&policy.seen[..5], &[1, 2, 3, 3, 3]);
+}
+
 #[test]
 fn a_nan_action_is_an_invalid_action_failure_not_a_panic() {
     let w = world();
