@@ -1,0 +1,19 @@
+//! A deterministic neural-network core: own f32 kernels with a fixed summation order, layers,
+//! losses, reverse-mode gradients and Adam, bit-exact across threads and CPUs.
+//!
+//! Entry points: [`kernels`] (matrix products, reductions), [`Mlp`] (forward, backward),
+//! [`mse`]/[`weighted_mse`], [`Adam`].
+
+pub mod kernels;
+mod layers;
+mod matrix;
+mod optim;
+
+pub use layers::{Activation, Linear, LinearGrad, Mlp, MlpCache, flatten_grads, mse, weighted_mse};
+pub use matrix::Matrix;
+pub use optim::{Adam, AdamConfig, Schedule, global_norm};
+
+impl osms_store::Artifact for Mlp {
+    const TYPE_TAG: &'static str = "nn.mlp";
+    const SCHEMA_VERSION: u16 = 1;
+}
