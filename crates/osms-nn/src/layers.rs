@@ -196,6 +196,17 @@ impl Mlp {
         (d, grads)
     }
 
+    /// ∂ outputs / ∂ inputs[range] at one input row `x` (paper Eq. 4's decoder Jacobian J_G with
+    /// respect to z): one batched reverse pass with a unit cotangent per output.
+    pub fn input_jacobian(&self, x: &[f32], range: std::ops::Range<usize>) -> Matrix {
+        let outputs = self.layers.last().map(|l| l.b.len()).unwrap_or(0);
+        let batch = Matrix::from_fn(outputs, x.len(), |_, j| x[j]);
+        let (_, cache) = self.forward_cached(&batch);
+        let eye = Matrix::from_fn(outputs, outputs, |i, j| if i == j { 1.0 } else { 0.0 });
+        let (dx, _) = self.backward(&cache, &eye);
+        Matrix::from_fn(outputs, range.len(), |o, k| dx.get(o, range.start + k))
+    }
+
     /// Every parameter slice, in a fixed order (layer by layer, weights then bias).
     pub fn params_mut(&mut self) -> Vec<&mut [f32]> {
         self.layers

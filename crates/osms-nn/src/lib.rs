@@ -4,11 +4,16 @@
 //! Entry points: [`kernels`] (matrix products, reductions), [`Mlp`] (forward, backward),
 //! [`mse`]/[`weighted_mse`], [`Adam`].
 
+mod extra;
 pub mod kernels;
 mod layers;
 mod matrix;
 mod optim;
 
+pub use extra::{
+    DiagGaussian, GaussianGrad, LayerNorm, LayerNormCache, sinusoidal_embedding,
+    sinusoidal_embedding_backward, softmax_cross_entropy,
+};
 pub use layers::{Activation, Linear, LinearGrad, Mlp, MlpCache, flatten_grads, mse, weighted_mse};
 pub use matrix::Matrix;
 pub use optim::{Adam, AdamConfig, Schedule, global_norm};
