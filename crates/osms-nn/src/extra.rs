@@ -41,8 +41,8 @@ impl LayerNorm {
             let var = row.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
             let r = 1.0 / libm::sqrtf(var + self.eps);
             inv_std.push(r);
-            for j in 0..x.cols {
-                let h = (row[j] - mean) * r;
+            for (j, v) in row.iter().enumerate() {
+                let h = (v - mean) * r;
                 normed.set(i, j, h);
                 y.set(i, j, h * self.gamma[j] + self.beta[j]);
             }
@@ -83,7 +83,7 @@ impl LayerNorm {
 /// The sinusoidal embedding of a scalar (flow-matching time): `[sin(t·f_k)…, cos(t·f_k)…]` with
 /// `f_k = max_period^(-k / half)`.
 pub fn sinusoidal_embedding(t: &[f32], dim: usize, max_period: f32) -> Matrix {
-    assert!(dim % 2 == 0, "the embedding dimension must be even");
+    assert!(dim.is_multiple_of(2), "the embedding dimension must be even");
     let half = dim / 2;
     let freqs: Vec<f32> = (0..half)
         .map(|k| libm::expf(-libm::logf(max_period) * k as f32 / half as f32))
