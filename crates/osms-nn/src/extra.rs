@@ -1,6 +1,9 @@
 //! LayerNorm, the sinusoidal scalar embedding, the diagonal-Gaussian head and softmax
 //! cross-entropy, each with its gradient.
 
+// The loops index several parallel arrays (mean, log-std, gradients) by the same i, j.
+#![allow(clippy::needless_range_loop)]
+
 use serde::{Deserialize, Serialize};
 
 use crate::Matrix;
