@@ -86,7 +86,10 @@ impl LayerNorm {
 /// The sinusoidal embedding of a scalar (flow-matching time): `[sin(t·f_k)…, cos(t·f_k)…]` with
 /// `f_k = max_period^(-k / half)`.
 pub fn sinusoidal_embedding(t: &[f32], dim: usize, max_period: f32) -> Matrix {
-    assert!(dim.is_multiple_of(2), "the embedding dimension must be even");
+    assert!(
+        dim.is_multiple_of(2),
+        "the embedding dimension must be even"
+    );
     let half = dim / 2;
     let freqs: Vec<f32> = (0..half)
         .map(|k| libm::expf(-libm::logf(max_period) * k as f32 / half as f32))
