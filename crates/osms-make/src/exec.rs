@@ -220,16 +220,16 @@ pub fn make(
         drop(progress);
         let wall_time_secs = started.elapsed().as_secs_f64();
         let r = match result {
-            Ok(content_hash) => {
+            Ok((content_hash, size_bytes)) => {
                 let rec = record(
                     plan,
                     id,
                     key,
                     content_hash,
                     &input_hashes,
-                    store,
+                    size_bytes,
                     wall_time_secs,
-                )?;
+                );
                 store.put_record(&rec)?;
                 heads.update(&name, &rec)?;
                 available.insert(id, content_hash);
@@ -270,7 +270,7 @@ fn build(
     input_hashes: &[(String, Hash)],
     pool: &rayon::ThreadPool,
     progress: &dyn Progress,
-) -> Result<Hash, StageError> {
+) -> Result<(Hash, u64), StageError> {
     let stage = &plan.stages[id.stage];
     let mut inputs = BTreeMap::new();
     for (slot, hash) in input_hashes {
@@ -301,7 +301,7 @@ fn build(
         )
         .into());
     }
-    Ok(store.put(&bytes)?)
+    Ok((store.put(&bytes)?, bytes.len() as u64))
 }
 
 fn record(
@@ -310,14 +310,11 @@ fn record(
     key: Hash,
     content_hash: Hash,
     input_hashes: &[(String, Hash)],
-    store: &Store,
+    size_bytes: u64,
     wall_time_secs: f64,
-) -> Result<Record> {
+) -> Record {
     let stage = &plan.stages[id.stage];
-    let size_bytes = std::fs::metadata(store.object_path(&content_hash))
-        .map(|m| m.len())
-        .unwrap_or(0);
-    Ok(Record {
+    Record {
         key,
         content_hash,
         stage: stage.name.clone(),
@@ -331,7 +328,7 @@ fn record(
         size_bytes,
         osms_version: OSMS_VERSION.to_string(),
         wall_time_secs,
-    })
+    }
 }
 
 /// Shards of an itemised stage live in the store as artifacts of their own, so a killed make
@@ -372,9 +369,9 @@ impl ShardIo for StoreShards<'_> {
             shard_key(&self.stage_key, start, end),
             content_hash,
             self.input_hashes,
-            self.store,
+            bytes.len() as u64,
             0.0,
-        )?;
+        );
         rec.shard = Some(ShardOf {
             stage_key: self.stage_key,
             start,

@@ -250,48 +250,43 @@ impl<I: Serialize + DeserializeOwned> Artifact for ShardItems<I> {
     const SCHEMA_VERSION: u16 = 1;
 }
 
-impl<S: Stage> DynKind for Plain<S> {
-    fn info(&self) -> KindInfo {
-        KindInfo {
-            name: S::KIND,
-            code_version: S::CODE_VERSION,
-            uses_rng: S::USES_RNG,
-            inputs: S::INPUTS,
-            doc: S::DOC,
-            itemised: false,
-            output_tag: <S::Output as Artifact>::TYPE_TAG,
+/// The `DynKind` methods that read only the kind's constants and types, the same for plain and
+/// itemised kinds; `S` is the kind's type parameter at the call site.
+macro_rules! shared_kind_methods {
+    ($itemised:expr) => {
+        fn info(&self) -> KindInfo {
+            KindInfo {
+                name: S::KIND,
+                code_version: S::CODE_VERSION,
+                uses_rng: S::USES_RNG,
+                inputs: S::INPUTS,
+                doc: S::DOC,
+                itemised: $itemised,
+                output_tag: <S::Output as Artifact>::TYPE_TAG,
+            }
         }
-    }
-    fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
-        parse_typed::<S::Params>(value)
-    }
+        fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
+            parse_typed::<S::Params>(value)
+        }
+        fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
+            Ok(decode::<S::Output>(bytes)?.summary())
+        }
+        fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error> {
+            Ok(decode::<S::Output>(bytes)?.text())
+        }
+    };
+}
+
+impl<S: Stage> DynKind for Plain<S> {
+    shared_kind_methods!(false);
     fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
         let ctx = env.ctx::<S::Params>();
         Ok(encode(&self.0.run(&ctx)?)?)
     }
-    fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
-        Ok(decode::<S::Output>(bytes)?.summary())
-    }
-    fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error> {
-        Ok(decode::<S::Output>(bytes)?.text())
-    }
 }
 
 impl<S: ItemStage> DynKind for Itemised<S> {
-    fn info(&self) -> KindInfo {
-        KindInfo {
-            name: S::KIND,
-            code_version: S::CODE_VERSION,
-            uses_rng: S::USES_RNG,
-            inputs: S::INPUTS,
-            doc: S::DOC,
-            itemised: true,
-            output_tag: <S::Output as Artifact>::TYPE_TAG,
-        }
-    }
-    fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
-        parse_typed::<S::Params>(value)
-    }
+    shared_kind_methods!(true);
     fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
         let ctx = env.ctx::<S::Params>();
         let prepared = self.0.prepare(&ctx)?;
@@ -334,12 +329,6 @@ impl<S: ItemStage> DynKind for Itemised<S> {
             items.extend(shard);
         }
         Ok(encode(&self.0.merge(&ctx, prepared, items)?)?)
-    }
-    fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
-        Ok(decode::<S::Output>(bytes)?.summary())
-    }
-    fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error> {
-        Ok(decode::<S::Output>(bytes)?.text())
     }
 }
 

@@ -145,11 +145,10 @@ impl Pipeline {
         for (name, s) in raw.stages {
             if !valid_name(&name) {
                 return Err(Error::invalid(
-                    None,
+                    key_location(path, &source, &doc, &["stages", &name]),
                     format!("stage name `{name}` is not allowed"),
                     Some("use letters, digits, `_` and `-`, starting with a letter".into()),
-                ))
-                .map_err(|e| relocate(e, path, &source, &doc, &["stages", &name]));
+                ));
             }
             stages.insert(
                 name.clone(),
@@ -231,22 +230,6 @@ fn raw_stage_names(doc: &toml_edit::Document<String>) -> Vec<String> {
         .and_then(|s| s.as_table_like())
         .map(|t| t.iter().map(|(k, _)| k.to_string()).collect())
         .unwrap_or_default()
-}
-
-fn relocate(
-    e: Error,
-    path: &Path,
-    source: &str,
-    doc: &toml_edit::Document<String>,
-    keys: &[&str],
-) -> Error {
-    match e {
-        Error::Invalid(mut inv) if inv.location.is_none() => {
-            inv.location = key_location(path, source, doc, keys);
-            Error::Invalid(inv)
-        }
-        other => other,
-    }
 }
 
 /// Deep merge: tables merge key by key, anything else is replaced.

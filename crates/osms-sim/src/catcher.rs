@@ -177,9 +177,12 @@ impl Policy for ScriptedCatcher {
         let dt = 0.005;
         let steps = (self.spec.horizon_secs / dt) as usize;
         let t_star = (0..=steps)
-            .map(|i| i as f64 * dt)
-            .min_by(|a, b| norm(sub(at(*a), aim)).total_cmp(&norm(sub(at(*b), aim))))
-            .unwrap_or(0.0);
+            .map(|i| {
+                let t = i as f64 * dt;
+                (t, norm(sub(at(t), aim)))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(0.0, |(t, _)| t);
         let meet = at(t_star);
         let v_meet = [v[0], v[1], v[2] - GRAVITY_MPS2 * t_star];
         let speed = norm(v_meet).max(1e-9);

@@ -59,18 +59,16 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
     }
     let bytes = store.get(&first.content_hash)?;
     let header = read_header(&bytes)?;
-    let text = match (ctx.registry.get(&first.kind), first.shard) {
-        (Some(kind), None) => kind.text(&bytes)?,
-        _ => None,
-    };
-    let summary = match (ctx.registry.get(&first.kind), first.shard) {
-        (_, Some(shard)) => {
-            serde_json::json!({ "shard of": shard.stage_key, "items": format!("{}..{}", shard.start, shard.end) })
-        }
-        (Some(kind), None) => kind.summarize(&bytes)?,
-        (None, None) => {
-            serde_json::json!(format!("kind `{}` is not known to this osms", first.kind))
-        }
+    let (summary, text) = match (ctx.registry.get(&first.kind), first.shard) {
+        (_, Some(shard)) => (
+            serde_json::json!({ "shard of": shard.stage_key, "items": format!("{}..{}", shard.start, shard.end) }),
+            None,
+        ),
+        (Some(kind), None) => (kind.summarize(&bytes)?, kind.text(&bytes)?),
+        (None, None) => (
+            serde_json::json!(format!("kind `{}` is not known to this osms", first.kind)),
+            None,
+        ),
     };
     let shown = Shown {
         record: first,
