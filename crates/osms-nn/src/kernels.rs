@@ -1,88 +1,292 @@
 //! f32 matrix products with a fixed summation order (ARCHITECTURE.md, "Numerics that must not
 //! drift"). Every output element is `((0 + a₀b₀) + a₁b₁) + …` in increasing k, with separate
 //! multiply and add (Rust never contracts them into an FMA), so the tiled kernels, the scalar
-//! reference, any thread count and any x86-64 or aarch64 CPU give the same bits. The tiled
-//! kernels vectorise across output columns only (a row of 16 accumulators per tile, which the
-//! compiler keeps in registers with the baseline instruction set); rows are split across threads,
-//! never k.
+//! reference, any thread count and any x86-64 or aarch64 CPU give the same bits.
+//!
+//! The tiled kernel keeps an MR × NR block of C in registers and walks k once, reading B from
+//! packed NR-wide panels. SIMD lanes run across output columns only, and each lane does exactly
+//! the scalar sequence, so the instruction set changes the speed but never a bit. The widest set
+//! the CPU has (AVX-512, AVX2 or the baseline) is picked once at run time; rows are split across
+//! threads in whole MR-row groups, never k.
 
 use rayon::prelude::*;
 
 use crate::Matrix;
+pub use crate::level::Level;
+use crate::level::{dispatch, per_level};
 
-/// Columns per register tile.
-const TILE: usize = 16;
 /// Below this many multiply-adds, threads cost more than they save.
 const PARALLEL_MIN_WORK: usize = 1 << 16;
 
-/// One output row: `c_row[j] = Σ_k a_row[k] · b[k][j]` in k order, 16 columns at a time.
-fn row_times(a_row: &[f32], b: &[f32], n: usize, c_row: &mut [f32]) {
-    let mut j0 = 0;
-    while j0 < n {
-        let width = TILE.min(n - j0);
-        let mut acc = [0.0f32; TILE];
-        for (k, &a) in a_row.iter().enumerate() {
-            let b_row = &b[k * n + j0..k * n + j0 + width];
-            for (acc, &bv) in acc[..width].iter_mut().zip(b_row) {
-                *acc += a * bv;
-            }
+/// A matrix operand as stored, and whether the product uses its transpose.
+#[derive(Clone, Copy)]
+struct Operand<'a> {
+    m: &'a Matrix,
+    transposed: bool,
+}
+
+impl Operand<'_> {
+    fn rows(&self) -> usize {
+        if self.transposed {
+            self.m.cols
+        } else {
+            self.m.rows
         }
-        c_row[j0..j0 + width].copy_from_slice(&acc[..width]);
-        j0 += width;
+    }
+
+    fn cols(&self) -> usize {
+        if self.transposed {
+            self.m.rows
+        } else {
+            self.m.cols
+        }
     }
 }
 
-fn for_rows(c: &mut Matrix, work: usize, f: impl Fn(usize, &mut [f32]) + Sync + Send) {
-    let n = c.cols;
-    if n == 0 {
-        return;
+/// B's columns in panels of `nr`, each panel `k × nr` contiguous, the last one zero-padded.
+fn pack_b(b: Operand<'_>, nr: usize) -> Vec<f32> {
+    let (k, n) = (b.rows(), b.cols());
+    let data = &b.m.data;
+    let mut out = vec![0.0f32; n.div_ceil(nr) * k * nr];
+    for (p, panel) in out.chunks_exact_mut(k * nr).enumerate() {
+        let j0 = p * nr;
+        let width = nr.min(n - j0);
+        if b.transposed {
+            // Read the stored rows contiguously; the strided writes stay inside the panel.
+            for j in 0..width {
+                let src = &data[(j0 + j) * k..(j0 + j + 1) * k];
+                for (dst, &v) in panel.chunks_exact_mut(nr).zip(src) {
+                    dst[j] = v;
+                }
+            }
+        } else {
+            for (kk, dst) in panel.chunks_exact_mut(nr).enumerate() {
+                dst[..width].copy_from_slice(&data[kk * n + j0..kk * n + j0 + width]);
+            }
+        }
     }
-    if work >= PARALLEL_MIN_WORK {
-        c.data
-            .par_chunks_mut(n)
-            .enumerate()
-            .for_each(|(i, row)| f(i, row));
+    out
+}
+
+/// Rows `i0 .. i0 + group` of A interleaved by k into `panel` (`k × h`), zero-padded.
+fn pack_a(a: Operand<'_>, i0: usize, group: usize, h: usize, panel: &mut [f32]) {
+    let (m, k) = (a.rows(), a.cols());
+    let data = &a.m.data;
+    panel.fill(0.0);
+    for (kk, dst) in panel.chunks_exact_mut(h).enumerate() {
+        for (r, d) in dst[..group].iter_mut().enumerate() {
+            *d = if a.transposed {
+                data[kk * m + i0 + r]
+            } else {
+                data[(i0 + r) * k + kk]
+            };
+        }
+    }
+}
+
+/// H rows × NR columns of accumulators, updated by one k step.
+#[inline(always)]
+fn step<const H: usize, const NR: usize>(acc: &mut [[f32; NR]; H], a: &[f32; H], b: &[f32; NR]) {
+    for (acc_row, &av) in acc.iter_mut().zip(a) {
+        for (acc, &bv) in acc_row.iter_mut().zip(b) {
+            *acc += av * bv;
+        }
+    }
+}
+
+/// Stores the first `rows` rows of `acc` into C at column `j0`. Whole-width stores keep the
+/// accumulators out of memory inside the k loop; only a ragged last panel copies a prefix.
+#[inline(always)]
+fn store<const H: usize, const NR: usize>(
+    acc: &[[f32; NR]; H],
+    c: &mut [f32],
+    n: usize,
+    rows: usize,
+    j0: usize,
+) {
+    let width = NR.min(n - j0);
+    for (r, acc_row) in acc.iter().enumerate().take(rows) {
+        let dst = &mut c[r * n + j0..r * n + j0 + width];
+        if let Ok(dst) = <&mut [f32; NR]>::try_from(&mut *dst) {
+            *dst = *acc_row;
+        } else {
+            dst.copy_from_slice(&acc_row[..width]);
+        }
+    }
+}
+
+/// One 2H × NR block of C from two H-row panels of A (`k × H` each, interleaved by k) and one
+/// panel of B (`k × NR`), all walked by value with no indexing. The block is two separate H × NR
+/// arrays because LLVM keeps an array of up to 128 floats in registers but spills a larger one
+/// on every k step. Rows and columns past the matrix edge were zero-padded and are not stored.
+#[inline(always)]
+fn micro<const H: usize, const NR: usize>(
+    a_lo: &[f32],
+    a_hi: &[f32],
+    b_panel: &[f32],
+    c: &mut [f32],
+    n: usize,
+    rows: usize,
+    j0: usize,
+) {
+    let (lo_ks, _) = a_lo.as_chunks::<H>();
+    let (hi_ks, _) = a_hi.as_chunks::<H>();
+    let (b_ks, _) = b_panel.as_chunks::<NR>();
+    let mut lo = [[0.0f32; NR]; H];
+    let mut hi = [[0.0f32; NR]; H];
+    if rows > H {
+        for ((a_lo, a_hi), b) in lo_ks.iter().zip(hi_ks).zip(b_ks) {
+            step(&mut lo, a_lo, b);
+            step(&mut hi, a_hi, b);
+        }
+        store(&lo, c, n, H, j0);
+        store(&hi, &mut c[H * n..], n, rows - H, j0);
     } else {
+        for (a_lo, b) in lo_ks.iter().zip(b_ks) {
+            step(&mut lo, a_lo, b);
+        }
+        store(&lo, c, n, rows, j0);
+    }
+}
+
+/// The rows of C starting at row `i0` (as many as `c` holds), every panel of B, 2H at a time.
+#[inline(always)]
+fn block<const H: usize, const NR: usize>(
+    a: Operand<'_>,
+    i0: usize,
+    packed: &[f32],
+    c: &mut [f32],
+    n: usize,
+) {
+    let k = a.cols();
+    let rows = c.len() / n;
+    let mut a_lo = vec![0.0f32; k * H];
+    let mut a_hi = vec![0.0f32; k * H];
+    for g0 in (0..rows).step_by(2 * H) {
+        let group = (2 * H).min(rows - g0);
+        pack_a(a, i0 + g0, group.min(H), H, &mut a_lo);
+        pack_a(a, i0 + g0 + H, group.saturating_sub(H), H, &mut a_hi);
+        for (p, b_panel) in packed.chunks_exact(k * NR).enumerate() {
+            micro::<H, NR>(&a_lo, &a_hi, b_panel, &mut c[g0 * n..], n, group, p * NR);
+        }
+    }
+}
+
+/// C's rows one at a time as `c += a_k · B[k]` in k order: for a few rows, packing B would cost
+/// as much as the product. The same sequence per element as every other path.
+#[inline(always)]
+fn rows_axpy(a: &[f32], b: &[f32], c: &mut [f32], n: usize) {
+    let k = b.len() / n;
+    for (a_row, c_row) in a.chunks_exact(k).zip(c.chunks_exact_mut(n)) {
+        for (&av, b_row) in a_row.iter().zip(b.chunks_exact(n)) {
+            for (c, &bv) in c_row.iter_mut().zip(b_row) {
+                *c += av * bv;
+            }
+        }
+    }
+}
+
+per_level!(block_baseline, block_avx2, block_avx512, [LEVEL]
+    (a: Operand<'_>, i0: usize, packed: &[f32], c: &mut [f32], n: usize)
+    => block::<{ LEVEL.mr() / 2 }, { LEVEL.nr() }>(a, i0, packed, c, n));
+
+per_level!(axpy_baseline, axpy_avx2, axpy_avx512,
+    (a: &[f32], b: &[f32], c: &mut [f32], n: usize) => rows_axpy(a, b, c, n));
+
+/// Rows of A below which the row-by-row path beats packing.
+const AXPY_MAX_ROWS: usize = 2;
+
+fn product(level: Level, a: Operand<'_>, b: Operand<'_>, what: &str) -> Matrix {
+    assert_eq!(
+        a.cols(),
+        b.rows(),
+        "{what}: {}x{} times {}x{}",
+        a.rows(),
+        a.cols(),
+        b.rows(),
+        b.cols()
+    );
+    let (m, k, n) = (a.rows(), a.cols(), b.cols());
+    let mut c = Matrix::zeros(m, n);
+    if m == 0 || n == 0 || k == 0 {
+        return c;
+    }
+    if m <= AXPY_MAX_ROWS && !a.transposed && !b.transposed {
+        dispatch!(
+            level,
+            axpy_baseline,
+            axpy_avx2,
+            axpy_avx512(&a.m.data, &b.m.data, &mut c.data, n)
+        );
+        return c;
+    }
+    let packed = pack_b(b, level.nr());
+    let mr = level.mr();
+    if m * k * n >= PARALLEL_MIN_WORK {
         c.data
-            .chunks_mut(n)
+            .par_chunks_mut(mr * n)
             .enumerate()
-            .for_each(|(i, row)| f(i, row));
+            .for_each(|(g, rows)| {
+                dispatch!(
+                    level,
+                    block_baseline,
+                    block_avx2,
+                    block_avx512(a, g * mr, &packed, rows, n)
+                )
+            });
+    } else {
+        dispatch!(
+            level,
+            block_baseline,
+            block_avx2,
+            block_avx512(a, 0, &packed, &mut c.data, n)
+        );
+    }
+    c
+}
+
+fn plain(m: &Matrix) -> Operand<'_> {
+    Operand {
+        m,
+        transposed: false,
+    }
+}
+
+fn transposed(m: &Matrix) -> Operand<'_> {
+    Operand {
+        m,
+        transposed: true,
     }
 }
 
 /// C = A · B.
 pub fn matmul(a: &Matrix, b: &Matrix) -> Matrix {
-    assert_eq!(
-        a.cols, b.rows,
-        "A·B: {}x{} times {}x{}",
-        a.rows, a.cols, b.rows, b.cols
-    );
-    let (m, k, n) = (a.rows, a.cols, b.cols);
-    let mut c = Matrix::zeros(m, n);
-    for_rows(&mut c, m * k * n, |i, row| {
-        row_times(&a.data[i * k..(i + 1) * k], &b.data, n, row)
-    });
-    c
+    matmul_at(Level::detected(), a, b)
 }
 
 /// C = Aᵀ · B (A is k × m).
 pub fn matmul_tn(a: &Matrix, b: &Matrix) -> Matrix {
-    assert_eq!(
-        a.rows, b.rows,
-        "Aᵀ·B: ({}x{})ᵀ times {}x{}",
-        a.rows, a.cols, b.rows, b.cols
-    );
-    matmul(&a.transpose(), b)
+    matmul_tn_at(Level::detected(), a, b)
 }
 
 /// C = A · Bᵀ (B is n × k).
 pub fn matmul_nt(a: &Matrix, b: &Matrix) -> Matrix {
-    assert_eq!(
-        a.cols, b.cols,
-        "A·Bᵀ: {}x{} times ({}x{})ᵀ",
-        a.rows, a.cols, b.rows, b.cols
-    );
-    matmul(a, &b.transpose())
+    matmul_nt_at(Level::detected(), a, b)
+}
+
+/// [`matmul`] on a given level (a level the CPU lacks runs the baseline).
+pub fn matmul_at(level: Level, a: &Matrix, b: &Matrix) -> Matrix {
+    product(level, plain(a), plain(b), "A·B")
+}
+
+/// [`matmul_tn`] on a given level.
+pub fn matmul_tn_at(level: Level, a: &Matrix, b: &Matrix) -> Matrix {
+    product(level, transposed(a), plain(b), "Aᵀ·B")
+}
+
+/// [`matmul_nt`] on a given level.
+pub fn matmul_nt_at(level: Level, a: &Matrix, b: &Matrix) -> Matrix {
+    product(level, plain(a), transposed(b), "A·Bᵀ")
 }
 
 /// The plain triple loop the tiled kernels must match bit for bit.
@@ -140,21 +344,34 @@ mod tests {
             (31, 64, 47),
             (64, 3, 129),
             (2, 300, 17),
+            (9, 70, 33),
+            (13, 1, 65),
+            (0, 4, 5),
+            (4, 0, 5),
         ] {
             let a = random(m, k, 1);
             let b = random(k, n, 2);
             let reference = matmul_reference(&a, &b);
-            assert_eq!(bits(&matmul(&a, &b)), bits(&reference), "{m}x{k}x{n}");
-            assert_eq!(
-                bits(&matmul_tn(&a.transpose(), &b)),
-                bits(&reference),
-                "tn {m}x{k}x{n}"
-            );
-            assert_eq!(
-                bits(&matmul_nt(&a, &b.transpose())),
-                bits(&reference),
-                "nt {m}x{k}x{n}"
-            );
+            for level in Level::available() {
+                assert_eq!(
+                    bits(&matmul_at(level, &a, &b)),
+                    bits(&reference),
+                    "{level:?} {m}x{k}x{n}"
+                );
+            }
+            let (at, bt) = (a.transpose(), b.transpose());
+            for level in Level::available() {
+                assert_eq!(
+                    bits(&matmul_tn_at(level, &at, &b)),
+                    bits(&reference),
+                    "tn {level:?} {m}x{k}x{n}"
+                );
+                assert_eq!(
+                    bits(&matmul_nt_at(level, &a, &bt)),
+                    bits(&reference),
+                    "nt {level:?} {m}x{k}x{n}"
+                );
+            }
         }
     }
 

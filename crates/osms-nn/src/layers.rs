@@ -4,9 +4,10 @@ use osms_make::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
 use crate::Matrix;
-use crate::kernels::{matmul, matmul_nt, matmul_tn};
+use crate::kernels::{Level, matmul, matmul_nt, matmul_tn};
 
-/// Element-wise activations; transcendental functions from `libm`, never the platform's.
+/// Element-wise activations. SiLU uses [`crate::math::exp`], which runs in SIMD lanes; the
+/// others use `libm`; never the platform's maths library.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Activation {
@@ -23,7 +24,7 @@ impl Activation {
             Activation::Identity => x,
             Activation::Relu => x.max(0.0),
             Activation::Tanh => libm::tanhf(x),
-            Activation::Silu => x / (1.0 + libm::expf(-x)),
+            Activation::Silu => crate::math::silu(x),
             Activation::Elu => {
                 if x > 0.0 {
                     x
@@ -31,6 +32,19 @@ impl Activation {
                     libm::expm1f(x)
                 }
             }
+        }
+    }
+
+    /// `(apply(x), derivative(x))` with one evaluation of the transcendental, bit-identical to
+    /// the two separate calls.
+    pub fn apply_with_derivative(self, x: f32) -> (f32, f32) {
+        match self {
+            Activation::Silu => crate::math::silu_with_derivative(x),
+            Activation::Tanh => {
+                let t = libm::tanhf(x);
+                (t, 1.0 - t * t)
+            }
+            _ => (self.apply(x), self.derivative(x)),
         }
     }
 
@@ -49,10 +63,7 @@ impl Activation {
                 let t = libm::tanhf(x);
                 1.0 - t * t
             }
-            Activation::Silu => {
-                let s = 1.0 / (1.0 + libm::expf(-x));
-                s * (1.0 + x * (1.0 - s))
-            }
+            Activation::Silu => crate::math::silu_with_derivative(x).1,
             Activation::Elu => {
                 if x > 0.0 {
                     1.0
@@ -103,15 +114,20 @@ impl Linear {
 
     /// Given the input `x` and dL/dy, returns dL/dx and the parameter gradients.
     pub fn backward(&self, x: &Matrix, dy: &Matrix) -> (Matrix, LinearGrad) {
-        let dx = matmul_nt(dy, &self.w);
-        let dw = matmul_tn(x, dy);
-        (
-            dx,
-            LinearGrad {
-                w: dw,
-                b: dy.column_sums(),
-            },
-        )
+        (self.input_gradient(dy), self.param_gradients(x, dy))
+    }
+
+    /// dL/dx from dL/dy.
+    pub fn input_gradient(&self, dy: &Matrix) -> Matrix {
+        matmul_nt(dy, &self.w)
+    }
+
+    /// dL/dW and dL/db from the input `x` and dL/dy.
+    pub fn param_gradients(&self, x: &Matrix, dy: &Matrix) -> LinearGrad {
+        LinearGrad {
+            w: matmul_tn(x, dy),
+            b: dy.column_sums(),
+        }
     }
 }
 
@@ -124,10 +140,11 @@ pub struct Mlp {
     pub output: Activation,
 }
 
-/// What the backward pass needs from the forward pass: each layer's input and pre-activation.
+/// What the backward pass needs from the forward pass: each layer's input and the slope of its
+/// activation at the pre-activation.
 pub struct MlpCache {
     inputs: Vec<Matrix>,
-    pre: Vec<Matrix>,
+    slopes: Vec<Matrix>,
 }
 
 impl Mlp {
@@ -161,36 +178,72 @@ impl Mlp {
     }
 
     pub fn forward(&self, x: &Matrix) -> Matrix {
-        self.forward_cached(x).0
+        let mut a = x.clone();
+        for (l, layer) in self.layers.iter().enumerate() {
+            let act = self.activation(l);
+            a = layer.forward(&a);
+            if act == Activation::Silu {
+                crate::math::silu_slice(&mut a.data);
+            } else {
+                a.data.iter_mut().for_each(|v| *v = act.apply(*v));
+            }
+        }
+        a
     }
 
     pub fn forward_cached(&self, x: &Matrix) -> (Matrix, MlpCache) {
         let mut cache = MlpCache {
-            inputs: Vec::new(),
-            pre: Vec::new(),
+            inputs: Vec::with_capacity(self.layers.len()),
+            slopes: Vec::with_capacity(self.layers.len()),
         };
         let mut a = x.clone();
         for (l, layer) in self.layers.iter().enumerate() {
-            let z = layer.forward(&a);
+            let mut z = layer.forward(&a);
             let act = self.activation(l);
-            let next = z.map(|v| act.apply(v));
-            cache.inputs.push(a);
-            cache.pre.push(z);
-            a = next;
+            let mut slope = Matrix::zeros(z.rows, z.cols);
+            if act == Activation::Silu {
+                crate::math::silu_slice_with_slope_at(
+                    Level::detected(),
+                    &mut z.data,
+                    &mut slope.data,
+                );
+            } else {
+                for (v, d) in z.data.iter_mut().zip(&mut slope.data) {
+                    (*v, *d) = act.apply_with_derivative(*v);
+                }
+            }
+            cache.inputs.push(std::mem::replace(&mut a, z));
+            cache.slopes.push(slope);
         }
         (a, cache)
     }
 
     /// dL/dx and the gradient of every layer, from dL/d output.
     pub fn backward(&self, cache: &MlpCache, dy: &Matrix) -> (Matrix, Vec<LinearGrad>) {
+        let (dx, grads) = self.backward_to(cache, dy, true);
+        (dx.unwrap_or_else(|| Matrix::zeros(dy.rows, 0)), grads)
+    }
+
+    /// The gradient of every layer, from dL/d output, without the product for dL/dx that
+    /// training does not need.
+    pub fn param_gradients(&self, cache: &MlpCache, dy: &Matrix) -> Vec<LinearGrad> {
+        self.backward_to(cache, dy, false).1
+    }
+
+    fn backward_to(
+        &self,
+        cache: &MlpCache,
+        dy: &Matrix,
+        input_gradient: bool,
+    ) -> (Option<Matrix>, Vec<LinearGrad>) {
         let mut grads = Vec::with_capacity(self.layers.len());
-        let mut d = dy.clone();
+        let mut d = Some(dy.clone());
         for l in (0..self.layers.len()).rev() {
-            let act = self.activation(l);
-            let dz = d.zip(&cache.pre[l], |g, z| g * act.derivative(z));
-            let (dx, g) = self.layers[l].backward(&cache.inputs[l], &dz);
-            grads.push(g);
-            d = dx;
+            let Some(upstream) = d else { break };
+            let dz = upstream.zip(&cache.slopes[l], |g, s| g * s);
+            let layer = &self.layers[l];
+            grads.push(layer.param_gradients(&cache.inputs[l], &dz));
+            d = (l > 0 || input_gradient).then(|| layer.input_gradient(&dz));
         }
         grads.reverse();
         (d, grads)

@@ -7,6 +7,8 @@
 mod extra;
 pub mod kernels;
 mod layers;
+mod level;
+pub mod math;
 mod matrix;
 mod optim;
 

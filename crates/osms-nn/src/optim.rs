@@ -116,13 +116,14 @@ impl Adam {
             .zip(&mut self.m)
             .zip(&mut self.v)
         {
-            for i in 0..p.len() {
-                let gi = g[i] * clip;
-                m[i] = c.beta1 * m[i] + (1.0 - c.beta1) * gi;
-                v[i] = c.beta2 * v[i] + (1.0 - c.beta2) * gi * gi;
-                let m_hat = m[i] / bc1;
-                let v_hat = v[i] / bc2;
-                p[i] -= lr * (m_hat / (libm::sqrtf(v_hat) + c.eps) + c.weight_decay * p[i]);
+            // `f32::sqrt` is correctly rounded (IEEE 754) on every target, so it may vectorise.
+            for (((p, &g), m), v) in p.iter_mut().zip(*g).zip(m.iter_mut()).zip(v.iter_mut()) {
+                let gi = g * clip;
+                *m = c.beta1 * *m + (1.0 - c.beta1) * gi;
+                *v = c.beta2 * *v + (1.0 - c.beta2) * gi * gi;
+                let m_hat = *m / bc1;
+                let v_hat = *v / bc2;
+                *p -= lr * (m_hat / (v_hat.sqrt() + c.eps) + c.weight_decay * *p);
             }
         }
         norm

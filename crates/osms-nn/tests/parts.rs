@@ -82,9 +82,9 @@ fn sinusoidal_embedding_gradient_and_values() {
     let t = vec![0.0f32, 0.3, 0.77, 1.0];
     let c = random(4, 8, 5, 1.0);
     let grad = sinusoidal_embedding_backward(&t, &c, 100.0);
-    for i in 0..t.len() {
-        let f = |v: &[f32]| dot(&sinusoidal_embedding(v, 8, 100.0), &c);
-        close(grad[i], fd(&t, i, &f), &format!("dt {i}"));
+    let f = |v: &[f32]| dot(&sinusoidal_embedding(v, 8, 100.0), &c);
+    for (i, &g) in grad.iter().enumerate() {
+        close(g, fd(&t, i, &f), &format!("dt {i}"));
     }
     let e = sinusoidal_embedding(&[0.5], 4, 100.0);
     // Frequencies 1 and 100^(-1/2) = 0.1.
