@@ -1,0 +1,9 @@
+//! Policies of osms. [`ppo`] trains a privileged teacher on any [`ppo::Task`] with collection
+//! spread over threads and merged in episode order, so the trained bytes do not depend on the
+//! thread count.
+
+pub mod norm;
+pub mod ppo;
+
+pub use norm::RunningNorm;
+pub use ppo::{Agent, EpisodeStats, IterationStats, PpoConfig, Task, TaskEpisode, train};
