@@ -2,6 +2,7 @@
 //! spread over threads and merged in episode order, so the trained bytes do not depend on the
 //! thread count.
 
+pub mod catch;
 pub mod norm;
 pub mod ppo;
 

@@ -81,7 +81,12 @@ mod tests {
             parts.update(chunk);
         }
         for j in 0..3 {
-            let col: Vec<f64> = rows.iter().skip(j).step_by(3).map(|&v| f64::from(v)).collect();
+            let col: Vec<f64> = rows
+                .iter()
+                .skip(j)
+                .step_by(3)
+                .map(|&v| f64::from(v))
+                .collect();
             let mean = col.iter().sum::<f64>() / col.len() as f64;
             let var = col.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / col.len() as f64;
             assert!((whole.mean[j] - mean).abs() < 1e-12 && (whole.var[j] - var).abs() < 1e-12);

@@ -10,9 +10,7 @@
 //! and the new policy at a stored u and cancels. The entropy bonus is the Gaussian's.
 
 use osms_make::rng::{self, StreamRng};
-use osms_nn::{
-    Activation, Adam, AdamConfig, DiagGaussian, Matrix, Mlp, Schedule, flatten_grads,
-};
+use osms_nn::{Activation, Adam, AdamConfig, DiagGaussian, Matrix, Mlp, Schedule, flatten_grads};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -83,9 +81,9 @@ pub trait Task: Sync {
 
 /// One running episode of a [`Task`].
 pub trait TaskEpisode {
-    fn observe(&mut self) -> Vec<f32>;
-    /// Applies an action in [-1, 1]ⁿ; returns the reward and whether the episode has ended.
-    fn step(&mut self, action: &[f32]) -> (f32, bool);
+    /// Runs one control step: calls `act` once with the observation, applies the action it
+    /// returns (in [-1, 1]ⁿ), and returns the reward and whether the episode has ended.
+    fn step(&mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> (f32, bool);
     /// Task figures for the learning curve.
     fn finish(self) -> EpisodeStats;
 }
@@ -215,26 +213,28 @@ fn run_episode<T: Task>(task: &T, agent: &Agent, index: u64, rng: &mut StreamRng
         },
     };
     loop {
-        let raw = episode.observe();
-        let x = agent.obs_norm.apply(&raw);
-        let mean = agent
-            .actor
-            .forward(&Matrix::from_vec(1, x.len(), x.clone()));
-        let mut logp = 0.0f32;
-        let mut action = Vec::with_capacity(act_len);
-        for (j, &mu) in mean.data.iter().enumerate() {
-            let z = rng::normal(rng) as f32;
-            let ls = agent.log_std[j];
-            let u = mu + libm::expf(ls) * z;
-            logp += -0.5 * z * z - ls - 0.5 * LN_2PI;
-            t.u.push(u);
-            action.push(libm::tanhf(u));
-        }
-        t.value.push(agent.value(&x));
-        t.logp.push(logp);
-        t.obs.extend_from_slice(&x);
-        t.raw.extend_from_slice(&raw);
-        let (reward, done) = episode.step(&action);
+        let mut act = |raw: &[f32]| {
+            let x = agent.obs_norm.apply(raw);
+            let mean = agent
+                .actor
+                .forward(&Matrix::from_vec(1, x.len(), x.clone()));
+            let mut logp = 0.0f32;
+            let mut action = Vec::with_capacity(act_len);
+            for (j, &mu) in mean.data.iter().enumerate() {
+                let z = rng::normal(rng) as f32;
+                let ls = agent.log_std[j];
+                let u = mu + libm::expf(ls) * z;
+                logp += -0.5 * z * z - ls - 0.5 * LN_2PI;
+                t.u.push(u);
+                action.push(libm::tanhf(u));
+            }
+            t.value.push(agent.value(&x));
+            t.logp.push(logp);
+            t.obs.extend_from_slice(&x);
+            t.raw.extend_from_slice(raw);
+            action
+        };
+        let (reward, done) = episode.step(&mut act);
         t.reward.push(reward);
         if done {
             break;
@@ -485,7 +485,10 @@ fn update(
         d_value.data[i] = 2.0 * config.value_coef * e * inv_b;
     }
     let critic_grads = agent.critic.param_gradients(&critic_cache, &d_value);
-    critic_opt.update(&mut agent.critic.params_mut(), &flatten_grads(&critic_grads));
+    critic_opt.update(
+        &mut agent.critic.params_mut(),
+        &flatten_grads(&critic_grads),
+    );
 
     let entropy: f32 = dist.entropy().first().copied().unwrap_or(0.0);
     Losses {

@@ -38,10 +38,8 @@ impl Task for PointMass {
 }
 
 impl TaskEpisode for Run {
-    fn observe(&mut self) -> Vec<f32> {
-        vec![self.x]
-    }
-    fn step(&mut self, action: &[f32]) -> (f32, bool) {
+    fn step(&mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> (f32, bool) {
+        let action = act(&[self.x]);
         self.x += 0.1 * action[0];
         self.steps += 1;
         (-self.x.abs(), self.steps == STEPS)
@@ -62,8 +60,7 @@ fn evaluate(policy: &dyn Fn(f32) -> f32) -> f64 {
     for i in 0..episodes {
         let mut run = PointMass.start(1_000_000 + i);
         loop {
-            let a = policy(run.x).clamp(-1.0, 1.0);
-            let (r, done) = run.step(&[a]);
+            let (r, done) = run.step(&mut |obs| vec![policy(obs[0]).clamp(-1.0, 1.0)]);
             total += f64::from(r);
             if done {
                 break;

@@ -293,6 +293,16 @@ impl<'w> Episode<'w> {
         &self.data
     }
 
+    /// The record so far (its outcome and metrics are filled in by [`Episode::finish`]).
+    pub fn record(&self) -> &RolloutRecord {
+        &self.record
+    }
+
+    /// The control period (s): physics steps per control step times the timestep.
+    pub fn control_period_secs(&self) -> f64 {
+        self.world.spec.timestep_secs * f64::from(self.world.spec.substeps)
+    }
+
     fn palm_velocity(&self, qvel: &[f64]) -> [f64; 3] {
         site_velocity(&self.data, self.world.ids.palm_site, qvel)
     }

@@ -1,0 +1,327 @@
+//! The catching world as a PPO [`Task`]: the privileged teacher acts as a residual on the
+//! scripted catcher, rewarded by the five terms of paper section 5.1.
+//!
+//! Residual: the executed action is clamp(prior + s · r) with r the policy's action in [-1, 1]
+//! and s = `residual_scale`; with a zero-initialised actor the first policy's mean is the prior.
+//! `from_scratch` drops the prior (the executed action is r itself).
+
+use osms_make::rng;
+use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
+use osms_sim::episode::PRIVILEGED_LEN;
+use osms_sim::{
+    Action, ConditionSpec, Episode, N_ACTION, NoHooks, Phase, Policy, PolicyView, RolloutRecord,
+    RolloutSpec, World, conditions,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::ppo::{EpisodeStats, Task, TaskEpisode};
+
+/// Reward weights (paper 5.1). Every default lives here; `catch_only` zeroes the three
+/// impact-mitigation terms.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RewardSpec {
+    /// Catching: once, when the object is still held Δt_grasp after first contact.
+    pub catching: f32,
+    /// Grasp retention: per second of admissible contact after first contact.
+    pub grasp_retention: f32,
+    /// Velocity matching: per second, times the object–palm relative speed (m/s), while the
+    /// object is within the matching distance before contact; and once if v_rel > δ_v.
+    pub velocity_matching: f32,
+    /// Peak-impact-force mitigation: per second, times the admissible normal force above δ_f / 2
+    /// in units of δ_f; and once if f_max > δ_f.
+    pub impact_force: f32,
+    /// Follow-through: per metre of new palm progress along the incoming direction (up to δ_ℓ)
+    /// within Δt_eval, in units of δ_ℓ; the sum reaches this weight at δ_ℓ.
+    pub follow_through: f32,
+}
+
+impl Default for RewardSpec {
+    fn default() -> Self {
+        RewardSpec {
+            catching: 10.0,
+            grasp_retention: 1.0,
+            velocity_matching: 1.0,
+            impact_force: 2.0,
+            follow_through: 5.0,
+        }
+    }
+}
+
+impl RewardSpec {
+    /// Catching and grasp retention only (the catching-only baseline of Table I).
+    pub fn catch_only() -> Self {
+        RewardSpec {
+            velocity_matching: 0.0,
+            impact_force: 0.0,
+            follow_through: 0.0,
+            ..RewardSpec::default()
+        }
+    }
+}
+
+/// How the teacher's episodes are made. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CatchTaskSpec {
+    pub rollout: RolloutSpec,
+    pub conditions: ConditionSpec,
+    pub catcher: CatcherSpec,
+    pub reward: RewardSpec,
+    /// s in clamp(prior + s · r).
+    pub residual_scale: f32,
+    /// Train without the scripted prior (for machines with a larger budget).
+    pub from_scratch: bool,
+}
+
+impl Default for CatchTaskSpec {
+    fn default() -> Self {
+        CatchTaskSpec {
+            rollout: RolloutSpec::default(),
+            conditions: ConditionSpec::default(),
+            catcher: CatcherSpec::default(),
+            reward: RewardSpec::default(),
+            residual_scale: 0.5,
+            from_scratch: false,
+        }
+    }
+}
+
+/// Observation: the privileged frame, the prior's action and the phase (one-hot).
+pub const OBS_LEN: usize = PRIVILEGED_LEN + N_ACTION + 5;
+
+/// The catching task. Episode `i` draws ω from stream (`stream`, i) of (`seed`, `stage`), and
+/// its own DR draws and noise from (`stream`-dr, i).
+pub struct CatchTask<'w> {
+    pub world: &'w World,
+    pub spec: CatchTaskSpec,
+    pub seed: u64,
+    pub stage: String,
+    pub stream: String,
+    fallback: conditions::TaskCondition,
+}
+
+impl<'w> CatchTask<'w> {
+    /// Checks that conditions can be drawn at all (an infeasible sampler is a user error).
+    pub fn new(
+        world: &'w World,
+        spec: CatchTaskSpec,
+        seed: u64,
+        stage: &str,
+        stream: &str,
+    ) -> osms_sim::Result<Self> {
+        let draw = |index| {
+            let mut r = rng::stream(seed, stage, stream, index);
+            conditions::sample(&spec.conditions, world.home_palm_pos, &mut r)
+        };
+        let fallback = draw(0)?;
+        Ok(CatchTask {
+            world,
+            spec,
+            seed,
+            stage: stage.to_string(),
+            stream: stream.to_string(),
+            fallback,
+        })
+    }
+
+    /// ω of episode `index`.
+    pub fn condition(&self, index: u64) -> osms_sim::Result<conditions::TaskCondition> {
+        let mut r = rng::stream(self.seed, &self.stage, &self.stream, index);
+        conditions::sample(&self.spec.conditions, self.world.home_palm_pos, &mut r)
+    }
+}
+
+/// The prior plus a residual, as the simulator's policy for one control step.
+struct Residual<'a, 'b> {
+    prior: &'a mut ScriptedCatcher,
+    from_scratch: bool,
+    scale: f64,
+    phase: Phase,
+    act: &'a mut dyn FnMut(&[f32]) -> Vec<f32>,
+    executed: &'b mut Action,
+}
+
+impl Policy for Residual<'_, '_> {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        let prior = if self.from_scratch {
+            [0.0; N_ACTION]
+        } else {
+            self.prior.act(view)
+        };
+        let mut obs = Vec::with_capacity(OBS_LEN);
+        obs.extend(view.privileged.iter().map(|&v| v as f32));
+        obs.extend(prior.iter().map(|&v| v as f32));
+        obs.extend((0..5u8).map(|p| f32::from(u8::from(p == self.phase as u8))));
+        let r = (self.act)(&obs);
+        let mut out = [0.0; N_ACTION];
+        for ((o, p), r) in out.iter_mut().zip(prior).zip(r) {
+            *o = (p + self.scale * f64::from(r)).clamp(-1.0, 1.0);
+        }
+        *self.executed = out;
+        out
+    }
+}
+
+/// A running catching episode with its reward bookkeeping.
+pub struct CatchEpisode<'w> {
+    episode: Option<Episode<'w>>,
+    record: Option<RolloutRecord>,
+    prior: ScriptedCatcher,
+    reward: RewardSpec,
+    spec: &'w CatchTaskSpec,
+    phase: Phase,
+    /// Incoming direction and palm position at the first contact step.
+    contact: Option<([f64; 3], [f64; 3])>,
+    best_follow_through: f64,
+}
+
+impl<'w> Task for CatchTask<'w> {
+    type Episode<'a>
+        = CatchEpisode<'a>
+    where
+        Self: 'a;
+
+    fn obs_len(&self) -> usize {
+        OBS_LEN
+    }
+
+    fn act_len(&self) -> usize {
+        N_ACTION
+    }
+
+    fn start(&self, index: u64) -> CatchEpisode<'_> {
+        // `new` drew condition 0; the sampler retries until it finds a feasible launch, so a
+        // later draw failing would take 1000 infeasible draws in a row. Should it happen, the
+        // episode reuses condition 0 rather than abort a training run.
+        let condition = self
+            .condition(index)
+            .unwrap_or_else(|_| self.fallback.clone());
+        let dr_stream = format!("{}-dr", self.stream);
+        let r = rng::stream(self.seed, &self.stage, &dr_stream, index);
+        CatchEpisode {
+            episode: Some(Episode::new(self.world, &self.spec.rollout, condition, r)),
+            record: None,
+            prior: ScriptedCatcher::new(
+                self.spec.catcher.clone(),
+                self.spec.rollout.control.clone(),
+            ),
+            reward: self.spec.reward.clone(),
+            spec: &self.spec,
+            phase: Phase::Approach,
+            contact: None,
+            best_follow_through: 0.0,
+        }
+    }
+}
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f64; 3] {
+    std::array::from_fn(|i| f64::from(a[i]) - f64::from(b[i]))
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+fn at3(v: &[f32], k: usize) -> [f32; 3] {
+    [v[3 * k], v[3 * k + 1], v[3 * k + 2]]
+}
+
+impl TaskEpisode for CatchEpisode<'_> {
+    fn step(&mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> (f32, bool) {
+        let Some(episode) = self.episode.as_mut() else {
+            return (0.0, true);
+        };
+        let mut executed = [0.0; N_ACTION];
+        let mut policy = Residual {
+            prior: &mut self.prior,
+            from_scratch: self.spec.from_scratch,
+            scale: f64::from(self.spec.residual_scale),
+            phase: self.phase,
+            act,
+            executed: &mut executed,
+        };
+        let running = episode.step(&mut policy, &mut NoHooks);
+        let dt = episode.control_period_secs();
+        let success = &self.spec.rollout.success;
+        let w = &self.reward;
+        let rec = episode.record();
+        let k = rec.steps - 1;
+        let phase_after = rec.phase.get(k).copied().unwrap_or(0);
+        let mut reward = 0.0f64;
+        let (palm_pos, palm_vel) = (at3(&rec.palm_pos, k), at3(&rec.palm_vel, k));
+        let object_vel = at3(&rec.object_vel, k);
+        let force = f64::from(rec.normal_force[k]);
+        if phase_after < Phase::Contact as u8 {
+            if phase_after == Phase::VelocityMatching as u8 {
+                reward -= f64::from(w.velocity_matching) * norm(sub(object_vel, palm_vel)) * dt;
+            }
+        } else {
+            let (dir, palm0) = *self.contact.get_or_insert_with(|| {
+                let v = object_vel.map(f64::from);
+                let n = norm(v).max(1e-12);
+                ([v[0] / n, v[1] / n, v[2] / n], palm_pos.map(f64::from))
+            });
+            if force > 0.0 {
+                reward += f64::from(w.grasp_retention) * dt;
+            }
+            let excess = (force - 0.5 * success.max_force_n).max(0.0) / success.max_force_n;
+            reward -= f64::from(w.impact_force) * excess * dt;
+            if phase_after <= Phase::FollowThrough as u8 {
+                let moved: f64 = (0..3)
+                    .map(|i| (f64::from(palm_pos[i]) - palm0[i]) * dir[i])
+                    .sum();
+                let capped = moved.min(success.min_follow_through_m);
+                if capped > self.best_follow_through {
+                    reward += f64::from(w.follow_through) * (capped - self.best_follow_through)
+                        / success.min_follow_through_m;
+                    self.best_follow_through = capped;
+                }
+            }
+        }
+        self.phase = match phase_after {
+            1 => Phase::VelocityMatching,
+            2 => Phase::Contact,
+            3 => Phase::FollowThrough,
+            4 => Phase::Grasping,
+            _ => Phase::Approach,
+        };
+        if running {
+            return (reward as f32, false);
+        }
+        let Some(episode) = self.episode.take() else {
+            return (reward as f32, true);
+        };
+        let record = episode.finish();
+        let m = &record.metrics;
+        if record.outcome.completion() {
+            reward += f64::from(w.catching);
+        }
+        if m.contact_speed_mps
+            .is_some_and(|v| v > success.max_contact_speed_mps)
+        {
+            reward -= f64::from(w.velocity_matching);
+        }
+        if m.max_force_n > success.max_force_n {
+            reward -= f64::from(w.impact_force);
+        }
+        self.record = Some(record);
+        (reward as f32, true)
+    }
+
+    fn finish(self) -> EpisodeStats {
+        let record = self.record.or_else(|| self.episode.map(Episode::finish));
+        match record {
+            Some(r) => EpisodeStats {
+                success: r.outcome.success(),
+                completion: r.outcome.completion(),
+                f_max_n: r.outcome.completion().then_some(r.metrics.max_force_n),
+            },
+            None => EpisodeStats {
+                success: false,
+                completion: false,
+                f_max_n: None,
+            },
+        }
+    }
+}
