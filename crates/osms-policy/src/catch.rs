@@ -8,6 +8,7 @@
 use osms_make::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::episode::PRIVILEGED_LEN;
+use osms_sim::vec3::{dot, norm, sub};
 use osms_sim::{
     Action, ConditionSpec, Episode, N_ACTION, NoHooks, Phase, Policy, PolicyView, RolloutRecord,
     RolloutSpec, World, conditions,
@@ -98,6 +99,7 @@ pub struct CatchTask<'w> {
     pub seed: u64,
     pub stage: String,
     pub stream: String,
+    /// Condition 0, drawn by `new`.
     fallback: conditions::TaskCondition,
 }
 
@@ -110,11 +112,7 @@ impl<'w> CatchTask<'w> {
         stage: &str,
         stream: &str,
     ) -> osms_sim::Result<Self> {
-        let draw = |index| {
-            let mut r = rng::stream(seed, stage, stream, index);
-            conditions::sample(&spec.conditions, world.home_palm_pos, &mut r)
-        };
-        let fallback = draw(0)?;
+        let fallback = draw(world, &spec, (seed, stage, stream), 0)?;
         Ok(CatchTask {
             world,
             spec,
@@ -127,9 +125,24 @@ impl<'w> CatchTask<'w> {
 
     /// ω of episode `index`.
     pub fn condition(&self, index: u64) -> osms_sim::Result<conditions::TaskCondition> {
-        let mut r = rng::stream(self.seed, &self.stage, &self.stream, index);
-        conditions::sample(&self.spec.conditions, self.world.home_palm_pos, &mut r)
+        draw(
+            self.world,
+            &self.spec,
+            (self.seed, &self.stage, &self.stream),
+            index,
+        )
     }
+}
+
+/// ω number `index` of the stream (seed, stage, stream).
+fn draw(
+    world: &World,
+    spec: &CatchTaskSpec,
+    (seed, stage, stream): (u64, &str, &str),
+    index: u64,
+) -> osms_sim::Result<conditions::TaskCondition> {
+    let mut r = rng::stream(seed, stage, stream, index);
+    conditions::sample(&spec.conditions, world.home_palm_pos, &mut r)
 }
 
 /// The prior plus a residual, as the simulator's policy for one control step.
@@ -137,7 +150,7 @@ struct Residual<'a, 'b> {
     prior: &'a mut ScriptedCatcher,
     from_scratch: bool,
     scale: f64,
-    phase: Phase,
+    phase: u8,
     act: &'a mut dyn FnMut(&[f32]) -> Vec<f32>,
     executed: &'b mut Action,
 }
@@ -152,7 +165,7 @@ impl Policy for Residual<'_, '_> {
         let mut obs = Vec::with_capacity(OBS_LEN);
         obs.extend(view.privileged.iter().map(|&v| v as f32));
         obs.extend(prior.iter().map(|&v| v as f32));
-        obs.extend((0..5u8).map(|p| f32::from(u8::from(p == self.phase as u8))));
+        obs.extend((0..5u8).map(|p| f32::from(u8::from(p == self.phase))));
         let r = (self.act)(&obs);
         let mut out = [0.0; N_ACTION];
         for ((o, p), r) in out.iter_mut().zip(prior).zip(r) {
@@ -170,7 +183,8 @@ pub struct CatchEpisode<'w> {
     prior: ScriptedCatcher,
     reward: RewardSpec,
     spec: &'w CatchTaskSpec,
-    phase: Phase,
+    /// The phase after the last step, as recorded (`Phase as u8`).
+    phase: u8,
     /// Incoming direction and palm position at the first contact step.
     contact: Option<([f64; 3], [f64; 3])>,
     best_follow_through: f64,
@@ -208,23 +222,16 @@ impl<'w> Task for CatchTask<'w> {
             ),
             reward: self.spec.reward.clone(),
             spec: &self.spec,
-            phase: Phase::Approach,
+            phase: Phase::Approach as u8,
             contact: None,
             best_follow_through: 0.0,
         }
     }
 }
 
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f64; 3] {
-    std::array::from_fn(|i| f64::from(a[i]) - f64::from(b[i]))
-}
-
-fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
-}
-
-fn at3(v: &[f32], k: usize) -> [f32; 3] {
-    [v[3 * k], v[3 * k + 1], v[3 * k + 2]]
+/// Entry `k` of a record's 3-wide per-step array.
+fn at3(v: &[f32], k: usize) -> [f64; 3] {
+    [v[3 * k], v[3 * k + 1], v[3 * k + 2]].map(f64::from)
 }
 
 impl TaskEpisode for CatchEpisode<'_> {
@@ -258,9 +265,9 @@ impl TaskEpisode for CatchEpisode<'_> {
             }
         } else {
             let (dir, palm0) = *self.contact.get_or_insert_with(|| {
-                let v = object_vel.map(f64::from);
+                let v = object_vel;
                 let n = norm(v).max(1e-12);
-                ([v[0] / n, v[1] / n, v[2] / n], palm_pos.map(f64::from))
+                ([v[0] / n, v[1] / n, v[2] / n], palm_pos)
             });
             if force > 0.0 {
                 reward += f64::from(w.grasp_retention) * dt;
@@ -268,9 +275,7 @@ impl TaskEpisode for CatchEpisode<'_> {
             let excess = (force - 0.5 * success.max_force_n).max(0.0) / success.max_force_n;
             reward -= f64::from(w.impact_force) * excess * dt;
             if phase_after <= Phase::FollowThrough as u8 {
-                let moved: f64 = (0..3)
-                    .map(|i| (f64::from(palm_pos[i]) - palm0[i]) * dir[i])
-                    .sum();
+                let moved = dot(sub(palm_pos, palm0), dir);
                 let capped = moved.min(success.min_follow_through_m);
                 if capped > self.best_follow_through {
                     reward += f64::from(w.follow_through) * (capped - self.best_follow_through)
@@ -279,13 +284,7 @@ impl TaskEpisode for CatchEpisode<'_> {
                 }
             }
         }
-        self.phase = match phase_after {
-            1 => Phase::VelocityMatching,
-            2 => Phase::Contact,
-            3 => Phase::FollowThrough,
-            4 => Phase::Grasping,
-            _ => Phase::Approach,
-        };
+        self.phase = phase_after;
         if running {
             return (reward as f32, false);
         }

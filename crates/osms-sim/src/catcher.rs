@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use crate::conditions::GRAVITY_MPS2;
 use crate::control::{Action, ControlSpec, N_ACTION, N_ARM, N_HAND, hold_action};
 use crate::episode::{Policy, PolicyView};
+use crate::vec3::{cross, norm, sub};
 use crate::world::palm_normal;
 
 /// The catcher's params. Every default lives here.
@@ -76,20 +77,6 @@ impl ScriptedCatcher {
             closed: false,
         }
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn norm(a: [f64; 3]) -> f64 {
-    libm::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// Solves `a x = b` for a small dense system by Gaussian elimination with partial pivoting

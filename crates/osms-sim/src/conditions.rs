@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError};
 use crate::spec::ObjectVariant;
+use crate::vec3::norm;
 
 /// Standard gravity used by MuJoCo's default model (m/s²).
 pub const GRAVITY_MPS2: f64 = 9.81;
@@ -67,10 +68,6 @@ impl TaskCondition {
     pub fn speed_mps(&self) -> f64 {
         norm(self.launch_vel_mps)
     }
-}
-
-fn norm(v: [f64; 3]) -> f64 {
-    libm::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 }
 
 /// The launch velocity that takes a ballistic object from `from` to `to` in `t` seconds.

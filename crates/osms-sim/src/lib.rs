@@ -12,6 +12,7 @@ pub mod mjcf;
 pub mod robot;
 pub mod spec;
 pub mod stages;
+pub mod vec3;
 pub mod world;
 
 pub use conditions::{ConditionSpec, TaskCondition};

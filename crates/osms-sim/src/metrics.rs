@@ -9,6 +9,7 @@ use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::traits::ModelType;
 use serde::{Deserialize, Serialize};
 
+use crate::vec3::{dot, norm, sub};
 use crate::world::GeomClass;
 
 /// Success thresholds and evaluation windows. Every default lives here.
@@ -221,16 +222,6 @@ pub struct StepState {
     pub object_vel: [f64; 3],
     pub palm_pos: [f64; 3],
     pub palm_normal: [f64; 3],
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn norm(a: [f64; 3]) -> f64 {
-    libm::sqrt(dot(a, a))
 }
 
 /// Online evaluation of the success criteria. Cloneable, so it is part of an episode snapshot.
