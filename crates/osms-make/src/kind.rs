@@ -41,6 +41,11 @@ pub trait Summarize {
     fn text(&self) -> Option<String> {
         None
     }
+    /// Files `osms export` writes for this artifact (name, bytes), e.g. a table as Markdown,
+    /// CSV and JSON.
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        Vec::new()
+    }
 }
 
 /// A stage that computes one artifact.
@@ -125,6 +130,12 @@ impl<P> Ctx<'_, P> {
         rng::stream(seed, self.stage, name, index)
     }
 
+    /// The run seed, for code that derives its own streams with [`rng::stream`] from
+    /// (seed, [`Ctx::stage`]); `None` for kinds that declare `USES_RNG = false`.
+    pub fn seed(&self) -> Option<u64> {
+        self.seed
+    }
+
     pub fn progress(&self) -> &dyn Progress {
         self.progress
     }
@@ -180,6 +191,8 @@ pub trait DynKind: Send + Sync {
     fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error>;
     /// Decodes an output artifact of this kind and renders its text, if it has one.
     fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error>;
+    /// Decodes an output artifact of this kind and renders its export files.
+    fn files(&self, bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, osms_store::Error>;
 }
 
 /// A param that did not deserialize: where (path of keys inside `params`) and why.
@@ -273,6 +286,9 @@ macro_rules! shared_kind_methods {
         }
         fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error> {
             Ok(decode::<S::Output>(bytes)?.text())
+        }
+        fn files(&self, bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, osms_store::Error> {
+            Ok(decode::<S::Output>(bytes)?.files())
         }
     };
 }

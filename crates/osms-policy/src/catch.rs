@@ -6,16 +6,16 @@
 //! `from_scratch` drops the prior (the executed action is r itself).
 
 use osms_make::rng;
-use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
-use osms_sim::episode::PRIVILEGED_LEN;
+use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
+use osms_sim::episode::{PRIVILEGED_CONTACT_COUNT, PRIVILEGED_LEN};
 use osms_sim::vec3::{dot, norm, sub};
 use osms_sim::{
-    Action, ConditionSpec, Episode, N_ACTION, NoHooks, Phase, Policy, PolicyView, RolloutRecord,
+    Action, ConditionSpec, Episode, N_ACTION, N_ARM, NoHooks, Phase, Policy, PolicyView, RolloutRecord,
     RolloutSpec, World, conditions,
 };
 use serde::{Deserialize, Serialize};
 
-use crate::ppo::{EpisodeStats, Task, TaskEpisode};
+use crate::ppo::{Agent, EpisodeStats, Task, TaskEpisode};
 
 /// Reward weights (paper 5.1). Every default lives here; `catch_only` zeroes the three
 /// impact-mitigation terms.
@@ -73,6 +73,18 @@ pub struct CatchTaskSpec {
     pub residual_scale: f32,
     /// Train without the scripted prior (for machines with a larger budget).
     pub from_scratch: bool,
+    /// Residuals on the 17 hand channels too. Off by default: the prior's open/close timing
+    /// already completes most catches, impact mitigation is arm motion, and exploration noise
+    /// on absolute finger targets costs more catches than it teaches on a 2-core budget.
+    pub residual_hand: bool,
+    /// Give the policy one more action channel u ∈ [-1, 1] that moves the palm along the
+    /// object's incoming direction (frozen at first contact) at up to the fastest rate one
+    /// control step allows: executed arm = clamp(prior + s · r + u · g). Without it PPO has to
+    /// discover the Jacobian-dependent joint combination of a follow-through by itself.
+    pub follow_through_channel: bool,
+    /// Weight of the palm's orientation against its position when `g` is computed (see
+    /// `osms_sim::catcher::palm_motion_channels`).
+    pub palm_motion_orientation_weight: f64,
 }
 
 impl Default for CatchTaskSpec {
@@ -84,9 +96,32 @@ impl Default for CatchTaskSpec {
             reward: RewardSpec::default(),
             residual_scale: 0.5,
             from_scratch: false,
+            residual_hand: false,
+            follow_through_channel: true,
+            palm_motion_orientation_weight: 0.3,
         }
     }
 }
+
+impl CatchTaskSpec {
+    /// How many action channels get a residual: the arm's, and the hand's if `residual_hand`
+    /// (always all of them from scratch).
+    pub fn residual_channels(&self) -> usize {
+        if self.residual_hand || self.from_scratch {
+            N_ACTION
+        } else {
+            N_ARM
+        }
+    }
+
+    /// The policy's action size: the residual channels and the follow-through channel.
+    pub fn act_len(&self) -> usize {
+        self.residual_channels() + usize::from(self.follow_through_channel)
+    }
+}
+
+/// Damping of the least-squares solve behind the follow-through channel.
+const PALM_MOTION_DAMPING: f64 = 0.05;
 
 /// Observation: the privileged frame, the prior's action and the phase (one-hot).
 pub const OBS_LEN: usize = PRIVILEGED_LEN + N_ACTION + 5;
@@ -148,16 +183,17 @@ fn draw(
 /// The prior plus a residual, as the simulator's policy for one control step.
 struct Residual<'a, 'b> {
     prior: &'a mut ScriptedCatcher,
-    from_scratch: bool,
-    scale: f64,
+    spec: &'a CatchTaskSpec,
     phase: u8,
+    /// The incoming direction frozen at the first contact, for the follow-through channel.
+    contact_dir: &'a mut Option<[f64; 3]>,
     act: &'a mut dyn FnMut(&[f32]) -> Vec<f32>,
     executed: &'b mut Action,
 }
 
 impl Policy for Residual<'_, '_> {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
-        let prior = if self.from_scratch {
+        let prior = if self.spec.from_scratch {
             [0.0; N_ACTION]
         } else {
             self.prior.act(view)
@@ -167,9 +203,50 @@ impl Policy for Residual<'_, '_> {
         obs.extend(prior.iter().map(|&v| v as f32));
         obs.extend((0..5u8).map(|p| f32::from(u8::from(p == self.phase))));
         let r = (self.act)(&obs);
-        let mut out = [0.0; N_ACTION];
-        for ((o, p), r) in out.iter_mut().zip(prior).zip(r) {
-            *o = (p + self.scale * f64::from(r)).clamp(-1.0, 1.0);
+        let scale = f64::from(self.spec.residual_scale);
+        let mut out = prior;
+        let residual_channels = self.spec.residual_channels();
+        for (o, r) in out.iter_mut().zip(&r[..residual_channels]) {
+            *o += scale * f64::from(*r);
+        }
+        if self.spec.follow_through_channel {
+            let u = f64::from(r.get(residual_channels).copied().unwrap_or(0.0));
+            let ids = &view.world.ids;
+            let touching = view
+                .privileged
+                .get(PRIVILEGED_CONTACT_COUNT)
+                .is_some_and(|n| *n > 0.0);
+            let dir = match *self.contact_dir {
+                Some(d) => d,
+                None => {
+                    let v = view.data.qvel();
+                    let v = [
+                        v[ids.object_dof],
+                        v[ids.object_dof + 1],
+                        v[ids.object_dof + 2],
+                    ];
+                    let n = norm(v).max(1e-12);
+                    let d = [v[0] / n, v[1] / n, v[2] / n];
+                    if touching {
+                        *self.contact_dir = Some(d);
+                    }
+                    d
+                }
+            };
+            if u != 0.0 {
+                let g = palm_motion_channels(
+                    view,
+                    dir,
+                    self.spec.palm_motion_orientation_weight,
+                    PALM_MOTION_DAMPING,
+                );
+                for (o, g) in out.iter_mut().zip(g) {
+                    *o += u * g;
+                }
+            }
+        }
+        for o in &mut out {
+            *o = o.clamp(-1.0, 1.0);
         }
         *self.executed = out;
         out
@@ -187,6 +264,8 @@ pub struct CatchEpisode<'w> {
     phase: u8,
     /// Incoming direction and palm position at the first contact step.
     contact: Option<([f64; 3], [f64; 3])>,
+    /// The follow-through channel's direction, frozen when the policy first sees contact.
+    channel_dir: Option<[f64; 3]>,
     best_follow_through: f64,
 }
 
@@ -201,7 +280,7 @@ impl<'w> Task for CatchTask<'w> {
     }
 
     fn act_len(&self) -> usize {
-        N_ACTION
+        self.spec.act_len()
     }
 
     fn start(&self, index: u64) -> CatchEpisode<'_> {
@@ -213,20 +292,53 @@ impl<'w> Task for CatchTask<'w> {
             .unwrap_or_else(|_| self.fallback.clone());
         let dr_stream = format!("{}-dr", self.stream);
         let r = rng::stream(self.seed, &self.stage, &dr_stream, index);
+        CatchEpisode::new(self.world, &self.spec, condition, r)
+    }
+}
+
+impl<'w> CatchEpisode<'w> {
+    /// An episode on condition ω whose domain randomisation draws from `rng`.
+    pub fn new(
+        world: &'w World,
+        spec: &'w CatchTaskSpec,
+        condition: conditions::TaskCondition,
+        rng: rng::StreamRng,
+    ) -> Self {
         CatchEpisode {
-            episode: Some(Episode::new(self.world, &self.spec.rollout, condition, r)),
+            episode: Some(Episode::new(world, &spec.rollout, condition, rng)),
             record: None,
-            prior: ScriptedCatcher::new(
-                self.spec.catcher.clone(),
-                self.spec.rollout.control.clone(),
-            ),
-            reward: self.spec.reward.clone(),
-            spec: &self.spec,
+            prior: ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone()),
+            reward: spec.reward.clone(),
+            spec,
             phase: Phase::Approach as u8,
             contact: None,
+            channel_dir: None,
             best_follow_through: 0.0,
         }
     }
+
+    /// Runs the episode to its end with `act` choosing the policy's actions, and returns its
+    /// record (the intended actions are the executed residual actions).
+    pub fn run(mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> RolloutRecord {
+        while !self.step(act).1 {}
+        match (self.record, self.episode) {
+            (Some(r), _) => r,
+            (None, Some(e)) => e.finish(),
+            // `step` keeps the record whenever it takes the episode.
+            (None, None) => unreachable!("a catching episode lost its record"),
+        }
+    }
+}
+
+/// The frozen teacher's rollout on condition ω: deterministic actions tanh(μ(s)).
+pub fn rollout(
+    world: &World,
+    spec: &CatchTaskSpec,
+    agent: &Agent,
+    condition: conditions::TaskCondition,
+    rng: rng::StreamRng,
+) -> RolloutRecord {
+    CatchEpisode::new(world, spec, condition, rng).run(&mut |obs| agent.act_deterministic(obs))
 }
 
 /// Entry `k` of a record's 3-wide per-step array.
@@ -242,9 +354,9 @@ impl TaskEpisode for CatchEpisode<'_> {
         let mut executed = [0.0; N_ACTION];
         let mut policy = Residual {
             prior: &mut self.prior,
-            from_scratch: self.spec.from_scratch,
-            scale: f64::from(self.spec.residual_scale),
+            spec: self.spec,
             phase: self.phase,
+            contact_dir: &mut self.channel_dir,
             act,
             executed: &mut executed,
         };

@@ -3,8 +3,10 @@
 //! thread count.
 
 pub mod catch;
+pub mod dataset;
 pub mod norm;
 pub mod ppo;
+pub mod stages;
 
 pub use norm::RunningNorm;
 pub use ppo::{Agent, EpisodeStats, IterationStats, PpoConfig, Task, TaskEpisode, train};

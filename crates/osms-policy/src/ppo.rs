@@ -49,19 +49,20 @@ impl Default for PpoConfig {
     fn default() -> Self {
         PpoConfig {
             iterations: 100,
-            episodes_per_iteration: 64,
-            hidden: vec![256, 256],
+            // Tuned for the catching teacher on 2 cores (docs/policy.md, tuning log).
+            episodes_per_iteration: 32,
+            hidden: vec![128, 128],
             activation: Activation::Silu,
             gamma: 0.99,
             lambda: 0.95,
             clip: 0.2,
             value_coef: 0.5,
             entropy_coef: 0.0,
-            epochs: 5,
-            minibatch: 512,
+            epochs: 4,
+            minibatch: 256,
             lr: 3e-4,
             max_grad_norm: 0.5,
-            init_log_std: -0.5,
+            init_log_std: -1.0,
             obs_clip: 5.0,
             zero_init_actor_output: true,
         }

@@ -78,6 +78,7 @@ fn config() -> PpoConfig {
         epochs: 4,
         minibatch: 128,
         lr: 1e-3,
+        init_log_std: -0.5,
         ..PpoConfig::default()
     }
 }

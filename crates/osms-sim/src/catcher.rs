@@ -129,6 +129,45 @@ pub fn dls_step(jac: &[[f64; N_ARM]; 6], err: [f64; 6], damping: f64) -> [f64; N
     std::array::from_fn(|k| (0..6).map(|r| jac[r][k] * y[r]).sum())
 }
 
+/// The palm site's 6 × 7 Jacobian (linear rows, then angular) over the arm joints.
+pub fn palm_jacobian(view: &PolicyView<'_>) -> [[f64; N_ARM]; 6] {
+    let ids = &view.world.ids;
+    let (jacp, jacr) = view.data.jac_site(true, true, ids.palm_site);
+    let nv = view.data.qvel().len();
+    let mut jac = [[0.0; N_ARM]; 6];
+    for (k, &dof) in ids.arm_dof.iter().enumerate() {
+        for r in 0..3 {
+            jac[r][k] = jacp[r * nv + dof];
+            jac[r + 3][k] = jacr[r * nv + dof];
+        }
+    }
+    jac
+}
+
+/// Arm action channels that move the palm along the unit vector `dir`, scaled so that the
+/// largest channel has magnitude 1 (the fastest such motion one control step allows). The
+/// angular rows of the Jacobian are weighted by `orientation_weight`: 1 holds the palm's
+/// orientation as firmly as its position, smaller weights let it turn to gain speed.
+pub fn palm_motion_channels(
+    view: &PolicyView<'_>,
+    dir: [f64; 3],
+    orientation_weight: f64,
+    damping: f64,
+) -> [f64; N_ARM] {
+    let mut jac = palm_jacobian(view);
+    for row in &mut jac[3..] {
+        for x in row.iter_mut() {
+            *x *= orientation_weight;
+        }
+    }
+    let dq = dls_step(&jac, [dir[0], dir[1], dir[2], 0.0, 0.0, 0.0], damping);
+    let largest = dq.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if largest < 1e-12 {
+        return [0.0; N_ARM];
+    }
+    dq.map(|x| x / largest)
+}
+
 impl Policy for ScriptedCatcher {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let data = view.data;
@@ -198,16 +237,7 @@ impl Policy for ScriptedCatcher {
             g * e_rot[1],
             g * e_rot[2],
         ];
-        let (jacp, jacr) = data.jac_site(true, true, ids.palm_site);
-        let nv = qvel.len();
-        let mut jac = [[0.0; N_ARM]; 6];
-        for (k, &dof) in ids.arm_dof.iter().enumerate() {
-            for r in 0..3 {
-                jac[r][k] = jacp[r * nv + dof];
-                jac[r + 3][k] = jacr[r * nv + dof];
-            }
-        }
-        let dq = dls_step(&jac, err, self.spec.ik_damping);
+        let dq = dls_step(&palm_jacobian(view), err, self.spec.ik_damping);
 
         let dist = norm(sub(p, palm));
         let touching = view

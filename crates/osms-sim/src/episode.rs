@@ -114,6 +114,31 @@ pub struct RolloutRecord {
     pub outcome: Outcome,
 }
 
+impl RolloutRecord {
+    /// A record of no steps yet, with the metrics of an episode in which nothing happened.
+    pub fn empty(condition: TaskCondition, dr: DrDraw) -> Self {
+        RolloutRecord {
+            condition,
+            dr,
+            steps: 0,
+            intended: Vec::new(),
+            executed: Vec::new(),
+            deployable: Vec::new(),
+            privileged: Vec::new(),
+            palm_pos: Vec::new(),
+            palm_vel: Vec::new(),
+            object_pos: Vec::new(),
+            object_vel: Vec::new(),
+            normal_force: Vec::new(),
+            phase: Vec::new(),
+            metrics: Evaluator::new(SuccessSpec::default()).finish().1,
+            outcome: Outcome {
+                failures: Vec::new(),
+            },
+        }
+    }
+}
+
 /// Controller and randomisation state: with the MuJoCo state, all a resumed rollout needs.
 #[derive(Debug, Clone, PartialEq)]
 struct Controller {
@@ -246,25 +271,7 @@ impl<'w> Episode<'w> {
             pending_object_pos: VecDeque::new(),
             history: VecDeque::new(),
         };
-        let record = RolloutRecord {
-            condition: condition.clone(),
-            dr: dr.clone(),
-            steps: 0,
-            intended: Vec::new(),
-            executed: Vec::new(),
-            deployable: Vec::new(),
-            privileged: Vec::new(),
-            palm_pos: Vec::new(),
-            palm_vel: Vec::new(),
-            object_pos: Vec::new(),
-            object_vel: Vec::new(),
-            normal_force: Vec::new(),
-            phase: Vec::new(),
-            metrics: Evaluator::new(spec.success.clone()).finish().1,
-            outcome: Outcome {
-                failures: Vec::new(),
-            },
-        };
+        let record = RolloutRecord::empty(condition.clone(), dr.clone());
         Episode {
             world,
             spec,

@@ -16,7 +16,7 @@ pub mod vec3;
 pub mod world;
 
 pub use conditions::{ConditionSpec, TaskCondition};
-pub use control::{Action, N_ACTION};
+pub use control::{Action, N_ACTION, N_ARM};
 pub use episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec};
 pub use error::{Result, SimError};
 pub use metrics::{Failure, Metrics, Outcome, Phase, SuccessSpec};

@@ -59,6 +59,8 @@ pub enum Command {
     Why(WhyArgs),
     /// Show an artifact's metadata and a summary of its contents
     Show(ShowArgs),
+    /// Write an artifact's files (tables as Markdown, CSV and JSON; learning curves as CSV)
+    Export(ExportArgs),
     /// List the artifacts in the store
     Ls(JsonArg),
     /// Re-hash every object in the store and report damage
@@ -138,8 +140,25 @@ pub struct WhyArgs {
 
 #[derive(Debug, Args)]
 pub struct ShowArgs {
-    /// A stage key or content hash (a unique prefix of at least 6 hex digits is enough)
+    /// A stage name (`name` or `name@seed`, its current build under the profile), or a stage
+    /// key or content hash (a unique prefix of at least 6 hex digits is enough)
     pub hash: String,
+    #[command(flatten)]
+    pub selection: Selection,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// A stage name (`name` or `name@seed`), or a key or content hash prefix
+    pub target: String,
+    #[command(flatten)]
+    pub selection: Selection,
+    /// Directory to write into [default: reports/<profile>/<instance>/ beside pipeline.toml]
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Print the written paths as JSON on stdout
     #[arg(long)]
     pub json: bool,
 }

@@ -22,6 +22,7 @@ pub use context::Context;
 pub fn registry() -> Registry {
     let mut registry = Registry::new();
     osms_sim::stages::register(&mut registry);
+    osms_policy::stages::register(&mut registry);
     registry
 }
 

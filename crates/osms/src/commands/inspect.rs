@@ -1,11 +1,13 @@
 use std::process::ExitCode;
 
-use anyhow::{Result, bail};
+use anyhow::{Context as _, Result, bail};
 use osms_make::Registry;
+use osms_make::State;
 use osms_store::{Record, read_header};
 use serde::Serialize;
 
-use crate::cli::ShowArgs;
+use crate::cli::{ExportArgs, Selection, ShowArgs};
+use osms_make::describe;
 use crate::commands::{human_bytes, print_json};
 use crate::context::Context;
 
@@ -18,16 +20,39 @@ struct Shown<'a> {
     summary: serde_json::Value,
 }
 
-pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
-    let prefix = args.hash.to_ascii_lowercase();
-    if prefix.len() < 6 || !prefix.chars().all(|c| c.is_ascii_hexdigit()) {
-        bail!(
-            "`{}` is not a key or hash prefix\nhint: give at least 6 hexadecimal digits, as printed by `osms ls`",
-            args.hash
-        );
-    }
+/// The record a `show`/`export` target names: a stage instance of the plan (its current build)
+/// or a key or content-hash prefix. Also returns the other keys with the same content.
+fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<(Record, Vec<String>)> {
     let store = ctx.store()?;
     let (records, _) = store.records()?;
+    let name = target.split('@').next().unwrap_or(target);
+    let plan = ctx.plan(selection.profile.as_deref())?;
+    if plan.stage_index(name).is_some() {
+        let seed = Context::seeds(selection, &plan)[0];
+        let lineage = osms_make::why(&plan, &store, target, seed)?;
+        let s = &lineage.status;
+        let found = match (s.state, s.key) {
+            (State::Cached, Some(key)) => records.iter().find(|r| r.key == key),
+            _ => None,
+        };
+        let Some(record) = found else {
+            bail!(
+                "stage `{}` has no current build under profile `{}` ({})\nhint: `osms make {target}` builds it",
+                s.instance,
+                plan.profile,
+                describe(&s.reasons)
+            );
+        };
+        return Ok((record.clone(), Vec::new()));
+    }
+    let prefix = target.to_ascii_lowercase();
+    if prefix.len() < 6 || !prefix.chars().all(|c| c.is_ascii_hexdigit()) {
+        bail!(
+            "`{target}` is neither a stage of {} nor a key or hash prefix\nhint: stages are {}; keys and hashes need at least 6 hexadecimal digits, as printed by `osms ls`",
+            ctx.pipeline_path.display(),
+            plan.stage_names().join(", ")
+        );
+    }
     let matches: Vec<&Record> = records
         .iter()
         .filter(|r| {
@@ -57,6 +82,14 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
             list.join("\n")
         );
     }
+    let also = matches.iter().skip(1).map(|r| r.key.to_hex()).collect();
+    Ok(((*first).clone(), also))
+}
+
+pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
+    let (first, also_keys) = resolve(ctx, &args.hash, &args.selection)?;
+    let first = &first;
+    let store = ctx.store()?;
     let bytes = store.get(&first.content_hash)?;
     let header = read_header(&bytes)?;
     let (summary, text) = match (ctx.registry.get(&first.kind), first.shard) {
@@ -72,7 +105,7 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
     };
     let shown = Shown {
         record: first,
-        also_keys: matches.iter().skip(1).map(|r| r.key.to_hex()).collect(),
+        also_keys,
         schema_version: header.schema_version,
         summary,
     };
@@ -195,6 +228,66 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
                 }
             );
             println!("    {}", k.doc);
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Writes the files an artifact renders (e.g. a table as Markdown, CSV and JSON).
+pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
+    let (record, _) = resolve(ctx, &args.target, &args.selection)?;
+    let Some(kind) = ctx.registry.get(&record.kind) else {
+        bail!("kind `{}` is not known to this osms", record.kind);
+    };
+    let store = ctx.store()?;
+    let bytes = store.get(&record.content_hash)?;
+    let files = if record.shard.is_some() {
+        Vec::new()
+    } else {
+        kind.files(&bytes)?
+    };
+    if files.is_empty() {
+        bail!(
+            "{} (kind `{}`) has no files to export\nhint: `osms show {}` prints its summary",
+            record.stage,
+            record.kind,
+            args.target
+        );
+    }
+    let dir = match &args.out {
+        Some(d) => d.clone(),
+        None => {
+            let plan = ctx.plan(args.selection.profile.as_deref())?;
+            let instance = match record.seed {
+                Some(seed) => format!("{}@{seed}", record.stage),
+                None => record.stage.clone(),
+            };
+            ctx.pipeline_path
+                .parent()
+                .unwrap_or_else(|| std::path::Path::new("."))
+                .join("reports")
+                .join(&plan.profile)
+                .join(instance)
+        }
+    };
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut written = Vec::new();
+    for (name, content) in files {
+        let path = dir.join(&name);
+        // Write beside and rename, so an interrupted export leaves no half-written file.
+        let tmp = dir.join(format!(".{name}.tmp"));
+        std::fs::write(&tmp, &content)
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, &path)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        written.push(path.display().to_string());
+    }
+    if args.json {
+        print_json(&written)?;
+    } else {
+        for w in &written {
+            println!("{w}");
         }
     }
     Ok(ExitCode::SUCCESS)

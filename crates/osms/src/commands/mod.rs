@@ -29,6 +29,7 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
         Command::Status(args) => status::status(&ctx, &args),
         Command::Why(args) => status::why(&ctx, &args),
         Command::Show(args) => inspect::show(&ctx, &args),
+        Command::Export(args) => inspect::export(&ctx, &args),
         Command::Ls(args) => inspect::ls(&ctx, args.json),
         Command::Verify(args) => verify::run(&ctx, args.json),
         Command::Gc(args) => gc::run(&ctx, &args),

@@ -1,0 +1,305 @@
+//! Teacher rollout datasets (paper section 4: D_M, D_E, D_R) and their outcome-sensitive window
+//! alignment (paper 3.2, 5.2).
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use osms_sim::{N_ACTION, N_ARM, RolloutRecord, conditions::TaskCondition, spec::ObjectVariant};
+use serde::{Deserialize, Serialize};
+
+/// How the outcome-sensitive window is cut. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OswSpec {
+    /// H_OS: control steps immediately before the event step k_e.
+    pub h_os: usize,
+}
+
+impl Default for OswSpec {
+    fn default() -> Self {
+        OswSpec { h_os: 8 }
+    }
+}
+
+/// Length of the task-condition features ω: object variant one-hot, mass, launch position and
+/// velocity, lateral offset, crossing time, arm and hand posture perturbations.
+pub const OMEGA_LEN: usize = 10 + 1 + 3 + 3 + 1 + 1 + 7 + 17;
+
+/// ω as a feature vector (the order of [`OMEGA_LEN`]'s doc).
+pub fn omega_features(c: &TaskCondition) -> Vec<f32> {
+    let mut out = vec![0.0f32; ObjectVariant::all().len()];
+    out[c.variant.index()] = 1.0;
+    out.push(c.mass_kg as f32);
+    out.extend(c.launch_pos_m.iter().map(|&v| v as f32));
+    out.extend(c.launch_vel_mps.iter().map(|&v| v as f32));
+    out.push(c.lateral_offset_m as f32);
+    out.push(c.crossing_time_secs as f32);
+    out.extend(c.arm_perturbation_rad.iter().map(|&v| v as f32));
+    out.extend(c.hand_perturbation_rad.iter().map(|&v| v as f32));
+    out
+}
+
+/// A rollout aligned to its outcome-sensitive window W_OS = {k_e − H_OS, …, k_e − 1}.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OswWindow {
+    /// k_e: the first object–robot contact's control step, or the closest approach's.
+    pub event_step: usize,
+    /// The window's first step, max(k_e − H_OS, 0).
+    pub start: usize,
+    /// Whether the window has all H_OS steps (k_e ≥ H_OS); search skips incomplete windows.
+    pub complete: bool,
+    /// ζ_org: the teacher's arm actions over the window, step-major (`[step][channel]`,
+    /// N_ARM channels), k_e − start steps.
+    pub zeta_org: Vec<f32>,
+    /// ω̄: ω's features followed by the privileged state at the window's first step.
+    pub omega_bar: Vec<f32>,
+}
+
+impl OswWindow {
+    /// Cuts the window out of a record that kept its privileged frames. Fails if the record
+    /// has none or is shorter than its event step says.
+    pub fn extract(record: &RolloutRecord, spec: &OswSpec) -> Result<OswWindow, String> {
+        let k_e = record.metrics.event_step;
+        if k_e > record.steps {
+            return Err(format!(
+                "event step {k_e} is past the rollout's {} steps",
+                record.steps
+            ));
+        }
+        if record.steps == 0 || record.privileged.is_empty() {
+            return Err("the rollout kept no privileged frames (record_privileged = false)".into());
+        }
+        let frame = record.privileged.len() / record.steps;
+        let start = k_e.saturating_sub(spec.h_os);
+        let mut zeta_org = Vec::with_capacity((k_e - start) * N_ARM);
+        for k in start..k_e {
+            zeta_org.extend_from_slice(&record.intended[k * N_ACTION..k * N_ACTION + N_ARM]);
+        }
+        // A contact at step 0 has no frame before it; ω̄ then uses the first frame.
+        let at = start.min(record.steps - 1);
+        let mut omega_bar = omega_features(&record.condition);
+        omega_bar.extend_from_slice(&record.privileged[at * frame..(at + 1) * frame]);
+        Ok(OswWindow {
+            event_step: k_e,
+            start,
+            complete: k_e >= spec.h_os,
+            zeta_org,
+            omega_bar,
+        })
+    }
+}
+
+/// One teacher rollout of a dataset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoRollout {
+    /// Which draw of the dataset's condition stream ω came from: (item, attempt).
+    pub item: u32,
+    pub attempt: u32,
+    /// The per-step record: ω, intended (teacher) and executed actions, deployable and
+    /// privileged frames, palm and object states, forces, phases, metrics and outcome.
+    pub record: RolloutRecord,
+    pub osw: OswWindow,
+}
+
+/// What one dataset item holds: the kept rollout and what the discarded attempts failed by.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DatasetItem {
+    pub rollout: DemoRollout,
+    /// Attempts this item took (1 for mixed datasets).
+    pub attempts: u32,
+    /// Failure counts of the discarded attempts (success-only datasets).
+    pub discarded_failures: BTreeMap<String, u32>,
+}
+
+/// D_M, D_E (successes only) or D_R (mixed).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Dataset {
+    pub successes_only: bool,
+    pub osw: OswSpec,
+    pub items: Vec<DatasetItem>,
+}
+
+impl osms_store::Artifact for Dataset {
+    const TYPE_TAG: &'static str = "policy.dataset";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+/// Counts behind `osms show` on a dataset.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DatasetStats {
+    pub rollouts: usize,
+    pub attempts: u64,
+    /// Successes over attempts: the teacher's success rate on this dataset's stream.
+    pub teacher_success_rate: f64,
+    /// Successes among the kept rollouts.
+    pub kept_success_rate: f64,
+    pub kept_completion_rate: f64,
+    /// Failures of the kept rollouts and, for success-only datasets, of the discarded attempts.
+    pub failures: BTreeMap<String, u64>,
+    pub per_variant: BTreeMap<String, usize>,
+    pub complete_windows: usize,
+    pub mean_steps: f64,
+}
+
+impl Dataset {
+    pub fn rollouts(&self) -> impl Iterator<Item = &DemoRollout> {
+        self.items.iter().map(|i| &i.rollout)
+    }
+
+    pub fn stats(&self) -> DatasetStats {
+        let n = self.items.len();
+        let attempts: u64 = self.items.iter().map(|i| u64::from(i.attempts)).sum();
+        let successes = self
+            .rollouts()
+            .filter(|r| r.record.outcome.success())
+            .count();
+        let mut failures: BTreeMap<String, u64> = BTreeMap::new();
+        let mut per_variant: BTreeMap<String, usize> = BTreeMap::new();
+        for item in &self.items {
+            for f in &item.rollout.record.outcome.failures {
+                *failures.entry(f.name().to_string()).or_default() += 1;
+            }
+            for (f, c) in &item.discarded_failures {
+                *failures.entry(f.clone()).or_default() += u64::from(*c);
+            }
+            *per_variant
+                .entry(item.rollout.record.condition.variant.to_string())
+                .or_default() += 1;
+        }
+        let per = |x: usize| x as f64 / n.max(1) as f64;
+        DatasetStats {
+            rollouts: n,
+            attempts,
+            teacher_success_rate: successes as f64 / attempts.max(1) as f64,
+            kept_success_rate: per(successes),
+            kept_completion_rate: per(
+                self.rollouts()
+                    .filter(|r| r.record.outcome.completion())
+                    .count(),
+            ),
+            failures,
+            per_variant,
+            complete_windows: self.rollouts().filter(|r| r.osw.complete).count(),
+            mean_steps: self.rollouts().map(|r| r.record.steps as f64).sum::<f64>()
+                / n.max(1) as f64,
+        }
+    }
+}
+
+impl osms_make::Summarize for Dataset {
+    fn summary(&self) -> serde_json::Value {
+        let mut v = serde_json::to_value(self.stats()).unwrap_or_default();
+        if let Some(o) = v.as_object_mut() {
+            o.insert("successes_only".into(), self.successes_only.into());
+            o.insert("h_os".into(), self.osw.h_os.into());
+        }
+        v
+    }
+
+    fn text(&self) -> Option<String> {
+        let s = self.stats();
+        let mut out = String::new();
+        let kind = if self.successes_only {
+            "successes only (collected until N successes)"
+        } else {
+            "mixed (one rollout per condition)"
+        };
+        let _ = writeln!(out, "{} rollouts, {kind}", s.rollouts);
+        let _ = writeln!(
+            out,
+            "attempts {}, teacher success rate {:.1}% (successes / attempts)",
+            s.attempts,
+            100.0 * s.teacher_success_rate
+        );
+        let _ = writeln!(
+            out,
+            "kept: success {:.1}%, catch completion {:.1}%, mean length {:.1} steps",
+            100.0 * s.kept_success_rate,
+            100.0 * s.kept_completion_rate,
+            s.mean_steps
+        );
+        let _ = writeln!(
+            out,
+            "OSW (H_OS = {}): {} of {} windows complete (k_e ≥ H_OS)\n",
+            self.osw.h_os, s.complete_windows, s.rollouts
+        );
+        let _ = writeln!(out, "| failure | count |\n|---|---:|");
+        for f in osms_sim::Failure::ALL {
+            if let Some(c) = s.failures.get(f.name()) {
+                let _ = writeln!(out, "| {} | {c} |", f.name());
+            }
+        }
+        let _ = writeln!(out, "\n| object | rollouts |\n|---|---:|");
+        for (v, c) in &s.per_variant {
+            let _ = writeln!(out, "| {v} | {c} |");
+        }
+        Some(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn condition() -> TaskCondition {
+        TaskCondition {
+            variant: ObjectVariant::all()[3],
+            mass_kg: 0.05,
+            launch_pos_m: [1.0, 2.0, 3.0],
+            launch_vel_mps: [-3.0, 0.0, 1.0],
+            lateral_offset_m: 0.01,
+            crossing_time_secs: 0.6,
+            arm_perturbation_rad: [0.0; 7],
+            hand_perturbation_rad: [0.0; 17],
+        }
+    }
+
+    /// A record whose intended action at step k, channel c is 100·k + c and whose privileged
+    /// frame at step k is [k, k + 0.5].
+    fn record(steps: usize, event_step: usize) -> RolloutRecord {
+        let mut r = RolloutRecord::empty(condition(), osms_sim::control::DrDraw::none());
+        r.steps = steps;
+        r.intended = (0..steps)
+            .flat_map(|k| (0..N_ACTION).map(move |c| (100 * k + c) as f32))
+            .collect();
+        r.privileged = (0..steps)
+            .flat_map(|k| [k as f32, k as f32 + 0.5])
+            .collect();
+        r.metrics.event_step = event_step;
+        r
+    }
+
+    #[test]
+    fn window_holds_the_arm_actions_of_the_h_steps_before_the_event() {
+        let w = OswWindow::extract(&record(30, 20), &OswSpec::default()).expect("window");
+        assert!(w.complete);
+        assert_eq!((w.start, w.event_step), (12, 20));
+        assert_eq!(w.zeta_org.len(), 8 * N_ARM);
+        for j in 0..8 {
+            for c in 0..N_ARM {
+                assert_eq!(w.zeta_org[j * N_ARM + c], (100 * (12 + j) + c) as f32);
+            }
+        }
+        assert_eq!(w.omega_bar.len(), OMEGA_LEN + 2);
+        assert_eq!(&w.omega_bar[OMEGA_LEN..], &[12.0, 12.5]);
+        assert_eq!(w.omega_bar[3], 1.0, "variant one-hot");
+        assert_eq!(&w.omega_bar[11..14], &[1.0, 2.0, 3.0], "launch position");
+    }
+
+    #[test]
+    fn early_events_give_incomplete_windows_and_bad_records_are_errors() {
+        let spec = OswSpec::default();
+        let w = OswWindow::extract(&record(30, 8), &spec).expect("window");
+        assert!(w.complete, "k_e = H_OS is exactly complete");
+        let w = OswWindow::extract(&record(30, 5), &spec).expect("window");
+        assert!(!w.complete);
+        assert_eq!((w.start, w.zeta_org.len()), (0, 5 * N_ARM));
+        let w = OswWindow::extract(&record(30, 0), &spec).expect("window");
+        assert!(!w.complete && w.zeta_org.is_empty());
+        assert_eq!(&w.omega_bar[OMEGA_LEN..], &[0.0, 0.5]);
+        assert!(OswWindow::extract(&record(10, 11), &spec).is_err());
+        let mut r = record(30, 20);
+        r.privileged.clear();
+        assert!(OswWindow::extract(&r, &spec).is_err());
+    }
+}

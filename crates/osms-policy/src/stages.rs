@@ -1,0 +1,488 @@
+//! The policy stage kinds: `teacher` (PPO), `eval_teacher` (a frozen teacher on a condition
+//! set), `teacher_table` (the Table I analog) and `collect` (the D_M / D_E / D_R datasets).
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use osms_make::rng::StreamRng;
+use osms_make::{Ctx, ItemStage, Stage, StageError, Summarize};
+use osms_sim::World;
+use osms_sim::conditions::sample;
+use osms_sim::stages::{Conditions, EvalRow, Evaluation, TableLine, WorldArtifact};
+use osms_store::Artifact;
+use serde::{Deserialize, Serialize};
+
+use crate::catch::{CatchTask, CatchTaskSpec, rollout};
+use crate::dataset::{Dataset, DatasetItem, DemoRollout, OswSpec, OswWindow};
+use crate::ppo::{Agent, IterationStats, PpoConfig, Task, train};
+
+/// Params of kinds that take none (any given is an error).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoParams {}
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TeacherParams {
+    /// The catching task: rollout settings, condition sampler, prior, reward weights.
+    pub task: CatchTaskSpec,
+    pub ppo: PpoConfig,
+}
+
+/// A trained teacher: the task it was trained on (needed to replay it) and the agent, whose
+/// learning curve is kept with it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Teacher {
+    pub task: CatchTaskSpec,
+    pub agent: Agent,
+}
+
+impl Artifact for Teacher {
+    const TYPE_TAG: &'static str = "policy.teacher";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+/// Means of the curve's points over consecutive blocks of iterations.
+fn curve_blocks(curve: &[IterationStats], rows: usize) -> Vec<(u32, u32, [f64; 5])> {
+    let block = curve.len().div_ceil(rows.max(1)).max(1);
+    curve
+        .chunks(block)
+        .map(|c| {
+            let n = c.len() as f64;
+            let mean = |f: &dyn Fn(&IterationStats) -> f64| c.iter().map(f).sum::<f64>() / n;
+            let f_max: Vec<f64> = c.iter().filter_map(|s| s.mean_f_max_n).collect();
+            (
+                c[0].iteration,
+                c[c.len() - 1].iteration,
+                [
+                    mean(&|s| s.mean_return),
+                    mean(&|s| s.success_rate),
+                    mean(&|s| s.completion_rate),
+                    if f_max.is_empty() {
+                        f64::NAN
+                    } else {
+                        f_max.iter().sum::<f64>() / f_max.len() as f64
+                    },
+                    mean(&|s| s.clip_fraction),
+                ],
+            )
+        })
+        .collect()
+}
+
+impl Summarize for Teacher {
+    fn summary(&self) -> serde_json::Value {
+        let curve = &self.agent.curve;
+        let last = curve_blocks(curve, 10).pop();
+        serde_json::json!({
+            "iterations": curve.len(),
+            "env_steps": curve.iter().map(|s| s.steps).sum::<u64>(),
+            "episodes": curve.iter().map(|s| u64::from(s.episodes)).sum::<u64>(),
+            "obs_len": self.agent.obs_norm.mean.len(),
+            "act_len": self.agent.log_std.len(),
+            "last_tenth": last.map(|(a, b, m)| serde_json::json!({
+                "iterations": [a, b],
+                "return": m[0],
+                "success_rate": m[1],
+                "completion_rate": m[2],
+                "f_max_n": m[3].is_finite().then_some(m[3]),
+            })),
+            "note": "curve rates are under exploration noise; eval_teacher measures the deterministic policy",
+        })
+    }
+
+    fn text(&self) -> Option<String> {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "Learning curve (means over blocks of iterations, under exploration noise):\n"
+        );
+        let _ = writeln!(
+            out,
+            "| iterations | return | success | completion | f_max (N) | clip fraction |"
+        );
+        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|");
+        for (a, b, m) in curve_blocks(&self.agent.curve, 20) {
+            let f = if m[3].is_finite() {
+                format!("{:.1}", m[3])
+            } else {
+                "-".into()
+            };
+            let _ = writeln!(
+                out,
+                "| {a}–{b} | {:.2} | {:.1}% | {:.1}% | {f} | {:.3} |",
+                m[0],
+                100.0 * m[1],
+                100.0 * m[2],
+                m[4]
+            );
+        }
+        Some(out)
+    }
+
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        let mut csv = String::from(
+            "iteration,episodes,steps,return,length,success_rate,completion_rate,f_max_n,policy_loss,value_loss,entropy,approx_kl,clip_fraction,action_std\n",
+        );
+        for s in &self.agent.curve {
+            let _ = writeln!(
+                csv,
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                s.iteration,
+                s.episodes,
+                s.steps,
+                s.mean_return,
+                s.mean_length,
+                s.success_rate,
+                s.completion_rate,
+                s.mean_f_max_n.map(|f| f.to_string()).unwrap_or_default(),
+                s.policy_loss,
+                s.value_loss,
+                s.entropy,
+                s.approx_kl,
+                s.clip_fraction,
+                s.action_std
+            );
+        }
+        vec![("curve.csv".into(), csv.into_bytes())]
+    }
+}
+
+/// PPO on the catching task; episode i of iteration t draws ω from stream ("train", t·E + i).
+pub struct TeacherStage;
+impl Stage for TeacherStage {
+    const KIND: &'static str = "teacher";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &["world"];
+    const DOC: &'static str =
+        "the privileged PPO teacher: a residual on the scripted catcher, rewarded by paper 5.1";
+    type Params = TeacherParams;
+    type Output = Teacher;
+
+    fn run(&self, ctx: &Ctx<'_, TeacherParams>) -> Result<Teacher, StageError> {
+        let world = ctx.input::<WorldArtifact>("world")?.world()?;
+        let seed = ctx.seed().unwrap_or_default();
+        let p = ctx.params;
+        if p.ppo.episodes_per_iteration == 0 || p.ppo.minibatch == 0 {
+            return Err(
+                "params.ppo: episodes_per_iteration and minibatch must be at least 1".into(),
+            );
+        }
+        let task = CatchTask::new(&world, p.task.clone(), seed, ctx.stage(), "train")?;
+        let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, seed);
+        let progress = ctx.progress();
+        progress.set_total(u64::from(p.ppo.iterations));
+        train(&task, &mut agent, &p.ppo, (seed, ctx.stage()), &|_| {
+            progress.inc(1)
+        });
+        Ok(Teacher {
+            task: p.task.clone(),
+            agent,
+        })
+    }
+}
+
+/// The frozen teacher (deterministic actions) on every condition of a set; rollout `i` draws
+/// its domain randomisation from ("item", i).
+pub struct EvalTeacherStage;
+impl ItemStage for EvalTeacherStage {
+    const KIND: &'static str = "eval_teacher";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &["world", "conditions", "teacher"];
+    const DOC: &'static str = "a frozen teacher evaluated on a condition set (table per family x size)";
+    type Params = NoParams;
+    type Prepared = (World, Conditions, Teacher);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
+    fn prepare(&self, ctx: &Ctx<'_, NoParams>) -> Result<Self::Prepared, StageError> {
+        Ok((
+            ctx.input::<WorldArtifact>("world")?.world()?,
+            ctx.input("conditions")?,
+            ctx.input("teacher")?,
+        ))
+    }
+    fn n_items(&self, _: &Ctx<'_, NoParams>, p: &Self::Prepared) -> usize {
+        p.1.items.len()
+    }
+    fn run_item(
+        &self,
+        _: &Ctx<'_, NoParams>,
+        (world, conditions, teacher): &Self::Prepared,
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<EvalRow, StageError> {
+        let record = rollout(
+            world,
+            &teacher.task,
+            &teacher.agent,
+            conditions.items[index].clone(),
+            rng.clone(),
+        );
+        Ok(EvalRow {
+            variant: record.condition.variant,
+            lateral_offset_m: record.condition.lateral_offset_m,
+            steps: record.steps as u32,
+            metrics: record.metrics,
+            outcome: record.outcome,
+        })
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, NoParams>,
+        _: Self::Prepared,
+        rows: Vec<EvalRow>,
+    ) -> Result<Evaluation, StageError> {
+        Ok(Evaluation { rows })
+    }
+}
+
+/// One row of the Table I analog.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TeacherTableRow {
+    pub policy: String,
+    pub rollouts: usize,
+    pub completion_rate: f64,
+    pub success_rate: f64,
+    /// Means over catch completions, as in the paper.
+    pub contact_speed_mps: Option<f64>,
+    pub max_force_n: Option<f64>,
+    pub follow_through_m: Option<f64>,
+}
+
+/// Table I analog: the scripted prior, the catching-only teacher and the teacher on the same
+/// held-out conditions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TeacherTable {
+    pub rows: Vec<TeacherTableRow>,
+}
+
+impl Artifact for TeacherTable {
+    const TYPE_TAG: &'static str = "policy.teacher_table";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map(|x| format!("{x:.digits$}"))
+        .unwrap_or_else(|| "-".into())
+}
+
+impl TeacherTable {
+    pub fn markdown(&self) -> String {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "| policy | n | catch completion | task success | v_rel (m/s) | f_max (N) | l_max (m) |"
+        );
+        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+        for r in &self.rows {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {:.1}% | {:.1}% | {} | {} | {} |",
+                r.policy,
+                r.rollouts,
+                100.0 * r.completion_rate,
+                100.0 * r.success_rate,
+                opt(r.contact_speed_mps, 2),
+                opt(r.max_force_n, 1),
+                opt(r.follow_through_m, 3)
+            );
+        }
+        let _ = writeln!(
+            out,
+            "\nImpact metrics are means over catch completions. Paper (Table I): catching-only \
+             92.5% / 0.4% / 160 N; teacher 90.7% / 85.2% / 40.8 N."
+        );
+        out
+    }
+
+    pub fn csv(&self) -> String {
+        let mut out = String::from(
+            "policy,rollouts,completion_rate,success_rate,contact_speed_mps,max_force_n,follow_through_m\n",
+        );
+        let o = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
+        for r in &self.rows {
+            let _ = writeln!(
+                out,
+                "{},{},{},{},{},{},{}",
+                r.policy,
+                r.rollouts,
+                r.completion_rate,
+                r.success_rate,
+                o(r.contact_speed_mps),
+                o(r.max_force_n),
+                o(r.follow_through_m)
+            );
+        }
+        out
+    }
+}
+
+impl Summarize for TeacherTable {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::to_value(&self.rows).unwrap_or_default()
+    }
+    fn text(&self) -> Option<String> {
+        Some(self.markdown())
+    }
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        let json = serde_json::to_string_pretty(&self.rows).unwrap_or_default() + "\n";
+        vec![
+            ("table1.md".into(), self.markdown().into_bytes()),
+            ("table1.csv".into(), self.csv().into_bytes()),
+            ("table1.json".into(), json.into_bytes()),
+        ]
+    }
+}
+
+fn row(policy: &str, eval: &Evaluation) -> TeacherTableRow {
+    let all: Option<TableLine> = eval.table().pop();
+    TeacherTableRow {
+        policy: policy.to_string(),
+        rollouts: eval.rows.len(),
+        completion_rate: all.as_ref().map_or(0.0, |l| l.completion_rate),
+        success_rate: all.as_ref().map_or(0.0, |l| l.success_rate),
+        contact_speed_mps: all.as_ref().and_then(|l| l.contact_speed_mps),
+        max_force_n: all.as_ref().and_then(|l| l.max_force_n),
+        follow_through_m: all.as_ref().and_then(|l| l.follow_through_m),
+    }
+}
+
+pub struct TeacherTableStage;
+impl Stage for TeacherTableStage {
+    const KIND: &'static str = "teacher_table";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [&'static str] = &["scripted", "catch_only", "teacher"];
+    const DOC: &'static str =
+        "Table I analog: scripted prior, catching-only teacher and teacher on held-out conditions";
+    type Params = NoParams;
+    type Output = TeacherTable;
+
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<TeacherTable, StageError> {
+        let scripted: Evaluation = ctx.input("scripted")?;
+        let catch_only: Evaluation = ctx.input("catch_only")?;
+        let teacher: Evaluation = ctx.input("teacher")?;
+        Ok(TeacherTable {
+            rows: vec![
+                row("scripted prior", &scripted),
+                row("catching-only teacher", &catch_only),
+                row("teacher", &teacher),
+            ],
+        })
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollectParams {
+    /// How many rollouts the dataset keeps.
+    pub n: u32,
+    /// Keep only successes (D_M, D_E): each item retries fresh conditions until one succeeds.
+    #[serde(default)]
+    pub successes_only: bool,
+    /// Attempts an item may take before the stage gives up on a teacher that rarely succeeds.
+    #[serde(default = "default_max_attempts")]
+    pub max_attempts: u32,
+    #[serde(default)]
+    pub osw: OswSpec,
+}
+
+fn default_max_attempts() -> u32 {
+    100
+}
+
+/// Teacher rollouts. Item `i` draws its conditions in turn from stream ("item", i) and the
+/// domain randomisation of attempt `a` from ("attempt", i · max_attempts + a). Different
+/// stages draw from different streams, so datasets never share a condition draw.
+pub struct CollectStage;
+impl ItemStage for CollectStage {
+    const KIND: &'static str = "collect";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [&'static str] = &["world", "teacher"];
+    const DOC: &'static str = "teacher rollouts with OSW alignment (D_M / D_E: successes only; D_R: mixed)";
+    type Params = CollectParams;
+    type Prepared = (World, Teacher);
+    type Item = DatasetItem;
+    type Output = Dataset;
+
+    fn prepare(&self, ctx: &Ctx<'_, CollectParams>) -> Result<Self::Prepared, StageError> {
+        if ctx.params.max_attempts == 0 {
+            return Err("params.max_attempts must be at least 1".into());
+        }
+        if ctx.params.osw.h_os == 0 {
+            return Err("params.osw.h_os must be at least 1".into());
+        }
+        let mut teacher: Teacher = ctx.input("teacher")?;
+        // The OSW conditioning ω̄ needs the privileged state at the window's start.
+        teacher.task.rollout.record_privileged = true;
+        Ok((ctx.input::<WorldArtifact>("world")?.world()?, teacher))
+    }
+    fn n_items(&self, ctx: &Ctx<'_, CollectParams>, _: &Self::Prepared) -> usize {
+        ctx.params.n as usize
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, CollectParams>,
+        (world, teacher): &Self::Prepared,
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<DatasetItem, StageError> {
+        let p = ctx.params;
+        let mut discarded_failures: BTreeMap<String, u32> = BTreeMap::new();
+        for attempt in 0..p.max_attempts {
+            let condition = sample(&teacher.task.conditions, world.home_palm_pos, rng)?;
+            let dr = ctx.rng(
+                "attempt",
+                index as u64 * u64::from(p.max_attempts) + u64::from(attempt),
+            );
+            let record = rollout(world, &teacher.task, &teacher.agent, condition, dr);
+            if p.successes_only && !record.outcome.success() {
+                for f in &record.outcome.failures {
+                    *discarded_failures.entry(f.name().to_string()).or_default() += 1;
+                }
+                continue;
+            }
+            let osw = OswWindow::extract(&record, &p.osw)?;
+            return Ok(DatasetItem {
+                rollout: DemoRollout {
+                    item: index as u32,
+                    attempt,
+                    record,
+                    osw,
+                },
+                attempts: attempt + 1,
+                discarded_failures,
+            });
+        }
+        Err(format!(
+            "item {index}: the teacher failed {} attempts in a row\nhint: raise params.max_attempts, or train the teacher longer (its success rate is too low for a successes-only dataset)",
+            p.max_attempts
+        )
+        .into())
+    }
+    fn merge(
+        &self,
+        ctx: &Ctx<'_, CollectParams>,
+        _: Self::Prepared,
+        items: Vec<DatasetItem>,
+    ) -> Result<Dataset, StageError> {
+        Ok(Dataset {
+            successes_only: ctx.params.successes_only,
+            osw: ctx.params.osw.clone(),
+            items,
+        })
+    }
+}
+
+/// Registers the policy stage kinds.
+pub fn register(registry: &mut osms_make::Registry) {
+    registry
+        .register(TeacherStage)
+        .register_itemised(EvalTeacherStage)
+        .register(TeacherTableStage)
+        .register_itemised(CollectStage);
+}
