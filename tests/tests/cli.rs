@@ -131,6 +131,17 @@ fn make_status_why_ls_show() {
         .to_string();
     text.push('\n');
     text.push_str(&transcript(&p, &["show", &total[..10]]).0);
+    let (by_name, out) = transcript(&p, &["show", "total"]);
+    assert!(out.status.success(), "{by_name}");
+    assert_eq!(
+        by_name.lines().skip(1).collect::<Vec<_>>(),
+        transcript(&p, &["show", &total[..10]])
+            .0
+            .lines()
+            .skip(1)
+            .collect::<Vec<_>>(),
+        "a stage name shows its current build"
+    );
 
     p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = 1.5 }"));
     text.push('\n');
@@ -191,8 +202,13 @@ fn user_errors_exit_1_with_a_located_message() {
             &["why", "total@x"],
             &["show", "zz"],
             &["show", "abcdef"],
+            &["show", "total"],
+            &["export", "totl"],
         ],
     );
+    transcript(&p, &["make"]);
+    text.push('\n');
+    text.push_str(&session(&p, &[&["export", "total"]]));
     p.write_pipeline(&CLI_PIPELINE.replace("params = { by = 0.5 }", "params = { by = \"half\" }"));
     text.push('\n');
     text.push_str(&session(&p, &[&["make"]]));

@@ -51,7 +51,10 @@ fn make(text: &str, jobs: usize) -> Made {
 }
 
 fn load<A: osms_store::Artifact>(made: &Made, instance: &str) -> A {
-    let hash = made.hashes.get(instance).unwrap_or_else(|| panic!("{instance} built"));
+    let hash = made
+        .hashes
+        .get(instance)
+        .unwrap_or_else(|| panic!("{instance} built"));
     osms_store::decode(&made.store.get(hash).expect("object")).expect("decode")
 }
 
@@ -73,7 +76,10 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
             "inputs = { world = \"world\", conditions = \"heldout\" }\nshards = 4",
             "inputs = { world = \"world\", conditions = \"heldout\" }\nshards = 3",
         )
-        .replace("params = { n = 6 }\nshards = 2", "params = { n = 6 }\nshards = 4");
+        .replace(
+            "params = { n = 6 }\nshards = 2",
+            "params = { n = 6 }\nshards = 4",
+        );
     assert_eq!(
         (
             reshard.matches("shards = 5").count(),
@@ -112,7 +118,11 @@ fn datasets_are_disjoint_successes_and_aligned(made: &Made) {
             );
             assert!(stats.attempts >= d.items.len() as u64);
         } else {
-            assert_eq!(stats.attempts, d.items.len() as u64, "D_R keeps every attempt");
+            assert_eq!(
+                stats.attempts,
+                d.items.len() as u64,
+                "D_R keeps every attempt"
+            );
         }
         for r in d.rollouts() {
             let c = format!("{:?}", r.record.condition);
@@ -156,7 +166,10 @@ fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
         bytes[mid] ^= 0x10;
         std::fs::write(&path, bytes).expect("write");
     }
-    assert!(!made.store.verify().expect("verify").problems.is_empty(), "verify sees the damage");
+    assert!(
+        !made.store.verify().expect("verify").problems.is_empty(),
+        "verify sees the damage"
+    );
     let opts = MakeOptions {
         targets: vec!["d_m".into()],
         seeds: vec![0],
@@ -166,5 +179,8 @@ fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
     let report = osms_make::make(&made.plan, &made.store, &opts, &Silent).expect("make");
     assert!(report.failed().is_empty(), "{:?}", report.failed());
     assert_eq!(hashes(&report)["d_m@0"], d_m, "rebuilt to the same bytes");
-    assert!(made.store.verify().expect("verify").problems.is_empty(), "shard and D_M repaired");
+    assert!(
+        made.store.verify().expect("verify").problems.is_empty(),
+        "shard and D_M repaired"
+    );
 }

@@ -29,9 +29,15 @@ fn main() {
         let mut steps = 0usize;
         for i in 0..u64::from(EPISODES) {
             let condition = task.condition(i).expect("ω");
-            let mut catcher = ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone());
-            let record = Episode::new(&world, &spec.rollout, condition, rng::stream(0, "bench", "train-dr", i))
-                .run(&mut catcher, &mut NoHooks);
+            let mut catcher =
+                ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone());
+            let record = Episode::new(
+                &world,
+                &spec.rollout,
+                condition,
+                rng::stream(0, "bench", "train-dr", i),
+            )
+            .run(&mut catcher, &mut NoHooks);
             steps += record.steps;
         }
         (steps as f64, t.elapsed().as_secs_f64())
@@ -61,6 +67,12 @@ fn main() {
     let iteration = rate(iter_steps, iter_secs);
     println!("{EPISODES} episodes on one thread");
     println!("bare rollout loop (scripted catcher)   {bare:8.0} env steps/s");
-    println!("PPO collection (teacher, no update)    {collect:8.0} env steps/s   ratio {:.3}", collect / bare);
-    println!("PPO iteration (collection + 4 epochs)  {iteration:8.0} env steps/s   ratio {:.3}", iteration / bare);
+    println!(
+        "PPO collection (teacher, no update)    {collect:8.0} env steps/s   ratio {:.3}",
+        collect / bare
+    );
+    println!(
+        "PPO iteration (collection + 4 epochs)  {iteration:8.0} env steps/s   ratio {:.3}",
+        iteration / bare
+    );
 }

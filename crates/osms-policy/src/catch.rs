@@ -10,8 +10,8 @@ use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
 use osms_sim::episode::{PRIVILEGED_CONTACT_COUNT, PRIVILEGED_LEN};
 use osms_sim::vec3::{dot, norm, sub};
 use osms_sim::{
-    Action, ConditionSpec, Episode, N_ACTION, N_ARM, NoHooks, Phase, Policy, PolicyView, RolloutRecord,
-    RolloutSpec, World, conditions,
+    Action, ConditionSpec, Episode, N_ACTION, N_ARM, NoHooks, Phase, Policy, PolicyView,
+    RolloutRecord, RolloutSpec, World, conditions,
 };
 use serde::{Deserialize, Serialize};
 

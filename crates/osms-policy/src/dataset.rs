@@ -136,6 +136,7 @@ pub struct DatasetStats {
     pub kept_completion_rate: f64,
     /// Failures of the kept rollouts and, for success-only datasets, of the discarded attempts.
     pub failures: BTreeMap<String, u64>,
+    pub per_family: BTreeMap<String, usize>,
     pub per_variant: BTreeMap<String, usize>,
     pub complete_windows: usize,
     pub mean_steps: f64,
@@ -155,7 +156,19 @@ impl Dataset {
             .count();
         let mut failures: BTreeMap<String, u64> = BTreeMap::new();
         let mut per_variant: BTreeMap<String, usize> = BTreeMap::new();
+        let mut per_family: BTreeMap<String, usize> = BTreeMap::new();
         for item in &self.items {
+            *per_family
+                .entry(
+                    item.rollout
+                        .record
+                        .condition
+                        .variant
+                        .family
+                        .name()
+                        .to_string(),
+                )
+                .or_default() += 1;
             for f in &item.rollout.record.outcome.failures {
                 *failures.entry(f.name().to_string()).or_default() += 1;
             }
@@ -172,12 +185,12 @@ impl Dataset {
             attempts,
             teacher_success_rate: successes as f64 / attempts.max(1) as f64,
             kept_success_rate: per(successes),
-            kept_completion_rate: per(
-                self.rollouts()
-                    .filter(|r| r.record.outcome.completion())
-                    .count(),
-            ),
+            kept_completion_rate: per(self
+                .rollouts()
+                .filter(|r| r.record.outcome.completion())
+                .count()),
             failures,
+            per_family,
             per_variant,
             complete_windows: self.rollouts().filter(|r| r.osw.complete).count(),
             mean_steps: self.rollouts().map(|r| r.record.steps as f64).sum::<f64>()
@@ -228,6 +241,10 @@ impl osms_make::Summarize for Dataset {
             if let Some(c) = s.failures.get(f.name()) {
                 let _ = writeln!(out, "| {} | {c} |", f.name());
             }
+        }
+        let _ = writeln!(out, "\n| family | rollouts |\n|---|---:|");
+        for (f, c) in &s.per_family {
+            let _ = writeln!(out, "| {f} | {c} |");
         }
         let _ = writeln!(out, "\n| object | rollouts |\n|---|---:|");
         for (v, c) in &s.per_variant {

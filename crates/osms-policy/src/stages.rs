@@ -191,7 +191,8 @@ impl ItemStage for EvalTeacherStage {
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
     const INPUTS: &'static [&'static str] = &["world", "conditions", "teacher"];
-    const DOC: &'static str = "a frozen teacher evaluated on a condition set (table per family x size)";
+    const DOC: &'static str =
+        "a frozen teacher evaluated on a condition set (table per family x size)";
     type Params = NoParams;
     type Prepared = (World, Conditions, Teacher);
     type Item = EvalRow;
@@ -403,7 +404,8 @@ impl ItemStage for CollectStage {
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
     const INPUTS: &'static [&'static str] = &["world", "teacher"];
-    const DOC: &'static str = "teacher rollouts with OSW alignment (D_M / D_E: successes only; D_R: mixed)";
+    const DOC: &'static str =
+        "teacher rollouts with OSW alignment (D_M / D_E: successes only; D_R: mixed)";
     type Params = CollectParams;
     type Prepared = (World, Teacher);
     type Item = DatasetItem;
@@ -485,4 +487,56 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register_itemised(EvalTeacherStage)
         .register(TeacherTableStage)
         .register_itemised(CollectStage);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table1_files_agree_with_the_rows() {
+        let table = TeacherTable {
+            rows: vec![
+                TeacherTableRow {
+                    policy: "teacher".into(),
+                    rollouts: 40,
+                    completion_rate: 0.7,
+                    success_rate: 0.475,
+                    contact_speed_mps: Some(3.9),
+                    max_force_n: Some(33.72),
+                    follow_through_m: Some(0.215),
+                },
+                TeacherTableRow {
+                    policy: "nothing caught".into(),
+                    rollouts: 3,
+                    completion_rate: 0.0,
+                    success_rate: 0.0,
+                    contact_speed_mps: None,
+                    max_force_n: None,
+                    follow_through_m: None,
+                },
+            ],
+        };
+        let files: BTreeMap<String, Vec<u8>> = table.files().into_iter().collect();
+        let names: Vec<&str> = files.keys().map(String::as_str).collect();
+        assert_eq!(names, ["table1.csv", "table1.json", "table1.md"]);
+        let md = String::from_utf8_lossy(&files["table1.md"]).to_string();
+        assert!(
+            md.contains("| teacher | 40 | 70.0% | 47.5% | 3.90 | 33.7 | 0.215 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| nothing caught | 3 | 0.0% | 0.0% | - | - | - |"),
+            "{md}"
+        );
+        let csv = String::from_utf8_lossy(&files["table1.csv"]).to_string();
+        assert_eq!(
+            csv.lines().nth(1),
+            Some("teacher,40,0.7,0.475,3.9,33.72,0.215")
+        );
+        assert_eq!(csv.lines().nth(2), Some("nothing caught,3,0,0,,,"));
+        let back: Vec<TeacherTableRow> =
+            serde_json::from_slice(&files["table1.json"]).expect("json");
+        assert_eq!(back, table.rows);
+    }
 }

@@ -7,9 +7,9 @@ use osms_store::{Record, read_header};
 use serde::Serialize;
 
 use crate::cli::{ExportArgs, Selection, ShowArgs};
-use osms_make::describe;
 use crate::commands::{human_bytes, print_json};
 use crate::context::Context;
+use osms_make::describe;
 
 #[derive(Serialize)]
 struct Shown<'a> {
@@ -270,8 +270,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
                 .join(instance)
         }
     };
-    std::fs::create_dir_all(&dir)
-        .with_context(|| format!("cannot create {}", dir.display()))?;
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut written = Vec::new();
     for (name, content) in files {
         let path = dir.join(&name);
@@ -279,8 +278,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
         let tmp = dir.join(format!(".{name}.tmp"));
         std::fs::write(&tmp, &content)
             .with_context(|| format!("cannot write {}", tmp.display()))?;
-        std::fs::rename(&tmp, &path)
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
         written.push(path.display().to_string());
     }
     if args.json {
