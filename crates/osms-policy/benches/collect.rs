@@ -58,10 +58,13 @@ fn main() {
     };
 
     let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, 0);
-    if let Some(last) = agent.actor.layers.last_mut() {
-        if let Some(b) = last.b.last_mut() {
-            *b = 0.3;
-        }
+    if let Some(b) = agent
+        .actor
+        .layers
+        .last_mut()
+        .and_then(|last| last.b.last_mut())
+    {
+        *b = 0.3;
     }
     let (teacher_steps, teacher_secs, records) = pool.install(|| {
         best(|| {
