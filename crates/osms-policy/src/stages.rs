@@ -215,20 +215,13 @@ impl ItemStage for EvalTeacherStage {
         index: usize,
         rng: &mut StreamRng,
     ) -> Result<EvalRow, StageError> {
-        let record = rollout(
+        Ok(EvalRow::of(rollout(
             world,
             &teacher.task,
             &teacher.agent,
             conditions.items[index].clone(),
             rng.clone(),
-        );
-        Ok(EvalRow {
-            variant: record.condition.variant,
-            lateral_offset_m: record.condition.lateral_offset_m,
-            steps: record.steps as u32,
-            metrics: record.metrics,
-            outcome: record.outcome,
-        })
+        )))
     }
     fn merge(
         &self,

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::catcher::{CatcherSpec, ScriptedCatcher};
 use crate::conditions::{ConditionSpec, TaskCondition, sample};
-use crate::episode::{Episode, NoHooks, RolloutSpec};
+use crate::episode::{Episode, NoHooks, RolloutRecord, RolloutSpec};
 use crate::metrics::{Failure, Metrics, Outcome};
 use crate::spec::{ObjectVariant, WorldSpec};
 use crate::world::World;
@@ -162,6 +162,19 @@ pub struct EvalRow {
     pub steps: u32,
     pub metrics: Metrics,
     pub outcome: Outcome,
+}
+
+impl EvalRow {
+    /// What an evaluation keeps of a finished rollout.
+    pub fn of(record: RolloutRecord) -> Self {
+        EvalRow {
+            variant: record.condition.variant,
+            lateral_offset_m: record.condition.lateral_offset_m,
+            steps: record.steps as u32,
+            metrics: record.metrics,
+            outcome: record.outcome,
+        }
+    }
 }
 
 /// Per-rollout rows and the table over family × size.
@@ -317,13 +330,7 @@ impl ItemStage for EvalScriptedStage {
         let mut catcher = ScriptedCatcher::new(p.catcher.clone(), p.rollout.control.clone());
         let record =
             Episode::new(world, &p.rollout, condition, rng.clone()).run(&mut catcher, &mut NoHooks);
-        Ok(EvalRow {
-            variant: record.condition.variant,
-            lateral_offset_m: record.condition.lateral_offset_m,
-            steps: record.steps as u32,
-            metrics: record.metrics,
-            outcome: record.outcome,
-        })
+        Ok(EvalRow::of(record))
     }
     fn merge(
         &self,
