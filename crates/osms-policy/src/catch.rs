@@ -1,9 +1,11 @@
 //! The catching world as a PPO [`Task`]: the privileged teacher acts as a residual on the
 //! scripted catcher, rewarded by the five terms of paper section 5.1.
 //!
-//! Residual: the executed action is clamp(prior + s · r) with r the policy's action in [-1, 1]
-//! and s = `residual_scale`; with a zero-initialised actor the first policy's mean is the prior.
-//! `from_scratch` drops the prior (the executed action is r itself).
+//! Residual: the executed arm action is clamp(prior + s · r + u · g) with r the policy's arm
+//! residual in [-1, 1]^7, s = `residual_scale`, and u its follow-through channel scaling g, the
+//! fastest arm motion that moves the palm along the incoming direction; the hand follows the
+//! prior unless `residual_hand`. With a zero-initialised actor the first policy's mean is the
+//! prior. `from_scratch` drops the prior (r covers all 24 channels).
 
 use osms_make::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
