@@ -3,7 +3,7 @@ use std::process::ExitCode;
 use anyhow::{Context as _, Result, bail};
 use osms_make::Registry;
 use osms_make::State;
-use osms_store::{Record, read_header};
+use osms_store::{Record, Store, read_header};
 use serde::Serialize;
 
 use crate::cli::{ExportArgs, Selection, ShowArgs};
@@ -20,9 +20,18 @@ struct Shown<'a> {
     summary: serde_json::Value,
 }
 
+/// What a `show`/`export` target names, with the opened store and the plan's profile.
+struct Resolved {
+    record: Record,
+    /// Other keys with the same content (hash-prefix targets only).
+    also_keys: Vec<String>,
+    store: Store,
+    profile: String,
+}
+
 /// The record a `show`/`export` target names: a stage instance of the plan (its current build)
-/// or a key or content-hash prefix. Also returns the other keys with the same content.
-fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<(Record, Vec<String>)> {
+/// or a key or content-hash prefix.
+fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<Resolved> {
     let store = ctx.store()?;
     let (records, _) = store.records()?;
     let name = target.split('@').next().unwrap_or(target);
@@ -43,7 +52,12 @@ fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<(Record
                 describe(&s.reasons)
             );
         };
-        return Ok((record.clone(), Vec::new()));
+        return Ok(Resolved {
+            record: record.clone(),
+            also_keys: Vec::new(),
+            profile: plan.profile.clone(),
+            store,
+        });
     }
     let prefix = target.to_ascii_lowercase();
     if prefix.len() < 6 || !prefix.chars().all(|c| c.is_ascii_hexdigit()) {
@@ -82,14 +96,23 @@ fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<(Record
             list.join("\n")
         );
     }
-    let also = matches.iter().skip(1).map(|r| r.key.to_hex()).collect();
-    Ok(((*first).clone(), also))
+    let also_keys = matches.iter().skip(1).map(|r| r.key.to_hex()).collect();
+    Ok(Resolved {
+        record: (*first).clone(),
+        also_keys,
+        profile: plan.profile.clone(),
+        store,
+    })
 }
 
 pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
-    let (first, also_keys) = resolve(ctx, &args.hash, &args.selection)?;
-    let first = &first;
-    let store = ctx.store()?;
+    let Resolved {
+        record,
+        also_keys,
+        store,
+        ..
+    } = resolve(ctx, &args.hash, &args.selection)?;
+    let first = &record;
     let bytes = store.get(&first.content_hash)?;
     let header = read_header(&bytes)?;
     let (summary, text) = match (ctx.registry.get(&first.kind), first.shard) {
@@ -235,11 +258,15 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
 
 /// Writes the files an artifact renders (e.g. a table as Markdown, CSV and JSON).
 pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
-    let (record, _) = resolve(ctx, &args.target, &args.selection)?;
+    let Resolved {
+        record,
+        store,
+        profile,
+        ..
+    } = resolve(ctx, &args.target, &args.selection)?;
     let Some(kind) = ctx.registry.get(&record.kind) else {
         bail!("kind `{}` is not known to this osms", record.kind);
     };
-    let store = ctx.store()?;
     let bytes = store.get(&record.content_hash)?;
     let files = if record.shard.is_some() {
         Vec::new()
@@ -257,7 +284,6 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     let dir = match &args.out {
         Some(d) => d.clone(),
         None => {
-            let plan = ctx.plan(args.selection.profile.as_deref())?;
             let instance = match record.seed {
                 Some(seed) => format!("{}@{seed}", record.stage),
                 None => record.stage.clone(),
@@ -266,7 +292,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
                 .parent()
                 .unwrap_or_else(|| std::path::Path::new("."))
                 .join("reports")
-                .join(&plan.profile)
+                .join(&profile)
                 .join(instance)
         }
     };
