@@ -1,7 +1,8 @@
-//! f32 matrix products with a fixed summation order (ARCHITECTURE.md, "Numerics that must not
-//! drift"). Every output element is `((0 + a₀b₀) + a₁b₁) + …` in increasing k, with separate
-//! multiply and add (Rust never contracts them into an FMA), so the tiled kernels, the scalar
-//! reference, any thread count and any x86-64 or aarch64 CPU give the same bits.
+//! f32 matrix products with a fixed summation order (the design sketch
+//! `../shared/design/ARCHITECTURE.md`, "Numerics that must not drift"). Every output element is
+//! `((0 + a₀b₀) + a₁b₁) + …` in increasing k, with separate multiply and add (Rust never
+//! contracts them into an FMA), so the tiled kernels, the scalar reference, any thread count and
+//! any x86-64 or aarch64 CPU give the same bits.
 //!
 //! The tiled kernel keeps an MR × NR block of C in registers and walks k once, reading B from
 //! packed NR-wide panels. SIMD lanes run across output columns only, and each lane does exactly

@@ -24,8 +24,10 @@ const P: [f32; 6] = [
     0.5,
 ];
 
-/// eˣ within 2 ulp of the true value over the whole f32 range (tested against `libm::expf`);
-/// +∞ above ~88.72, gradual underflow to +0 below ~−103.9, NaN for NaN.
+/// eˣ; +∞ above ~88.72, gradual underflow to +0 below ~−103.9, NaN for NaN. Tested against
+/// `libm::expf`, not the true value: within 2 ulp on a sweep of about 262,000 points (step
+/// 0.000731) over [−103, 88.7) where the result is normal; the sweep's subnormal results are
+/// not held to any bound. Special values are tested separately.
 #[inline(always)]
 pub fn exp(x: f32) -> f32 {
     // Beyond these, the result is ∞ or 0 anyway; clamping keeps the exponent arithmetic in range

@@ -57,7 +57,7 @@ fn main() {
         ..PpoConfig::default()
     };
 
-    let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, 0);
+    let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench"));
     if let Some(b) = agent
         .actor
         .layers
@@ -107,8 +107,8 @@ fn main() {
         };
         pool.install(|| {
             best(|| {
-                let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, 0);
-                train(&task, &mut agent, &config, (0, "bench"), &|_| {});
+                let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench"));
+                train(&task, &mut agent, &config, (0, "bench"), &|_| {}).expect("trains");
                 (agent.curve[0].steps as f64, ())
             })
         })

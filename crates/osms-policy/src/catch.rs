@@ -9,8 +9,8 @@
 
 use osms_make::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
-use osms_sim::episode::{PRIVILEGED_CONTACT_COUNT, PRIVILEGED_LEN};
-use osms_sim::vec3::{dot, norm, sub};
+use osms_sim::episode::{PRIVILEGED_LEN, Snapshot};
+use osms_sim::vec3::{norm, sub};
 use osms_sim::{
     Action, ConditionSpec, Episode, N_ACTION, N_ARM, NoHooks, Phase, Policy, PolicyView,
     RolloutRecord, RolloutSpec, World, conditions,
@@ -136,12 +136,11 @@ pub struct CatchTask<'w> {
     pub seed: u64,
     pub stage: String,
     pub stream: String,
-    /// Condition 0, drawn by `new`.
-    fallback: conditions::TaskCondition,
 }
 
 impl<'w> CatchTask<'w> {
-    /// Checks that conditions can be drawn at all (an infeasible sampler is a user error).
+    /// Checks that conditions can be drawn at all (an infeasible sampler is a user error before
+    /// training starts; a later draw that fails stops training with an error).
     pub fn new(
         world: &'w World,
         spec: CatchTaskSpec,
@@ -149,14 +148,13 @@ impl<'w> CatchTask<'w> {
         stage: &str,
         stream: &str,
     ) -> osms_sim::Result<Self> {
-        let fallback = draw(world, &spec, (seed, stage, stream), 0)?;
+        draw(world, &spec, (seed, stage, stream), 0)?;
         Ok(CatchTask {
             world,
             spec,
             seed,
             stage: stage.to_string(),
             stream: stream.to_string(),
-            fallback,
         })
     }
 
@@ -187,8 +185,6 @@ struct Residual<'a, 'b> {
     prior: &'a mut ScriptedCatcher,
     spec: &'a CatchTaskSpec,
     phase: u8,
-    /// The incoming direction frozen at the first contact, for the follow-through channel.
-    contact_dir: &'a mut Option<[f64; 3]>,
     act: &'a mut dyn FnMut(&[f32]) -> Vec<f32>,
     executed: &'b mut Action,
 }
@@ -213,32 +209,10 @@ impl Policy for Residual<'_, '_> {
         }
         if self.spec.follow_through_channel {
             let u = f64::from(r.get(residual_channels).copied().unwrap_or(0.0));
-            let ids = &view.world.ids;
-            let touching = view
-                .privileged
-                .get(PRIVILEGED_CONTACT_COUNT)
-                .is_some_and(|n| *n > 0.0);
-            let dir = match *self.contact_dir {
-                Some(d) => d,
-                None => {
-                    let v = view.data.qvel();
-                    let v = [
-                        v[ids.object_dof],
-                        v[ids.object_dof + 1],
-                        v[ids.object_dof + 2],
-                    ];
-                    let n = norm(v).max(1e-12);
-                    let d = [v[0] / n, v[1] / n, v[2] / n];
-                    if touching {
-                        *self.contact_dir = Some(d);
-                    }
-                    d
-                }
-            };
             if u != 0.0 {
                 let g = palm_motion_channels(
                     view,
-                    dir,
+                    follow_through_direction(view),
                     self.spec.palm_motion_orientation_weight,
                     PALM_MOTION_DAMPING,
                 );
@@ -255,6 +229,19 @@ impl Policy for Residual<'_, '_> {
     }
 }
 
+/// The direction the follow-through channel moves the palm along: after t_c the pre-contact
+/// incoming direction that ℓ_max and the reward measure along (frozen with the first contact),
+/// before it the object's current direction of flight.
+fn follow_through_direction(view: &PolicyView<'_>) -> [f64; 3] {
+    if let Some(c) = view.first_contact {
+        return c.incoming_dir;
+    }
+    let (v, d) = (view.data.qvel(), view.world.ids.object_dof);
+    let v = [v[d], v[d + 1], v[d + 2]];
+    let n = norm(v).max(1e-12);
+    [v[0] / n, v[1] / n, v[2] / n]
+}
+
 /// A running catching episode with its reward bookkeeping.
 pub struct CatchEpisode<'w> {
     episode: Option<Episode<'w>>,
@@ -262,13 +249,21 @@ pub struct CatchEpisode<'w> {
     prior: ScriptedCatcher,
     reward: RewardSpec,
     spec: &'w CatchTaskSpec,
-    /// The phase after the last step, as recorded (`Phase as u8`).
+    /// The last step's recorded phase (`Phase as u8`), the policy's phase input.
     phase: u8,
-    /// Incoming direction and palm position at the first contact step.
-    contact: Option<([f64; 3], [f64; 3])>,
-    /// The follow-through channel's direction, frozen when the policy first sees contact.
-    channel_dir: Option<[f64; 3]>,
-    best_follow_through: f64,
+    /// The follow-through already rewarded (m, up to δ_ℓ).
+    rewarded_follow_through: f64,
+}
+
+/// An exact copy of a catching episode at the start of a control step: the simulator's
+/// snapshot and the policy side (the prior's state, the phase input, the reward bookkeeping).
+/// Restoring it and stepping on with the same actions reproduces the episode bit for bit.
+#[derive(Clone)]
+pub struct CatchSnapshot {
+    episode: Snapshot,
+    prior: ScriptedCatcher,
+    phase: u8,
+    rewarded_follow_through: f64,
 }
 
 impl<'w> Task for CatchTask<'w> {
@@ -281,20 +276,17 @@ impl<'w> Task for CatchTask<'w> {
         OBS_LEN
     }
 
+    type Error = osms_sim::SimError;
+
     fn act_len(&self) -> usize {
         self.spec.act_len()
     }
 
-    fn start(&self, index: u64) -> CatchEpisode<'_> {
-        // `new` drew condition 0; the sampler retries until it finds a feasible launch, so a
-        // later draw failing would take 1000 infeasible draws in a row. Should it happen, the
-        // episode reuses condition 0 rather than abort a training run.
-        let condition = self
-            .condition(index)
-            .unwrap_or_else(|_| self.fallback.clone());
+    fn start(&self, index: u64) -> osms_sim::Result<CatchEpisode<'_>> {
+        let condition = self.condition(index)?;
         let dr_stream = format!("{}-dr", self.stream);
         let r = rng::stream(self.seed, &self.stage, &dr_stream, index);
-        CatchEpisode::new(self.world, &self.spec, condition, r)
+        Ok(CatchEpisode::new(self.world, &self.spec, condition, r))
     }
 }
 
@@ -313,10 +305,38 @@ impl<'w> CatchEpisode<'w> {
             reward: spec.reward.clone(),
             spec,
             phase: Phase::Approach as u8,
-            contact: None,
-            channel_dir: None,
-            best_follow_through: 0.0,
+            rewarded_follow_through: 0.0,
         }
+    }
+
+    /// The running episode (None once it has ended).
+    pub fn episode(&self) -> Option<&Episode<'w>> {
+        self.episode.as_ref()
+    }
+
+    /// A copy of the whole episode state at the start of the next control step, or None once
+    /// the episode has ended.
+    pub fn snapshot(&self) -> Option<CatchSnapshot> {
+        Some(CatchSnapshot {
+            episode: self.episode.as_ref()?.snapshot(),
+            prior: self.prior.clone(),
+            phase: self.phase,
+            rewarded_follow_through: self.rewarded_follow_through,
+        })
+    }
+
+    /// Returns to `snapshot`, taken from this episode while it was running. Returns false
+    /// (and changes nothing) once the episode has ended: its simulator state is gone.
+    pub fn restore(&mut self, snapshot: &CatchSnapshot) -> bool {
+        let Some(episode) = self.episode.as_mut() else {
+            return false;
+        };
+        episode.restore(&snapshot.episode);
+        self.prior = snapshot.prior.clone();
+        self.phase = snapshot.phase;
+        self.rewarded_follow_through = snapshot.rewarded_follow_through;
+        self.record = None;
+        true
     }
 
     /// Runs the episode to its end with `act` choosing the policy's actions, and returns its
@@ -358,7 +378,6 @@ impl TaskEpisode for CatchEpisode<'_> {
             prior: &mut self.prior,
             spec: self.spec,
             phase: self.phase,
-            contact_dir: &mut self.channel_dir,
             act,
             executed: &mut executed,
         };
@@ -370,32 +389,27 @@ impl TaskEpisode for CatchEpisode<'_> {
         let k = rec.steps - 1;
         let phase_after = rec.phase.get(k).copied().unwrap_or(0);
         let mut reward = 0.0f64;
-        let (palm_pos, palm_vel) = (at3(&rec.palm_pos, k), at3(&rec.palm_vel, k));
-        let object_vel = at3(&rec.object_vel, k);
         let force = f64::from(rec.normal_force[k]);
-        if phase_after < Phase::Contact as u8 {
+        if episode.first_contact().is_none() {
             if phase_after == Phase::VelocityMatching as u8 {
+                let (palm_vel, object_vel) = (at3(&rec.palm_vel, k), at3(&rec.object_vel, k));
                 reward -= f64::from(w.velocity_matching) * norm(sub(object_vel, palm_vel)) * dt;
             }
         } else {
-            let (dir, palm0) = *self.contact.get_or_insert_with(|| {
-                let v = object_vel;
-                let n = norm(v).max(1e-12);
-                ([v[0] / n, v[1] / n, v[2] / n], palm_pos)
-            });
             if force > 0.0 {
                 reward += f64::from(w.grasp_retention) * dt;
             }
             let excess = (force - 0.5 * success.max_force_n).max(0.0) / success.max_force_n;
             reward -= f64::from(w.impact_force) * excess * dt;
-            if phase_after <= Phase::FollowThrough as u8 {
-                let moved = dot(sub(palm_pos, palm0), dir);
-                let capped = moved.min(success.min_follow_through_m);
-                if capped > self.best_follow_through {
-                    reward += f64::from(w.follow_through) * (capped - self.best_follow_through)
-                        / success.min_follow_through_m;
-                    self.best_follow_through = capped;
-                }
+            // ℓ_max as the success criterion measures it: along the pre-contact incoming
+            // direction, from the palm at t_c, within Δt_eval.
+            let progress = episode
+                .follow_through_m()
+                .min(success.min_follow_through_m);
+            if progress > self.rewarded_follow_through {
+                reward += f64::from(w.follow_through) * (progress - self.rewarded_follow_through)
+                    / success.min_follow_through_m;
+                self.rewarded_follow_through = progress;
             }
         }
         self.phase = phase_after;

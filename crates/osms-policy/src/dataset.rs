@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
+use osms_sim::control::DrDraw;
 use osms_sim::{N_ACTION, N_ARM, RolloutRecord, conditions::TaskCondition, spec::ObjectVariant};
 use serde::{Deserialize, Serialize};
 
@@ -39,6 +40,22 @@ pub fn omega_features(c: &TaskCondition) -> Vec<f32> {
     out
 }
 
+/// Length of the domain-randomisation features: a rollout's DR draws belong to its condition
+/// (paper 3.1: ω specifies the environment parameters too).
+pub const DR_FEATURES_LEN: usize = 5;
+
+/// A rollout's DR draws as features: observation and actuation delay (control steps), gain,
+/// friction and contact time-constant scales.
+pub fn dr_features(dr: &DrDraw) -> [f32; DR_FEATURES_LEN] {
+    [
+        dr.observation_delay_steps as f32,
+        dr.actuation_delay_steps as f32,
+        dr.gain_scale as f32,
+        dr.friction_scale as f32,
+        dr.contact_timeconst_scale as f32,
+    ]
+}
+
 /// A rollout aligned to its outcome-sensitive window W_OS = {k_e − H_OS, …, k_e − 1}.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct OswWindow {
@@ -51,7 +68,8 @@ pub struct OswWindow {
     /// ζ_org: the teacher's arm actions over the window, step-major (`[step][channel]`,
     /// N_ARM channels), k_e − start steps.
     pub zeta_org: Vec<f32>,
-    /// ω̄: ω's features followed by the privileged state at the window's first step.
+    /// ω̄: ω's features, the rollout's DR draws ([`dr_features`]) and the privileged state at
+    /// the window's first step.
     pub omega_bar: Vec<f32>,
 }
 
@@ -78,6 +96,7 @@ impl OswWindow {
         // A contact at step 0 has no frame before it; ω̄ then uses the first frame.
         let at = start.min(record.steps - 1);
         let mut omega_bar = omega_features(&record.condition);
+        omega_bar.extend(dr_features(&record.dr));
         omega_bar.extend_from_slice(&record.privileged[at * frame..(at + 1) * frame]);
         Ok(OswWindow {
             event_step: k_e,
@@ -121,7 +140,7 @@ pub struct Dataset {
 
 impl osms_store::Artifact for Dataset {
     const TYPE_TAG: &'static str = "policy.dataset";
-    const SCHEMA_VERSION: u16 = 1;
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 /// Counts behind `osms show` on a dataset.
@@ -274,7 +293,14 @@ mod tests {
     /// A record whose intended action at step k, channel c is 100·k + c and whose privileged
     /// frame at step k is [k, k + 0.5].
     fn record(steps: usize, event_step: usize) -> RolloutRecord {
-        let mut r = RolloutRecord::empty(condition(), osms_sim::control::DrDraw::none());
+        let dr = DrDraw {
+            observation_delay_steps: 1,
+            actuation_delay_steps: 0,
+            gain_scale: 1.05,
+            friction_scale: 0.9,
+            contact_timeconst_scale: 1.25,
+        };
+        let mut r = RolloutRecord::empty(condition(), dr);
         r.steps = steps;
         r.intended = (0..steps)
             .flat_map(|k| (0..N_ACTION).map(move |c| (100 * k + c) as f32))
@@ -297,8 +323,13 @@ mod tests {
                 assert_eq!(w.zeta_org[j * N_ARM + c], (100 * (12 + j) + c) as f32);
             }
         }
-        assert_eq!(w.omega_bar.len(), OMEGA_LEN + 2);
-        assert_eq!(&w.omega_bar[OMEGA_LEN..], &[12.0, 12.5]);
+        assert_eq!(w.omega_bar.len(), OMEGA_LEN + DR_FEATURES_LEN + 2);
+        assert_eq!(
+            &w.omega_bar[OMEGA_LEN..OMEGA_LEN + DR_FEATURES_LEN],
+            &[1.0, 0.0, 1.05, 0.9, 1.25],
+            "DR draws"
+        );
+        assert_eq!(&w.omega_bar[OMEGA_LEN + DR_FEATURES_LEN..], &[12.0, 12.5]);
         assert_eq!(w.omega_bar[3], 1.0, "variant one-hot");
         assert_eq!(&w.omega_bar[11..14], &[1.0, 2.0, 3.0], "launch position");
     }
@@ -313,7 +344,7 @@ mod tests {
         assert_eq!((w.start, w.zeta_org.len()), (0, 5 * N_ARM));
         let w = OswWindow::extract(&record(30, 0), &spec).expect("window");
         assert!(!w.complete && w.zeta_org.is_empty());
-        assert_eq!(&w.omega_bar[OMEGA_LEN..], &[0.0, 0.5]);
+        assert_eq!(&w.omega_bar[OMEGA_LEN + DR_FEATURES_LEN..], &[0.0, 0.5]);
         assert!(OswWindow::extract(&record(10, 11), &spec).is_err());
         let mut r = record(30, 20);
         r.privileged.clear();

@@ -75,9 +75,21 @@ pub trait Task: Sync {
     type Episode<'a>: TaskEpisode
     where
         Self: 'a;
+    /// Why an episode could not start (e.g. its condition could not be drawn).
+    type Error: std::error::Error + Send + Sync + 'static;
     fn obs_len(&self) -> usize;
     fn act_len(&self) -> usize;
-    fn start(&self, index: u64) -> Self::Episode<'_>;
+    fn start(&self, index: u64) -> Result<Self::Episode<'_>, Self::Error>;
+}
+
+/// Training stopped because an episode could not start.
+#[derive(Debug, thiserror::Error)]
+#[error("PPO iteration {iteration}: episode {episode} could not start: {source}")]
+pub struct TrainError {
+    pub iteration: u32,
+    pub episode: u64,
+    #[source]
+    pub source: Box<dyn std::error::Error + Send + Sync>,
 }
 
 /// One running episode of a [`Task`].
@@ -131,7 +143,14 @@ pub struct Agent {
 }
 
 impl Agent {
-    pub fn new(obs_len: usize, act_len: usize, config: &PpoConfig, seed: u64) -> Self {
+    /// A fresh agent whose weights draw from streams named by (seed, `stage`), so two stages
+    /// of one run (two teachers, cross-fitted students) never start from the same weights.
+    pub fn new(
+        obs_len: usize,
+        act_len: usize,
+        config: &PpoConfig,
+        (seed, stage): (u64, &str),
+    ) -> Self {
         let sizes = |out: usize| {
             std::iter::once(obs_len)
                 .chain(config.hidden.iter().copied())
@@ -143,7 +162,7 @@ impl Agent {
             config.activation,
             Activation::Identity,
             seed,
-            "actor",
+            &format!("{stage}/actor"),
         );
         if config.zero_init_actor_output
             && let Some(last) = actor.layers.last_mut()
@@ -156,7 +175,7 @@ impl Agent {
             config.activation,
             Activation::Identity,
             seed,
-            "critic",
+            &format!("{stage}/critic"),
         );
         Agent {
             actor,
@@ -197,9 +216,14 @@ struct Trajectory {
 
 const LN_2PI: f32 = 1.837_877_1;
 
-fn run_episode<T: Task>(task: &T, agent: &Agent, index: u64, rng: &mut StreamRng) -> Trajectory {
+fn run_episode<T: Task>(
+    task: &T,
+    agent: &Agent,
+    index: u64,
+    rng: &mut StreamRng,
+) -> Result<Trajectory, T::Error> {
     let act_len = task.act_len();
-    let mut episode = task.start(index);
+    let mut episode = task.start(index)?;
     let mut t = Trajectory {
         obs: Vec::new(),
         u: Vec::new(),
@@ -242,7 +266,7 @@ fn run_episode<T: Task>(task: &T, agent: &Agent, index: u64, rng: &mut StreamRng
         }
     }
     t.stats = episode.finish();
-    t
+    Ok(t)
 }
 
 /// Generalised advantage estimates and returns of one episode that ended in a terminal state.
@@ -268,7 +292,7 @@ pub fn train<T: Task>(
     config: &PpoConfig,
     streams: (u64, &str),
     progress: &dyn Fn(&IterationStats),
-) {
+) -> Result<(), TrainError> {
     let (seed, stage) = streams;
     let (obs_len, act_len) = (task.obs_len(), task.act_len());
     let mut actor_opt = Adam::new(
@@ -284,13 +308,22 @@ pub fn train<T: Task>(
         let per = u64::from(config.episodes_per_iteration);
         let base = u64::from(iteration) * per;
         let frozen = &*agent;
-        let trajectories: Vec<Trajectory> = (0..per)
+        let runs: Vec<Result<Trajectory, T::Error>> = (0..per)
             .into_par_iter()
             .map(|e| {
                 let mut r = rng::stream(seed, stage, "ppo-act", base + e);
                 run_episode(task, frozen, base + e, &mut r)
             })
             .collect();
+        // The first failure in episode order, whichever thread met it first.
+        let mut trajectories = Vec::with_capacity(runs.len());
+        for (e, run) in (base..).zip(runs) {
+            trajectories.push(run.map_err(|source| TrainError {
+                iteration,
+                episode: e,
+                source: Box::new(source),
+            })?);
+        }
 
         // Flatten in episode order.
         let mut obs = Vec::new();
@@ -382,6 +415,7 @@ pub fn train<T: Task>(
             agent.obs_norm.update(&t.raw);
         }
     }
+    Ok(())
 }
 
 fn gather(rows: &[f32], width: usize, index: &[usize]) -> Matrix {

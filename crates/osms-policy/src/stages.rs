@@ -7,6 +7,7 @@ use std::fmt::Write;
 use osms_make::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Stage, StageError, Summarize};
 use osms_sim::World;
+use osms_sim::control::DrSpec;
 use osms_sim::conditions::sample;
 use osms_sim::stages::{Conditions, EvalRow, Evaluation, TableLine, WorldArtifact};
 use osms_store::Artifact;
@@ -152,7 +153,7 @@ impl Summarize for Teacher {
 pub struct TeacherStage;
 impl Stage for TeacherStage {
     const KIND: &'static str = "teacher";
-    const CODE_VERSION: u32 = 1;
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [&'static str] = &["world"];
     const DOC: &'static str =
@@ -170,12 +171,12 @@ impl Stage for TeacherStage {
             );
         }
         let task = CatchTask::new(&world, p.task.clone(), seed, ctx.stage(), "train")?;
-        let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, seed);
+        let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, (seed, ctx.stage()));
         let progress = ctx.progress();
         progress.set_total(u64::from(p.ppo.iterations));
         train(&task, &mut agent, &p.ppo, (seed, ctx.stage()), &|_| {
             progress.inc(1)
-        });
+        })?;
         Ok(Teacher {
             task: p.task.clone(),
             agent,
@@ -183,34 +184,53 @@ impl Stage for TeacherStage {
     }
 }
 
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalTeacherParams {
+    /// Domain randomisation of the evaluation rollouts (a preset name or a table); absent:
+    /// the teacher's training setting.
+    pub dr: Option<DrSpec>,
+}
+
+/// A teacher's task with the rollouts' domain randomisation replaced when `dr` is given.
+fn with_dr(task: &CatchTaskSpec, dr: &Option<DrSpec>) -> CatchTaskSpec {
+    let mut task = task.clone();
+    if let Some(dr) = dr {
+        task.rollout.dr = dr.clone();
+    }
+    task
+}
+
 /// The frozen teacher (deterministic actions) on every condition of a set; rollout `i` draws
 /// its domain randomisation from ("item", i).
 pub struct EvalTeacherStage;
 impl ItemStage for EvalTeacherStage {
     const KIND: &'static str = "eval_teacher";
-    const CODE_VERSION: u32 = 1;
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [&'static str] = &["world", "conditions", "teacher"];
     const DOC: &'static str =
         "a frozen teacher evaluated on a condition set (table per family x size)";
-    type Params = NoParams;
+    type Params = EvalTeacherParams;
     type Prepared = (World, Conditions, Teacher);
     type Item = EvalRow;
     type Output = Evaluation;
 
-    fn prepare(&self, ctx: &Ctx<'_, NoParams>) -> Result<Self::Prepared, StageError> {
+    fn prepare(&self, ctx: &Ctx<'_, EvalTeacherParams>) -> Result<Self::Prepared, StageError> {
+        let mut teacher: Teacher = ctx.input("teacher")?;
+        teacher.task = with_dr(&teacher.task, &ctx.params.dr);
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,
             ctx.input("conditions")?,
-            ctx.input("teacher")?,
+            teacher,
         ))
     }
-    fn n_items(&self, _: &Ctx<'_, NoParams>, p: &Self::Prepared) -> usize {
+    fn n_items(&self, _: &Ctx<'_, EvalTeacherParams>, p: &Self::Prepared) -> usize {
         p.1.items.len()
     }
     fn run_item(
         &self,
-        _: &Ctx<'_, NoParams>,
+        _: &Ctx<'_, EvalTeacherParams>,
         (world, conditions, teacher): &Self::Prepared,
         index: usize,
         rng: &mut StreamRng,
@@ -225,7 +245,7 @@ impl ItemStage for EvalTeacherStage {
     }
     fn merge(
         &self,
-        _: &Ctx<'_, NoParams>,
+        _: &Ctx<'_, EvalTeacherParams>,
         _: Self::Prepared,
         rows: Vec<EvalRow>,
     ) -> Result<Evaluation, StageError> {
@@ -382,6 +402,10 @@ pub struct CollectParams {
     pub max_attempts: u32,
     #[serde(default)]
     pub osw: OswSpec,
+    /// Domain randomisation of the collected rollouts (a preset name or a table); absent: the
+    /// teacher's training setting. Each rollout's draws are recorded with it and enter ω̄.
+    #[serde(default)]
+    pub dr: Option<DrSpec>,
 }
 
 fn default_max_attempts() -> u32 {
@@ -394,7 +418,7 @@ fn default_max_attempts() -> u32 {
 pub struct CollectStage;
 impl ItemStage for CollectStage {
     const KIND: &'static str = "collect";
-    const CODE_VERSION: u32 = 1;
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [&'static str] = &["world", "teacher"];
     const DOC: &'static str =
@@ -412,6 +436,7 @@ impl ItemStage for CollectStage {
             return Err("params.osw.h_os must be at least 1".into());
         }
         let mut teacher: Teacher = ctx.input("teacher")?;
+        teacher.task = with_dr(&teacher.task, &ctx.params.dr);
         // The OSW conditioning ω̄ needs the privileged state at the window's start.
         teacher.task.rollout.record_privileged = true;
         Ok((ctx.input::<WorldArtifact>("world")?.world()?, teacher))

@@ -17,7 +17,7 @@ fn a_zero_residual_reproduces_the_scripted_catcher() {
     let spec = CatchTaskSpec::default();
     let task = CatchTask::new(&world, spec.clone(), 5, "test", "train").expect("task");
     for index in 0..3 {
-        let mut episode = task.start(index);
+        let mut episode = task.start(index).expect("condition");
         let mut total = 0.0f32;
         loop {
             let (r, done) = episode.step(&mut |_| vec![0.0; 24]);
@@ -72,8 +72,8 @@ fn short_training(threads: usize) -> blake3::Hash {
         .build()
         .expect("pool");
     let agent = pool.install(|| {
-        let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, 1);
-        train(&task, &mut agent, &config, (1, "test"), &|_| {});
+        let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (1, "test"));
+        train(&task, &mut agent, &config, (1, "test"), &|_| {}).expect("trains");
         agent
     });
     assert_eq!(agent.curve.len(), 2);

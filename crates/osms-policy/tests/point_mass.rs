@@ -23,17 +23,18 @@ impl PointMass {
 
 impl Task for PointMass {
     type Episode<'a> = Run;
+    type Error = std::convert::Infallible;
     fn obs_len(&self) -> usize {
         1
     }
     fn act_len(&self) -> usize {
         1
     }
-    fn start(&self, index: u64) -> Run {
-        Run {
+    fn start(&self, index: u64) -> Result<Run, Self::Error> {
+        Ok(Run {
             x: Self::x0(index),
             steps: 0,
-        }
+        })
     }
 }
 
@@ -58,7 +59,7 @@ fn evaluate(policy: &dyn Fn(f32) -> f32) -> f64 {
     let episodes = 200;
     let mut total = 0.0f64;
     for i in 0..episodes {
-        let mut run = PointMass.start(1_000_000 + i);
+        let mut run = PointMass.start(1_000_000 + i).expect("starts");
         loop {
             let (r, done) = run.step(&mut |obs| vec![policy(obs[0]).clamp(-1.0, 1.0)]);
             total += f64::from(r);
@@ -90,8 +91,8 @@ fn trained(threads: usize) -> Agent {
         .expect("pool");
     pool.install(|| {
         let config = config();
-        let mut agent = Agent::new(1, 1, &config, 3);
-        train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {});
+        let mut agent = Agent::new(1, 1, &config, (3, "test"));
+        train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {}).expect("trains");
         agent
     })
 }

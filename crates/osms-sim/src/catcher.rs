@@ -63,6 +63,7 @@ impl Default for CatcherSpec {
     }
 }
 
+#[derive(Debug, Clone, PartialEq)]
 pub struct ScriptedCatcher {
     spec: CatcherSpec,
     control: ControlSpec,

@@ -72,9 +72,11 @@ pub fn hold_action(hand_rad: &[f64; N_HAND]) -> Action {
     a
 }
 
-/// Domain randomisation (paper, section V-A). Each effect is switched on by a non-zero size.
+/// Domain randomisation (paper 5, "Simulation"). Each effect is switched on by a non-zero size.
+/// In pipeline.toml a `dr` is a preset name (`"off"`, `"paper"`) or a table of these fields
+/// (missing fields are off). docs/sim.md gives each magnitude and where it comes from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields, default, remote = "Self")]
 pub struct DrSpec {
     /// Standard deviation of the noise on the observed object position (m).
     pub object_position_noise_m: f64,
@@ -111,7 +113,26 @@ impl Default for DrSpec {
 }
 
 impl DrSpec {
-    /// The settings the paper trains and evaluates students under.
+    /// The names [`DrSpec::preset`] knows.
+    pub const PRESETS: [&'static str; 2] = ["off", "paper"];
+
+    /// A named setting: `off` (the world as specified) or `paper`.
+    pub fn preset(name: &str) -> Option<Self> {
+        match name {
+            "off" => Some(DrSpec::default()),
+            "paper" => Some(DrSpec::paper()),
+            _ => None,
+        }
+    }
+
+    pub fn is_off(&self) -> bool {
+        *self == DrSpec::default()
+    }
+
+    /// The setting teachers are trained and every policy is evaluated under (paper 5: object
+    /// position perturbations, observation and actuation delays, actuation noise and gain
+    /// variation, control-timing jitter, contact-dynamics variation). The paper names the kinds
+    /// but not their sizes; docs/sim.md says where each size comes from.
     pub fn paper() -> Self {
         DrSpec {
             object_position_noise_m: 0.005,
@@ -122,6 +143,39 @@ impl DrSpec {
             timing_jitter_prob: 0.05,
             friction_variation: 0.2,
             contact_timeconst_variation: 0.3,
+        }
+    }
+}
+
+impl Serialize for DrSpec {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        DrSpec::serialize(self, s)
+    }
+}
+
+impl<'de> Deserialize<'de> for DrSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::{self, MapAccess, Visitor, value::MapAccessDeserializer};
+        struct PresetOrTable;
+        impl<'de> Visitor<'de> for PresetOrTable {
+            type Value = DrSpec;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a preset name (\"off\" or \"paper\") or a table of DR sizes")
+            }
+            fn visit_str<E: de::Error>(self, name: &str) -> Result<DrSpec, E> {
+                DrSpec::preset(name).ok_or_else(|| {
+                    E::invalid_value(de::Unexpected::Str(name), &"\"off\" or \"paper\"")
+                })
+            }
+            fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<DrSpec, A::Error> {
+                DrSpec::deserialize(MapAccessDeserializer::new(map))
+            }
+        }
+        // Binary formats (the store's postcard) are not self-describing: always the table.
+        if d.is_human_readable() {
+            d.deserialize_any(PresetOrTable)
+        } else {
+            DrSpec::deserialize(d)
         }
     }
 }
@@ -171,6 +225,29 @@ mod tests {
             t[..N_ARM].iter().all(|x| *x == 0.0),
             "a hold action keeps the arm targets"
         );
+    }
+
+    #[test]
+    fn dr_is_a_preset_name_or_a_table() {
+        #[derive(Deserialize)]
+        struct P {
+            dr: DrSpec,
+        }
+        let parse = |s: &str| toml::from_str::<P>(s).map(|p| p.dr);
+        assert_eq!(parse("dr = \"paper\"").unwrap(), DrSpec::paper());
+        assert_eq!(parse("dr = \"off\"").unwrap(), DrSpec::default());
+        let t = parse("dr = { actuation_noise = 0.1 }").unwrap();
+        assert_eq!(t.actuation_noise, 0.1);
+        assert_eq!(t.gain_variation, 0.0);
+        let e = parse("dr = \"papr\"").unwrap_err().to_string();
+        assert!(e.contains("papr") && e.contains("\"paper\""), "{e}");
+        let e = parse("dr = { actuation_nois = 0.1 }").unwrap_err().to_string();
+        assert!(e.contains("actuation_nois"), "{e}");
+        // The store's binary codec round-trips the table.
+        let bytes = postcard::to_allocvec(&DrSpec::paper()).unwrap();
+        assert_eq!(postcard::from_bytes::<DrSpec>(&bytes).unwrap(), DrSpec::paper());
+        let json = serde_json::to_string(&DrSpec::paper()).unwrap();
+        assert_eq!(serde_json::from_str::<DrSpec>(&json).unwrap(), DrSpec::paper());
     }
 
     #[test]

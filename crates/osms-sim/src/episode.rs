@@ -18,7 +18,9 @@ use crate::control::{
     Action, ControlSpec, DrDraw, DrSpec, N_ACTION, N_ARM, N_HAND, hold_action, joint_ranges,
     targets,
 };
-use crate::metrics::{Evaluator, Failure, Metrics, Outcome, StepState, SuccessSpec, scan};
+use crate::metrics::{
+    Evaluator, Failure, FirstContact, Metrics, Outcome, Phase, StepState, SuccessSpec, scan,
+};
 use crate::world::{World, palm_normal};
 
 /// Everything about how rollouts run, besides the world and ω.
@@ -66,6 +68,10 @@ pub struct PolicyView<'a> {
     pub privileged: &'a [f64],
     pub world: &'a World,
     pub condition: &'a TaskCondition,
+    /// The first admissible hand–object contact, once it has happened (in an earlier control
+    /// step): a controller can hand control back on it, and a follow-through moves along its
+    /// incoming direction.
+    pub first_contact: Option<&'a FirstContact>,
     pub data: &'a MjData<Box<MjModel>>,
 }
 
@@ -109,6 +115,9 @@ pub struct RolloutRecord {
     pub object_vel: Vec<f32>,
     /// Largest summed admissible normal force within the step (N).
     pub normal_force: Vec<f32>,
+    /// Each control step's phase (`Phase as u8`): contact for the one step during which the
+    /// first admissible contact happened, otherwise the phase after the step's last physics
+    /// step.
     pub phase: Vec<u8>,
     pub metrics: Metrics,
     pub outcome: Outcome,
@@ -153,6 +162,9 @@ struct Controller {
 #[derive(Clone)]
 pub struct Snapshot {
     mj_state: Box<[f64]>,
+    /// MuJoCo's warning counters are not part of its state vector; without them one unstable
+    /// branch would mark every later branch from the same snapshot unstable.
+    warnings: Vec<(i32, i32)>,
     controller: Controller,
     rng: StreamRng,
     evaluator: Evaluator,
@@ -300,6 +312,20 @@ impl<'w> Episode<'w> {
         &self.data
     }
 
+    /// The first admissible hand–object contact, once it has happened.
+    pub fn first_contact(&self) -> Option<&FirstContact> {
+        self.evaluator.first_contact()
+    }
+
+    /// ℓ_max so far (m): the palm's largest progress along the incoming direction since t_c.
+    pub fn follow_through_m(&self) -> f64 {
+        self.evaluator.follow_through_m()
+    }
+
+    pub fn condition(&self) -> &TaskCondition {
+        &self.condition
+    }
+
     /// The record so far (its outcome and metrics are filled in by [`Episode::finish`]).
     pub fn record(&self) -> &RolloutRecord {
         &self.record
@@ -394,6 +420,7 @@ impl<'w> Episode<'w> {
             privileged: &frame.privileged,
             world: self.world,
             condition: &self.condition,
+            first_contact: self.evaluator.first_contact(),
             data: &self.data,
         };
         let mut intended = policy.act(&view);
@@ -405,7 +432,8 @@ impl<'w> Episode<'w> {
             .any(|a| !a.is_finite() || a.abs() > 1.0 + 1e-9)
         {
             self.evaluator.abort(Failure::InvalidAction);
-            self.push_record(&frame, &intended, &executed, 0.0);
+            let phase = self.evaluator.phase();
+            self.push_record(&frame, &intended, &executed, 0.0, phase);
             return false;
         }
         let noise = self.spec.dr.actuation_noise;
@@ -433,6 +461,7 @@ impl<'w> Episode<'w> {
             }
             .max(1);
         }
+        let touched_before = self.evaluator.first_contact().is_some();
         let mut step_force: f64 = 0.0;
         for _ in 0..substeps {
             step_force = step_force.max(self.physics_step());
@@ -441,12 +470,26 @@ impl<'w> Episode<'w> {
                 break;
             }
         }
-        self.push_record(&frame, &intended, &applied, step_force);
+        // The evaluator's contact phase lasts one physics step; at control rate the step that
+        // contains t_c is the contact step.
+        let phase = if !touched_before && self.evaluator.first_contact().is_some() {
+            Phase::Contact
+        } else {
+            self.evaluator.phase()
+        };
+        self.push_record(&frame, &intended, &applied, step_force, phase);
         self.step += 1;
         !self.is_done()
     }
 
-    fn push_record(&mut self, frame: &Frame, intended: &Action, executed: &Action, force: f64) {
+    fn push_record(
+        &mut self,
+        frame: &Frame,
+        intended: &Action,
+        executed: &Action,
+        force: f64,
+        phase: Phase,
+    ) {
         let r = &mut self.record;
         r.steps += 1;
         r.intended.extend(intended.iter().map(|a| *a as f32));
@@ -462,7 +505,7 @@ impl<'w> Episode<'w> {
         push3(&mut r.object_pos, frame.object_pos);
         push3(&mut r.object_vel, frame.object_vel);
         r.normal_force.push(force as f32);
-        r.phase.push(self.evaluator.phase() as u8);
+        r.phase.push(phase as u8);
     }
 
     /// One physics step, evaluated; returns the summed admissible normal force.
@@ -524,6 +567,12 @@ impl<'w> Episode<'w> {
     pub fn snapshot(&self) -> Snapshot {
         Snapshot {
             mj_state: self.data.state(STATE),
+            warnings: self
+                .data
+                .warning()
+                .iter()
+                .map(|w| (w.number, w.lastinfo))
+                .collect(),
             controller: self.controller.clone(),
             rng: self.rng.clone(),
             evaluator: self.evaluator.clone(),
@@ -537,6 +586,10 @@ impl<'w> Episode<'w> {
         self.data
             .set_state(&snapshot.mj_state, STATE)
             .expect("a snapshot of this model restores");
+        for (w, &(number, lastinfo)) in self.data.warning_mut().iter_mut().zip(&snapshot.warnings) {
+            w.number = number;
+            w.lastinfo = lastinfo;
+        }
         self.controller = snapshot.controller.clone();
         self.rng = snapshot.rng.clone();
         self.evaluator = snapshot.evaluator.clone();

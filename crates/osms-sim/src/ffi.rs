@@ -1,4 +1,6 @@
-//! Process-wide MuJoCo settings: the only `unsafe` in osms.
+//! Process-wide MuJoCo settings. The workspace denies `unsafe_code`; this module and osms-nn's
+//! `dispatch!` macro are the two places that allow it (ARCHITECTURE.md, "Deviations from the
+//! design sketch").
 #![allow(unsafe_code)]
 
 /// Routes MuJoCo's warnings and errors to the `log` crate (and from there to osms's tracing

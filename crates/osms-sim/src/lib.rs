@@ -19,7 +19,7 @@ pub use conditions::{ConditionSpec, TaskCondition};
 pub use control::{Action, N_ACTION, N_ARM};
 pub use episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec};
 pub use error::{Result, SimError};
-pub use metrics::{Failure, Metrics, Outcome, Phase, SuccessSpec};
+pub use metrics::{Failure, FirstContact, Metrics, Outcome, Phase, SuccessSpec};
 pub use spec::{ObjectFamily, ObjectSize, ObjectVariant, WorldSpec};
 pub use world::{GeomClass, Ids, World};
 

@@ -224,15 +224,29 @@ pub struct StepState {
     pub palm_normal: [f64; 3],
 }
 
+/// The first admissible hand–object contact t_c, as the criteria see it: the event a controller
+/// that hands control back (or a follow-through that must move along the incoming direction)
+/// needs.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FirstContact {
+    /// t_c (s).
+    pub time_secs: f64,
+    /// The control step during which t_c fell.
+    pub control_step: usize,
+    /// v_rel(t_c): object–palm relative speed just before t_c (m/s).
+    pub contact_speed_mps: f64,
+    /// The object's pre-contact incoming direction (unit): ℓ_max is measured along it.
+    pub incoming_dir: [f64; 3],
+    /// The palm centre at t_c, where ℓ_max is measured from.
+    pub palm_pos: [f64; 3],
+}
+
 /// Online evaluation of the success criteria. Cloneable, so it is part of an episode snapshot.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Evaluator {
     spec: SuccessSpec,
     failures: Vec<Failure>,
-    first_contact: Option<(f64, usize)>,
-    contact_speed: Option<f64>,
-    incoming_dir: [f64; 3],
-    contact_palm_pos: [f64; 3],
+    first_contact: Option<FirstContact>,
     max_force: f64,
     follow_through: f64,
     closest: (f64, usize),
@@ -248,9 +262,6 @@ impl Evaluator {
             spec,
             failures: Vec::new(),
             first_contact: None,
-            contact_speed: None,
-            incoming_dir: [0.0; 3],
-            contact_palm_pos: [0.0; 3],
             max_force: 0.0,
             follow_through: 0.0,
             closest: (f64::INFINITY, 0),
@@ -266,6 +277,16 @@ impl Evaluator {
 
     pub fn phase(&self) -> Phase {
         self.phase
+    }
+
+    /// The first admissible contact, once it has happened.
+    pub fn first_contact(&self) -> Option<&FirstContact> {
+        self.first_contact.as_ref()
+    }
+
+    /// ℓ_max so far: the palm's largest progress along the incoming direction since t_c (m).
+    pub fn follow_through_m(&self) -> f64 {
+        self.follow_through
     }
 
     fn fail(&mut self, f: Failure) {
@@ -312,12 +333,15 @@ impl Evaluator {
                     // Contact forces act only in this step's integration, so the velocities of
                     // S_t are those immediately before t_c.
                     let rel = sub(s.object_vel, palm_vel());
-                    self.first_contact = Some((s.time_secs, s.control_step));
-                    self.contact_speed = Some(norm(rel));
                     let v = s.object_vel;
                     let n = norm(v).max(1e-12);
-                    self.incoming_dir = [v[0] / n, v[1] / n, v[2] / n];
-                    self.contact_palm_pos = s.palm_pos;
+                    self.first_contact = Some(FirstContact {
+                        time_secs: s.time_secs,
+                        control_step: s.control_step,
+                        contact_speed_mps: norm(rel),
+                        incoming_dir: [v[0] / n, v[1] / n, v[2] / n],
+                        palm_pos: s.palm_pos,
+                    });
                     self.max_force = scan.admissible_force_n;
                     self.phase = Phase::Contact;
                 } else if scan.touches(|c| matches!(c, GeomClass::Arm | GeomClass::Mount)) {
@@ -332,11 +356,16 @@ impl Evaluator {
                     };
                 }
             }
-            Some((t_c, _)) => {
+            Some(FirstContact {
+                time_secs: t_c,
+                incoming_dir,
+                palm_pos: palm0,
+                ..
+            }) => {
                 let since = s.time_secs - t_c;
                 if since <= self.spec.eval_window_secs {
                     self.max_force = self.max_force.max(scan.admissible_force_n);
-                    let l = dot(sub(s.palm_pos, self.contact_palm_pos), self.incoming_dir);
+                    let l = dot(sub(s.palm_pos, palm0), incoming_dir);
                     self.follow_through = self.follow_through.max(l);
                     self.phase = Phase::FollowThrough;
                 } else {
@@ -370,11 +399,8 @@ impl Evaluator {
     /// The outcome and metrics once the episode is over.
     pub fn finish(&self) -> (Outcome, Metrics) {
         let mut failures = self.failures.clone();
-        if self.first_contact.is_some() {
-            if self
-                .contact_speed
-                .is_some_and(|v| v > self.spec.max_contact_speed_mps)
-            {
+        if let Some(c) = &self.first_contact {
+            if c.contact_speed_mps > self.spec.max_contact_speed_mps {
                 failures.push(Failure::ContactSpeedExceeded);
             }
             if self.max_force > self.spec.max_force_n {
@@ -387,8 +413,8 @@ impl Evaluator {
         failures.sort();
         failures.dedup();
         let metrics = Metrics {
-            contact_time_secs: self.first_contact.map(|(t, _)| t),
-            contact_speed_mps: self.contact_speed,
+            contact_time_secs: self.first_contact.map(|c| c.time_secs),
+            contact_speed_mps: self.first_contact.map(|c| c.contact_speed_mps),
             max_force_n: self.max_force,
             follow_through_m: self.follow_through,
             event_step: self.robot_contact_step.unwrap_or(self.closest.1),

@@ -1,5 +1,6 @@
 //! The platform class: the part of the machine that can change MuJoCo's floating-point results
-//! (ARCHITECTURE.md, "Numerics that must not drift"). Golden content hashes are kept per class.
+//! (the design sketch `../shared/design/ARCHITECTURE.md`, "Numerics that must not drift").
+//! Golden content hashes are kept per class.
 
 /// `<arch>-<widest SIMD that MuJoCo may use>`, e.g. `x86_64-avx512`, `x86_64-avx2`, `aarch64`.
 pub fn class() -> String {
