@@ -244,8 +244,7 @@ fn follow_through_direction(view: &PolicyView<'_>) -> [f64; 3] {
 
 /// A running catching episode with its reward bookkeeping.
 pub struct CatchEpisode<'w> {
-    episode: Option<Episode<'w>>,
-    record: Option<RolloutRecord>,
+    episode: Episode<'w>,
     prior: ScriptedCatcher,
     reward: RewardSpec,
     spec: &'w CatchTaskSpec,
@@ -299,8 +298,7 @@ impl<'w> CatchEpisode<'w> {
         rng: rng::StreamRng,
     ) -> Self {
         CatchEpisode {
-            episode: Some(Episode::new(world, &spec.rollout, condition, rng)),
-            record: None,
+            episode: Episode::new(world, &spec.rollout, condition, rng),
             prior: ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone()),
             reward: spec.reward.clone(),
             spec,
@@ -309,46 +307,34 @@ impl<'w> CatchEpisode<'w> {
         }
     }
 
-    /// The running episode (None once it has ended).
-    pub fn episode(&self) -> Option<&Episode<'w>> {
-        self.episode.as_ref()
+    /// The simulator episode (its record, first contact, step index).
+    pub fn episode(&self) -> &Episode<'w> {
+        &self.episode
     }
 
-    /// A copy of the whole episode state at the start of the next control step, or None once
-    /// the episode has ended.
-    pub fn snapshot(&self) -> Option<CatchSnapshot> {
-        Some(CatchSnapshot {
-            episode: self.episode.as_ref()?.snapshot(),
+    /// A copy of the whole episode state at the start of the next control step.
+    pub fn snapshot(&self) -> CatchSnapshot {
+        CatchSnapshot {
+            episode: self.episode.snapshot(),
             prior: self.prior.clone(),
             phase: self.phase,
             rewarded_follow_through: self.rewarded_follow_through,
-        })
+        }
     }
 
-    /// Returns to `snapshot`, taken from this episode while it was running. Returns false
-    /// (and changes nothing) once the episode has ended: its simulator state is gone.
-    pub fn restore(&mut self, snapshot: &CatchSnapshot) -> bool {
-        let Some(episode) = self.episode.as_mut() else {
-            return false;
-        };
-        episode.restore(&snapshot.episode);
+    /// Returns to `snapshot`, taken from this episode (even after it has ended).
+    pub fn restore(&mut self, snapshot: &CatchSnapshot) {
+        self.episode.restore(&snapshot.episode);
         self.prior = snapshot.prior.clone();
         self.phase = snapshot.phase;
         self.rewarded_follow_through = snapshot.rewarded_follow_through;
-        self.record = None;
-        true
     }
 
     /// Runs the episode to its end with `act` choosing the policy's actions, and returns its
     /// record (the intended actions are the executed residual actions).
     pub fn run(mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> RolloutRecord {
         while !self.step(act).1 {}
-        match (self.record, self.episode) {
-            (Some(r), _) => r,
-            (None, Some(e)) => e.finish(),
-            // `step` keeps the record whenever it takes the episode.
-            (None, None) => unreachable!("a catching episode lost its record"),
-        }
+        self.episode.finish()
     }
 }
 
@@ -370,9 +356,10 @@ fn at3(v: &[f32], k: usize) -> [f64; 3] {
 
 impl TaskEpisode for CatchEpisode<'_> {
     fn step(&mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> (f32, bool) {
-        let Some(episode) = self.episode.as_mut() else {
+        let episode = &mut self.episode;
+        if episode.is_done() {
             return (0.0, true);
-        };
+        }
         let mut executed = [0.0; N_ACTION];
         let mut policy = Residual {
             prior: &mut self.prior,
@@ -416,12 +403,8 @@ impl TaskEpisode for CatchEpisode<'_> {
         if running {
             return (reward as f32, false);
         }
-        let Some(episode) = self.episode.take() else {
-            return (reward as f32, true);
-        };
-        let record = episode.finish();
-        let m = &record.metrics;
-        if record.outcome.completion() {
+        let (outcome, m) = episode.outcome();
+        if outcome.completion() {
             reward += f64::from(w.catching);
         }
         if m.contact_speed_mps
@@ -432,23 +415,15 @@ impl TaskEpisode for CatchEpisode<'_> {
         if m.max_force_n > success.max_force_n {
             reward -= f64::from(w.impact_force);
         }
-        self.record = Some(record);
         (reward as f32, true)
     }
 
     fn finish(self) -> EpisodeStats {
-        let record = self.record.or_else(|| self.episode.map(Episode::finish));
-        match record {
-            Some(r) => EpisodeStats {
-                success: r.outcome.success(),
-                completion: r.outcome.completion(),
-                f_max_n: r.outcome.completion().then_some(r.metrics.max_force_n),
-            },
-            None => EpisodeStats {
-                success: false,
-                completion: false,
-                f_max_n: None,
-            },
+        let (outcome, metrics) = self.episode.outcome();
+        EpisodeStats {
+            success: outcome.success(),
+            completion: outcome.completion(),
+            f_max_n: outcome.completion().then_some(metrics.max_force_n),
         }
     }
 }

@@ -86,3 +86,108 @@ fn a_short_teacher_training_is_identical_on_rerun_and_across_thread_counts() {
     assert_eq!(one, short_training(1), "rerun");
     assert_eq!(one, short_training(2), "1 vs 2 threads");
 }
+
+/// An untrained agent whose actor is not zeroed, so the residual and the follow-through
+/// channel both act.
+fn lively_agent(task: &CatchTask<'_>) -> Agent {
+    let config = PpoConfig {
+        hidden: vec![32],
+        zero_init_actor_output: false,
+        ..PpoConfig::default()
+    };
+    Agent::new(task.obs_len(), task.act_len(), &config, (2, "test"))
+}
+
+#[test]
+fn a_restored_catching_episode_continues_bit_identically_under_the_teacher() {
+    let world = world();
+    let mut spec = CatchTaskSpec::default();
+    // Every source of randomness on: the snapshot carries the generator too.
+    spec.rollout.dr = osms_sim::control::DrSpec::paper();
+    let task = CatchTask::new(&world, spec, 4, "test", "branch").expect("task");
+    let agent = lively_agent(&task);
+    let mut teacher = |obs: &[f32]| agent.act_deterministic(obs);
+    let mut wander = |_: &[f32]| vec![0.6f32; 8];
+
+    // Find an episode with a first contact, and its rewards when run straight through.
+    let (index, rewards, full) = (0..20)
+        .find_map(|index| {
+            let mut e = task.start(index).expect("condition");
+            let mut rewards = Vec::new();
+            loop {
+                let (r, done) = e.step(&mut teacher);
+                rewards.push(r.to_bits());
+                if done {
+                    break;
+                }
+            }
+            e.episode().first_contact()?;
+            Some((index, rewards, e.run(&mut teacher)))
+        })
+        .expect("some episode touches the hand");
+    let contact_step = full.metrics.event_step;
+    assert!(contact_step >= 3, "contact at step {contact_step}");
+
+    // Branch before the contact (the prior has not closed the hand yet) and right after it
+    // (the follow-through direction, the phase input and the reward bookkeeping are set).
+    for at in [contact_step - 2, contact_step + 1] {
+        let mut e = task.start(index).expect("condition");
+        let mut got = Vec::new();
+        for _ in 0..at {
+            got.push(e.step(&mut teacher).0.to_bits());
+        }
+        let snap = e.snapshot();
+        for _ in 0..6 {
+            e.step(&mut wander);
+        }
+        e.restore(&snap);
+        loop {
+            let (r, done) = e.step(&mut teacher);
+            got.push(r.to_bits());
+            if done {
+                break;
+            }
+        }
+        assert_eq!(got, rewards, "rewards after a restore at step {at}");
+        assert_eq!(e.run(&mut teacher), full, "record after a restore at step {at}");
+    }
+}
+
+#[test]
+fn network_initialisation_streams_include_the_stage_name() {
+    let world = world();
+    let task = CatchTask::new(&world, CatchTaskSpec::default(), 0, "t", "train").expect("task");
+    let config = PpoConfig {
+        hidden: vec![16],
+        ..PpoConfig::default()
+    };
+    let agent = |stage: &str| Agent::new(task.obs_len(), task.act_len(), &config, (0, stage));
+    let (a, b) = (agent("teacher"), agent("teacher_catch_only"));
+    assert_ne!(a.actor.layers[0].w.data, b.actor.layers[0].w.data);
+    assert_ne!(a.critic.layers[0].w.data, b.critic.layers[0].w.data);
+    assert_eq!(a, agent("teacher"));
+}
+
+#[test]
+fn a_condition_that_cannot_be_drawn_is_an_error_not_condition_zero() {
+    let world = world();
+    let mut task =
+        CatchTask::new(&world, CatchTaskSpec::default(), 0, "t", "train").expect("task");
+    // Throws far too slow to reach the palm from any launch point.
+    task.spec.conditions.speed_mps = [0.1, 0.2];
+    let err = task.start(3).err().expect("an error");
+    assert!(
+        matches!(err, osms_sim::SimError::NoFeasibleLaunch { .. }),
+        "{err}"
+    );
+    let config = PpoConfig {
+        iterations: 1,
+        episodes_per_iteration: 2,
+        hidden: vec![8],
+        ..PpoConfig::default()
+    };
+    let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "t"));
+    let err = train(&task, &mut agent, &config, (0, "t"), &|_| {}).expect_err("training stops");
+    assert_eq!((err.iteration, err.episode), (0, 0));
+    assert!(err.to_string().contains("no launch reaches the palm"), "{err}");
+}

@@ -623,6 +623,11 @@ impl<'w> Episode<'w> {
         self.finish()
     }
 
+    /// The outcome and metrics as they stand (final once the episode is done).
+    pub fn outcome(&self) -> (Outcome, Metrics) {
+        self.evaluator.finish()
+    }
+
     pub fn finish(mut self) -> RolloutRecord {
         let (outcome, metrics) = self.evaluator.finish();
         self.record.outcome = outcome;
@@ -646,4 +651,51 @@ struct Frame {
     palm_vel: [f64; 3],
     object_pos: [f64; 3],
     object_vel: [f64; 3],
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::hold_action;
+    use crate::{ConditionSpec, WorldSpec, conditions};
+
+    struct Hold(Action);
+    impl Policy for Hold {
+        fn act(&mut self, _: &PolicyView<'_>) -> Action {
+            self.0
+        }
+    }
+
+    #[test]
+    fn an_unstable_branch_does_not_mark_later_branches_from_the_same_snapshot() {
+        let world = World::new(WorldSpec::default()).expect("world");
+        let spec = RolloutSpec {
+            dr: DrSpec::paper(),
+            ..RolloutSpec::default()
+        };
+        let condition = conditions::sample(
+            &ConditionSpec::default(),
+            world.home_palm_pos,
+            &mut rng::stream(0, "test", "omega", 3),
+        )
+        .expect("ω");
+        let mut hold = Hold(hold_action(&world.spec.hand_home_rad));
+        let stream = || rng::stream(0, "test", "roll", 3);
+        let full = Episode::new(&world, &spec, condition.clone(), stream()).run(&mut hold, &mut NoHooks);
+
+        let mut ep = Episode::new(&world, &spec, condition, stream());
+        for _ in 0..5 {
+            ep.step(&mut hold, &mut NoHooks);
+        }
+        let snap = ep.snapshot();
+        // What MuJoCo does when a branch blows up: it counts a warning.
+        ep.data.warning_mut()[0].number += 1;
+        assert!(!ep.step(&mut hold, &mut NoHooks));
+        assert_eq!(ep.outcome().0.failures, [Failure::Instability]);
+
+        ep.restore(&snap);
+        assert!(ep.data.warning().iter().all(|w| w.number == 0));
+        let resumed = ep.run(&mut hold, &mut NoHooks);
+        assert_eq!(resumed, full);
+    }
 }

@@ -8,8 +8,8 @@ use osms_sim::conditions::{GRAVITY_MPS2, launch_velocity, sample};
 use osms_sim::control::{N_ARM, N_HAND, hold_action};
 use osms_sim::episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutSpec};
 use osms_sim::{
-    Action, ConditionSpec, Failure, ObjectFamily, ObjectSize, ObjectVariant, TaskCondition, World,
-    WorldSpec,
+    Action, ConditionSpec, Failure, ObjectFamily, ObjectSize, ObjectVariant, Phase, TaskCondition,
+    World, WorldSpec,
 };
 
 fn world() -> World {
@@ -134,13 +134,17 @@ fn a_throw_into_the_static_open_palm_hits_when_the_closed_form_says() {
     ];
     let t_impact = 0.2;
     let vel = launch_velocity(from, target, t_impact);
+    let mut policy = SeesContact {
+        hold: open_hand(),
+        seen: None,
+    };
     let rec = Episode::new(
         &w,
         &spec,
         throw(sphere_small(), from, vel),
         rng::stream(0, "t", "x", 0),
     )
-    .run(&mut open_hand(), &mut NoHooks);
+    .run(&mut policy, &mut NoHooks);
     let m = &rec.metrics;
     let dt = w.spec.timestep_secs;
     let t_c = m.contact_time_secs.expect("the palm is touched");
@@ -156,6 +160,48 @@ fn a_throw_into_the_static_open_palm_hits_when_the_closed_form_says() {
         (v_rel - speed).abs() < GRAVITY_MPS2 * dt + 0.01,
         "v_rel {v_rel} vs {speed}"
     );
+
+    // At control rate: the step containing t_c is the one contact step, after an approach and
+    // a velocity-matching stretch, and the follow-through comes next.
+    let period = dt * f64::from(w.spec.substeps);
+    let k_c = (t_c / period + 1e-9).floor() as usize;
+    assert_eq!(m.event_step, k_c);
+    let phase = |p: Phase| p as u8;
+    assert_eq!(rec.phase[k_c], phase(Phase::Contact), "{:?}", rec.phase);
+    assert_eq!(
+        rec.phase.iter().filter(|&&p| p == phase(Phase::Contact)).count(),
+        1
+    );
+    assert_eq!(rec.phase[0], phase(Phase::Approach));
+    assert!(rec.phase[..k_c].windows(2).all(|w| w[0] <= w[1]));
+    assert_eq!(rec.phase[k_c - 1], phase(Phase::VelocityMatching));
+    if rec.steps > k_c + 1 {
+        assert_eq!(rec.phase[k_c + 1], phase(Phase::FollowThrough));
+    }
+
+    // A policy sees the first contact from the next control step on, with the pre-contact
+    // incoming direction: the closed-form velocity at T, normalised.
+    let (seen_at, dir) = policy.seen.expect("the policy saw the contact");
+    assert_eq!(seen_at, k_c + 1);
+    for (d, v) in dir.iter().zip(v_at) {
+        assert!((d - v / speed).abs() < 0.01, "{dir:?} vs {v_at:?}");
+    }
+}
+
+/// Holds still and notes when it first sees the first contact, and its incoming direction.
+struct SeesContact {
+    hold: Hold,
+    seen: Option<(usize, [f64; 3])>,
+}
+impl Policy for SeesContact {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        if self.seen.is_none()
+            && let Some(c) = view.first_contact
+        {
+            self.seen = Some((view.step, c.incoming_dir));
+        }
+        self.hold.act(view)
+    }
 }
 
 /// Sums admissible normal forces itself, from geom names and `mj_contactForce`.
