@@ -65,6 +65,9 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let reference = first.hashes.clone();
     assert_eq!(reference.len(), 11, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
+    osw_alignment_holds_in_independent_replays(&first);
+    successful_rollouts_pass_through_all_five_phases(&first);
+    the_tiny_teacher_beats_the_scripted_prior(&first);
     a_damaged_dataset_shard_is_detected_and_rebuilt(&first);
     assert_eq!(make(&text, 2).hashes, reference, "1 vs 2 threads");
     let reshard = text
@@ -143,6 +146,168 @@ fn datasets_are_disjoint_successes_and_aligned(made: &Made) {
             }
         }
     }
+}
+
+/// Watches a replay from outside the catching code: the first control step at which the
+/// object touches any geom of the robot (found through MuJoCo's body tree, not osms's geom
+/// classes) and the step of the closest object–palm approach.
+struct Witness {
+    step: usize,
+    object_geom: usize,
+    robot_root: usize,
+    object_body: usize,
+    palm_site: usize,
+    first_contact: Option<usize>,
+    closest: (f64, usize),
+}
+
+impl osms_sim::Hooks for Witness {
+    fn override_arm(&mut self, step: usize, _: &mut osms_sim::Action) {
+        self.step = step;
+    }
+    fn after_physics_step(
+        &mut self,
+        data: &mujoco_rs::prelude::MjData<Box<mujoco_rs::prelude::MjModel>>,
+    ) {
+        let model = data.model();
+        let root = |g: i32| model.body_rootid()[model.geom_bodyid()[g as usize] as usize] as usize;
+        for c in data.contact() {
+            let (a, b) = (c.geom[0] as usize, c.geom[1] as usize);
+            let other = match (a == self.object_geom, b == self.object_geom) {
+                (true, false) => c.geom[1],
+                (false, true) => c.geom[0],
+                _ => continue,
+            };
+            if root(other) == self.robot_root && self.first_contact.is_none() {
+                self.first_contact = Some(self.step);
+            }
+        }
+        let (o, p) = (
+            data.xpos()[self.object_body],
+            data.site_xpos()[self.palm_site],
+        );
+        let d = ((o[0] - p[0]).powi(2) + (o[1] - p[1]).powi(2) + (o[2] - p[2]).powi(2)).sqrt();
+        if d < self.closest.0 {
+            self.closest = (d, self.step);
+        }
+    }
+}
+
+/// Every rollout of D_M and D_R, replayed with the teacher on its recorded ω and DR stream
+/// under a contact witness: the replay gives the stored record, k_e is the first object–robot
+/// contact the witness saw (or its closest approach when there was none), and all H_OS × 7
+/// values of ζ_org are the teacher's intended arm actions of the steps before k_e.
+fn osw_alignment_holds_in_independent_replays(made: &Made) {
+    use osms_policy::catch::CatchEpisode;
+    use osms_policy::dataset::Dataset;
+    use osms_policy::stages::Teacher;
+    use osms_sim::stages::WorldArtifact;
+    use osms_sim::{N_ACTION, N_ARM};
+
+    let world = load::<WorldArtifact>(made, "world").world().expect("world");
+    let mut teacher: Teacher = load(made, "teacher@0");
+    teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
+    teacher.task.rollout.record_privileged = true;
+    let model = world.model(osms_sim::ObjectVariant::all()[0]);
+    let robot_root = model
+        .name_to_id(mujoco_rs::prelude::MjtObjBase::mjOBJ_BODY, "arm_base")
+        .expect("arm_base") as usize;
+    let object_geom = model
+        .name_to_id(mujoco_rs::prelude::MjtObjBase::mjOBJ_GEOM, "object_geom")
+        .expect("object_geom") as usize;
+    let mut with_contact = 0;
+    for name in ["d_m", "d_r"] {
+        let d: Dataset = load(made, &format!("{name}@0"));
+        for item in &d.items {
+            let r = &item.rollout;
+            let stream = osms_make::rng::stream(
+                0,
+                name,
+                "attempt",
+                u64::from(r.item) * 100 + u64::from(r.attempt),
+            );
+            let mut witness = Witness {
+                step: 0,
+                object_geom,
+                robot_root,
+                object_body: world.ids.object_body,
+                palm_site: world.ids.palm_site,
+                first_contact: None,
+                closest: (f64::INFINITY, 0),
+            };
+            let mut episode =
+                CatchEpisode::new(&world, &teacher.task, r.record.condition.clone(), stream);
+            let mut act = |obs: &[f32]| teacher.agent.act_deterministic(obs);
+            while !episode.step_with_hooks(&mut act, &mut witness).1 {}
+            let replay = episode.run(&mut act);
+            assert_eq!(replay, r.record, "{name} item {}: the replay differs", r.item);
+            let k_e = r.osw.event_step;
+            match witness.first_contact {
+                Some(k) => {
+                    with_contact += 1;
+                    assert_eq!(k_e, k, "{name} item {}: k_e vs first contact", r.item);
+                }
+                None => assert_eq!(k_e, witness.closest.1, "{name} item {}", r.item),
+            }
+            assert_eq!(r.osw.start, k_e.saturating_sub(d.osw.h_os));
+            let rows = k_e - r.osw.start;
+            assert_eq!(r.osw.zeta_org.len(), rows * N_ARM);
+            for j in 0..rows {
+                let k = r.osw.start + j;
+                assert_eq!(
+                    &r.osw.zeta_org[j * N_ARM..(j + 1) * N_ARM],
+                    &replay.intended[k * N_ACTION..k * N_ACTION + N_ARM],
+                    "{name} item {}: ζ_org row {j}",
+                    r.item
+                );
+            }
+        }
+    }
+    assert!(with_contact > 0, "no replay touched the robot");
+}
+
+/// A successful catch passes through approach, velocity matching, one contact step, the
+/// follow-through window and grasping, in that order.
+fn successful_rollouts_pass_through_all_five_phases(made: &Made) {
+    use osms_policy::dataset::Dataset;
+    use osms_sim::Phase;
+
+    let d: Dataset = load(made, "d_m@0");
+    for r in d.rollouts() {
+        let phases = &r.record.phase;
+        let count = |p: Phase| phases.iter().filter(|&&x| x == p as u8).count();
+        assert!(
+            phases.windows(2).all(|w| w[0] <= w[1]),
+            "item {}: phases go back: {phases:?}",
+            r.item
+        );
+        assert_eq!(count(Phase::Contact), 1, "item {}: {phases:?}", r.item);
+        let k_c = phases
+            .iter()
+            .position(|&p| p == Phase::Contact as u8)
+            .expect("contact");
+        assert_eq!(k_c, r.record.metrics.event_step, "item {}", r.item);
+        for p in [Phase::Approach, Phase::VelocityMatching, Phase::Grasping] {
+            assert!(count(p) > 0, "item {}: no {p:?} in {phases:?}", r.item);
+        }
+        // Δt_eval = 0.2 s after t_c at 50 Hz: the rest of the contact step and ten more steps,
+        // give or take one for where t_c falls in its step and for timing jitter.
+        let ft = count(Phase::FollowThrough);
+        assert!((9..=11).contains(&ft), "item {}: {ft} follow-through steps", r.item);
+    }
+}
+
+fn the_tiny_teacher_beats_the_scripted_prior(made: &Made) {
+    use osms_sim::stages::Evaluation;
+    let success = |name: &str| {
+        let e: Evaluation = load(made, name);
+        e.table().pop().map_or(0.0, |l| l.success_rate)
+    };
+    let (teacher, scripted) = (success("eval_teacher@0"), success("eval_scripted@0"));
+    assert!(
+        teacher > scripted,
+        "tiny teacher {teacher:.3} vs scripted prior {scripted:.3}"
+    );
 }
 
 /// Damage one stored shard of D_M and the merged artifact: the next make detects both,

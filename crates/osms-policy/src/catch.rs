@@ -12,7 +12,7 @@ use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
 use osms_sim::episode::{PRIVILEGED_LEN, Snapshot};
 use osms_sim::vec3::{norm, sub};
 use osms_sim::{
-    Action, ConditionSpec, Episode, N_ACTION, N_ARM, NoHooks, Phase, Policy, PolicyView,
+    Action, ConditionSpec, Episode, Hooks, N_ACTION, N_ARM, NoHooks, Phase, Policy, PolicyView,
     RolloutRecord, RolloutSpec, World, conditions,
 };
 use serde::{Deserialize, Serialize};
@@ -356,6 +356,27 @@ fn at3(v: &[f32], k: usize) -> [f64; 3] {
 
 impl TaskEpisode for CatchEpisode<'_> {
     fn step(&mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> (f32, bool) {
+        self.step_with_hooks(act, &mut NoHooks)
+    }
+
+    fn finish(self) -> EpisodeStats {
+        let (outcome, metrics) = self.episode.outcome();
+        EpisodeStats {
+            success: outcome.success(),
+            completion: outcome.completion(),
+            f_max_n: outcome.completion().then_some(metrics.max_force_n),
+        }
+    }
+}
+
+impl CatchEpisode<'_> {
+    /// One control step, as [`TaskEpisode::step`], with `hooks` changing or watching the rollout
+    /// (an OSW snippet over the arm, modelled action errors, a contact witness).
+    pub fn step_with_hooks(
+        &mut self,
+        act: &mut dyn FnMut(&[f32]) -> Vec<f32>,
+        hooks: &mut dyn Hooks,
+    ) -> (f32, bool) {
         let episode = &mut self.episode;
         if episode.is_done() {
             return (0.0, true);
@@ -368,7 +389,7 @@ impl TaskEpisode for CatchEpisode<'_> {
             act,
             executed: &mut executed,
         };
-        let running = episode.step(&mut policy, &mut NoHooks);
+        let running = episode.step(&mut policy, hooks);
         let dt = episode.control_period_secs();
         let success = &self.spec.rollout.success;
         let w = &self.reward;
@@ -416,14 +437,5 @@ impl TaskEpisode for CatchEpisode<'_> {
             reward -= f64::from(w.impact_force);
         }
         (reward as f32, true)
-    }
-
-    fn finish(self) -> EpisodeStats {
-        let (outcome, metrics) = self.episode.outcome();
-        EpisodeStats {
-            success: outcome.success(),
-            completion: outcome.completion(),
-            f_max_n: outcome.completion().then_some(metrics.max_force_n),
-        }
     }
 }

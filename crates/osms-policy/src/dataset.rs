@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
+use osms_sim::Phase;
 use osms_sim::control::DrDraw;
 use osms_sim::{N_ACTION, N_ARM, RolloutRecord, conditions::TaskCondition, spec::ObjectVariant};
 use serde::{Deserialize, Serialize};
@@ -159,6 +160,10 @@ pub struct DatasetStats {
     pub per_variant: BTreeMap<String, usize>,
     pub complete_windows: usize,
     pub mean_steps: f64,
+    /// Mean control steps per phase over the kept rollouts, in phase order.
+    pub phase_steps: Vec<(String, f64)>,
+    /// Kept rollouts whose record shows all five phases.
+    pub all_phases: usize,
 }
 
 impl Dataset {
@@ -214,6 +219,24 @@ impl Dataset {
             complete_windows: self.rollouts().filter(|r| r.osw.complete).count(),
             mean_steps: self.rollouts().map(|r| r.record.steps as f64).sum::<f64>()
                 / n.max(1) as f64,
+            phase_steps: Phase::ALL
+                .iter()
+                .map(|&p| {
+                    let steps = self
+                        .rollouts()
+                        .map(|r| r.record.phase.iter().filter(|&&x| x == p as u8).count())
+                        .sum::<usize>();
+                    (p.name().to_string(), per(steps))
+                })
+                .collect(),
+            all_phases: self
+                .rollouts()
+                .filter(|r| {
+                    Phase::ALL
+                        .iter()
+                        .all(|&p| r.record.phase.contains(&(p as u8)))
+                })
+                .count(),
         }
     }
 }
@@ -255,6 +278,16 @@ impl osms_make::Summarize for Dataset {
             "OSW (H_OS = {}): {} of {} windows complete (k_e ≥ H_OS)\n",
             self.osw.h_os, s.complete_windows, s.rollouts
         );
+        let _ = writeln!(
+            out,
+            "Phases (mean control steps per rollout; {} of {} rollouts show all five):\n",
+            s.all_phases, s.rollouts
+        );
+        let _ = writeln!(out, "| phase | steps |\n|---|---:|");
+        for (p, steps) in &s.phase_steps {
+            let _ = writeln!(out, "| {p} | {steps:.2} |");
+        }
+        let _ = writeln!(out);
         let _ = writeln!(out, "| failure | count |\n|---|---:|");
         for f in osms_sim::Failure::ALL {
             if let Some(c) = s.failures.get(f.name()) {

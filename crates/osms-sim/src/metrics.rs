@@ -162,6 +162,26 @@ pub enum Phase {
     Grasping = 4,
 }
 
+impl Phase {
+    pub const ALL: [Phase; 5] = [
+        Phase::Approach,
+        Phase::VelocityMatching,
+        Phase::Contact,
+        Phase::FollowThrough,
+        Phase::Grasping,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Approach => "approach",
+            Phase::VelocityMatching => "velocity matching",
+            Phase::Contact => "contact",
+            Phase::FollowThrough => "follow-through",
+            Phase::Grasping => "grasping",
+        }
+    }
+}
+
 /// The contacts of one physics step, classified.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ContactScan {
