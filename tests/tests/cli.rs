@@ -72,19 +72,24 @@ fn filter_timings(text: &str) -> String {
 
 fn transcript(p: &Project, args: &[&str]) -> (String, Output) {
     let out = p.run(Path::new(BIN), args);
+    (shown(p, args, &out), out)
+}
+
+/// The transcript of `out`, the output of `osms ARGS`, with the project's path and timings
+/// filtered.
+fn shown(p: &Project, args: &[&str], out: &Output) -> String {
     let dir = p.dir.path().display().to_string();
     let clean = |b: &[u8]| filter_timings(&String::from_utf8_lossy(b).replace(&dir, "[PROJECT]"));
-    let text = format!(
+    format!(
         "$ osms {}\nexit: {}\n--- stdout\n{}--- stderr\n{}",
-        args.join(" "),
+        clean(args.join(" ").as_bytes()),
         out.status
             .code()
             .map(|c| c.to_string())
             .unwrap_or_else(|| "signal".into()),
         clean(&out.stdout),
         clean(&out.stderr)
-    );
-    (text, out)
+    )
 }
 
 fn session(p: &Project, commands: &[&[&str]]) -> String {
@@ -218,6 +223,31 @@ fn user_errors_exit_1_with_a_located_message() {
     p.write_pipeline("[stages.a\nkind = 1\n");
     text.push('\n');
     text.push_str(&session(&p, &[&["make"]]));
+
+    // A mistyped --pipeline is named, is the user's to fix, and leaves no store beside it.
+    let mistyped = p.dir.path().join("pipelines").join("pipeline.toml");
+    let mistyped = mistyped.to_str().expect("UTF-8 temp path");
+    for command in [&["status"][..], &["gc"], &["show", "total"]] {
+        let args: Vec<&str> = ["--pipeline", mistyped]
+            .iter()
+            .chain(command)
+            .copied()
+            .collect();
+        let out = std::process::Command::new(BIN)
+            .args(&args)
+            .env("OSMS_NO_PROGRESS", "1")
+            .env_remove("OSMS_LOG")
+            .env_remove("OSMS_STORE")
+            .current_dir(p.dir.path())
+            .output()
+            .expect("run");
+        text.push('\n');
+        text.push_str(&shown(&p, &args, &out));
+    }
+    assert!(
+        !p.dir.path().join("pipelines").exists(),
+        "a store was created beside the mistyped pipeline"
+    );
     settings().bind(|| insta::assert_snapshot!("user_errors", text));
 
     let out = std::process::Command::new(BIN)

@@ -4,14 +4,16 @@
 //!
 //! Every test drives `osms-test` (the `osms` CLI with the test kinds registered) as a separate
 //! process. Nothing here asserts on durations: delays only choose where a kill lands, and every
-//! assertion holds wherever it lands.
+//! assertion about the store holds wherever it lands. Only the `kill -9` test's count of kills
+//! that landed mid-build rests on timing, with bounds explained there.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::io::{BufRead, BufReader};
+use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Output, Stdio};
 use std::sync::mpsc;
-use std::time::Duration;
+use std::time::{Duration, Instant, SystemTime};
 
 use osms_store::Hash;
 use osms_tests::Project;
@@ -227,6 +229,68 @@ inputs = {{ total = "total", drops = "drops", reference = "reference" }}
     )
 }
 
+/// How many index records the store holds (shards included), read straight from its layout so
+/// that counting costs no process while a make runs.
+fn index_len(store: &Path) -> usize {
+    let index = store.join("index");
+    if !index.exists() {
+        return 0;
+    }
+    dir_entries(&index)
+        .iter()
+        .map(|sub| {
+            dir_entries(&index.join(sub))
+                .iter()
+                .filter(|f| f.ends_with(".json"))
+                .count()
+        })
+        .sum()
+}
+
+/// The index record of one shard, and the identity of its file.
+#[derive(Debug, Clone, PartialEq)]
+struct ShardFile {
+    stage_key: String,
+    start: u64,
+    /// Inode and mtime: every write of a record renames a new file into place, so a record
+    /// written again (its shard computed again) has another identity, even with the same bytes.
+    identity: (u64, SystemTime),
+}
+
+/// Record key -> shard record, of every shard of `stage` in the store, read straight from its
+/// layout so that polling while a make runs costs no process.
+fn shard_files(store: &Path, stage: &str) -> BTreeMap<String, ShardFile> {
+    let index = store.join("index");
+    let mut shards = BTreeMap::new();
+    if !index.exists() {
+        return shards;
+    }
+    for sub in dir_entries(&index) {
+        for name in dir_entries(&index.join(&sub)) {
+            let Some(key) = name.strip_suffix(".json") else {
+                continue;
+            };
+            let path = index.join(&sub).join(&name);
+            let record: Value = serde_json::from_slice(&std::fs::read(&path).expect("read record"))
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            if record["stage"] != stage || record["shard"].is_null() {
+                continue;
+            }
+            let meta = std::fs::metadata(&path).expect("stat record");
+            let shard = ShardFile {
+                stage_key: record["shard"]["stage_key"]
+                    .as_str()
+                    .expect("stage key of a shard")
+                    .to_string(),
+                start: record["shard"]["start"].as_u64().expect("start of a shard"),
+                identity: (meta.ino(), meta.modified().expect("mtime")),
+            };
+            shards.insert(key.to_string(), shard);
+        }
+    }
+    shards
+}
+
 fn kill_and_wait(child: &mut Child) -> ExitStatus {
     // SIGKILL on Unix; Ok if the child has exited already.
     child.kill().expect("kill osms-test");
@@ -269,10 +333,12 @@ fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashe
     run_ok(&p, &["verify"]);
 
     let mut killed = 0;
+    let mut mid_build = 0;
     for i in 0..KILLS {
         let mut rng = osms_make::rng::stream(0, "crash test", "kill delay", i);
         let delay = osms_make::rng::uniform(&mut rng, 0.0, 1.2);
         let seed = seed_of(i).to_string();
+        let records_before = index_len(&p.store);
         let mut child = command(&p, &["make", "--jobs", "2", "--seed", &seed])
             .stdin(Stdio::null())
             .stdout(Stdio::null())
@@ -283,9 +349,16 @@ fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashe
         let status = kill_and_wait(&mut child);
         // Killed, or finished (successfully) before the kill: nothing else.
         let what = match status.code() {
+            // Records written and then a kill: the make was interrupted between two of its
+            // artifacts, which is what the resume below must cope with.
+            None if index_len(&p.store) > records_before => {
+                killed += 1;
+                mid_build += 1;
+                "killed mid-build"
+            }
             None => {
                 killed += 1;
-                "killed"
+                "killed before its first record"
             }
             Some(0) => "finished",
             Some(c) => panic!("make --seed {seed} exited with {c} before it was killed"),
@@ -299,12 +372,30 @@ fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashe
             shown(&["verify"], &verify)
         );
         eprintln!(
-            "kill {i:2}: seed {seed:>2}, after {:4.0} ms: {what:8} -> verify ok, {}",
+            "kill {i:2}: seed {seed:>2}, after {:4.0} ms: {what:30} -> verify ok, {}",
             delay * 1000.0,
             stderr(&verify).trim()
         );
     }
-    eprintln!("{killed} of {KILLS} makes were killed before they finished");
+    eprintln!(
+        "{killed} of {KILLS} makes were killed before they finished, {mid_build} of them after \
+         writing records"
+    );
+    // Load only makes a make slower, so more kills land, never fewer. The delays are fixed (a
+    // seeded stream): 7 of the 12 first attempts at a seed are killed within 13 to 506 ms, but
+    // their `numbers` alone sleeps 640 ms (64 items of 20 ms on 2 threads), so they are killed
+    // however fast the machine; a quarter (6) leaves one for a test thread that oversleeps.
+    // Five of those 7 come 123 ms or more after the spawn, and a make writes its first record
+    // (a `drops` shard) within about 50 ms on an idle machine; asking for 3 of them to have
+    // written something leaves room for a machine several times slower.
+    assert!(
+        killed >= KILLS / 4,
+        "only {killed} of {KILLS} makes were killed before they finished"
+    );
+    assert!(
+        mid_build >= KILLS / 8,
+        "only {mid_build} of {KILLS} makes were killed after writing records"
+    );
 
     let args = ["make", "--jobs", "2", "--json", "--seeds", &seeds_arg];
     let out = run_ok(&p, &args);
@@ -333,6 +424,126 @@ fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashe
     for s in status.as_array().expect("status array") {
         assert_eq!(s["state"], "cached", "{s}");
     }
+}
+
+/// `gc` between a make killed mid-stage and the make that resumes it keeps the shards finished
+/// before the kill: the resume computes only the others and ends where an uninterrupted build
+/// ends.
+#[test]
+fn gc_after_a_kill_mid_stage_keeps_the_finished_shards_for_the_resume() {
+    // 16 shards of 4 items of 50 ms: about 100 ms a shard on 2 threads, 1.6 s for the stage.
+    const SHARDS: usize = 16;
+    let pipeline = sleepy_pipeline(64, SHARDS as u32, 50);
+    let reference = Project::new(&pipeline);
+    let ref_hashes = report_hashes(&report(&run_ok(
+        &reference,
+        &["make", "--jobs", "2", "--json"],
+    )));
+
+    let p = Project::new(&pipeline);
+    let mut child = command(&p, &["make", "numbers", "--jobs", "2"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn osms-test make");
+    // Killed once 3 shards are stored: the other 13 sleep at least 1.3 s, far longer than a poll
+    // of 10 ms, so the kill lands mid-stage.
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while shard_files(&p.store, "numbers").len() < 3 {
+        assert!(
+            child.try_wait().expect("poll make").is_none(),
+            "make numbers exited before 3 of its shards were stored"
+        );
+        assert!(
+            Instant::now() < deadline,
+            "make numbers did not store 3 shards within 2 minutes"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let status = kill_and_wait(&mut child);
+    assert_eq!(status.code(), None, "make numbers finished before its kill");
+    let finished = shard_files(&p.store, "numbers");
+    let stage_keys: BTreeSet<&str> = finished.values().map(|s| s.stage_key.as_str()).collect();
+    let [stage_key] = stage_keys.into_iter().collect::<Vec<_>>()[..] else {
+        panic!("shards of more than one stage key: {finished:?}");
+    };
+    assert!(finished.len() < SHARDS, "{finished:?}");
+    assert!(
+        !records(&p).contains_key(stage_key),
+        "numbers@0 has its own record: the kill came after the stage was complete"
+    );
+    // The shards belong to the build the plan asks for now, which is what gc keeps them for.
+    let status = json(&run_ok(&p, &["status", "--json"]));
+    let numbers = status
+        .as_array()
+        .expect("status array")
+        .iter()
+        .find(|s| s["instance"] == "numbers@0")
+        .expect("numbers@0 in status")
+        .clone();
+    assert_eq!(numbers["key"], stage_key, "{numbers}");
+    assert_eq!(numbers["state"], "missing", "{numbers}");
+
+    let gc = run_ok(&p, &["gc"]);
+    eprintln!("{}", stderr(&gc).trim());
+    assert_eq!(
+        shard_files(&p.store, "numbers"),
+        finished,
+        "gc removed or rewrote shards of the interrupted stage:\n{}",
+        shown(&["gc"], &gc)
+    );
+    // Their objects too: verify reports a record whose object is gone.
+    run_ok(&p, &["verify"]);
+
+    let args = ["make", "--jobs", "2", "--json"];
+    let out = run_ok(&p, &args);
+    let resumed = report(&out);
+    assert_eq!(
+        resumed["numbers@0"].outcome,
+        "built",
+        "{}",
+        shown(&args, &out)
+    );
+    let after = shard_files(&p.store, "numbers");
+    assert_eq!(after.len(), SHARDS, "{after:?}");
+    assert!(
+        after.values().all(|s| s.stage_key == stage_key),
+        "{after:?}"
+    );
+    // A computed shard's record is written anew; an unchanged one was loaded.
+    let (loaded, computed): (Vec<_>, Vec<_>) = after
+        .iter()
+        .partition(|(key, s)| finished.get(*key) == Some(*s));
+    let starts = |shards: &[(&String, &ShardFile)]| -> BTreeSet<u64> {
+        shards.iter().map(|(_, s)| s.start).collect()
+    };
+    let finished_starts: BTreeSet<u64> = finished.values().map(|s| s.start).collect();
+    eprintln!(
+        "shards finished before the kill (first items): {finished_starts:?}; the resume loaded \
+         {} and computed {}",
+        loaded.len(),
+        computed.len()
+    );
+    assert_eq!(
+        starts(&loaded),
+        finished_starts,
+        "the resume must load every shard finished before the kill and compute only the rest \
+         (first items of the shards it computed: {:?})",
+        starts(&computed)
+    );
+    assert_eq!(computed.len(), SHARDS - finished.len());
+    assert_eq!(
+        report_hashes(&resumed),
+        ref_hashes,
+        "resumed vs uninterrupted"
+    );
+    assert_eq!(
+        records(&p),
+        records(&reference),
+        "index after kill, gc and resume vs uninterrupted"
+    );
+    run_ok(&p, &["verify"]);
 }
 
 /// A make killed while it creates its store, or two processes creating one store at once, must

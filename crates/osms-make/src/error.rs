@@ -1,4 +1,5 @@
 use std::fmt;
+use std::io::ErrorKind;
 use std::path::PathBuf;
 
 /// A place in `pipeline.toml`.
@@ -75,10 +76,21 @@ impl Error {
 
     /// Whether the error is the user's (exit code 1) rather than an internal failure (2).
     pub fn is_user_error(&self) -> bool {
-        !matches!(
-            self,
-            Error::Store(osms_store::Error::Io { .. }) | Error::Read { .. }
-        )
+        match self {
+            Error::Store(osms_store::Error::Io { .. }) => false,
+            // The pipeline file is the user's to name: a mistyped path, a directory, a file they
+            // may not read or one that is not UTF-8 is theirs to fix; anything else (EIO, ...)
+            // is the machine's.
+            Error::Read { source, .. } => matches!(
+                source.kind(),
+                ErrorKind::NotFound
+                    | ErrorKind::PermissionDenied
+                    | ErrorKind::IsADirectory
+                    | ErrorKind::NotADirectory
+                    | ErrorKind::InvalidData
+            ),
+            _ => true,
+        }
     }
 }
 

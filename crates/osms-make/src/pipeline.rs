@@ -376,6 +376,22 @@ shards = 3
     }
 
     #[test]
+    fn an_unreadable_pipeline_path_is_the_users_error_and_named() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mistyped = dir.path().join("pipline.toml");
+        for path in [mistyped.as_path(), dir.path()] {
+            let err = Pipeline::load(path, None).expect_err("nothing to read");
+            assert!(matches!(err, Error::Read { .. }), "{err:?}");
+            assert!(err.is_user_error(), "{err:?}");
+            assert!(
+                err.to_string()
+                    .starts_with(&format!("cannot read {}: ", path.display())),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
     fn param_locations_prefer_the_overlay() {
         let p = parse(TEXT, Some("tiny")).expect("parse");
         let loc = p.locate_param("gen", &["n".into()]).expect("loc");

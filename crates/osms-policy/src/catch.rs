@@ -411,9 +411,7 @@ impl CatchEpisode<'_> {
             reward -= f64::from(w.impact_force) * excess * dt;
             // ℓ_max as the success criterion measures it: along the pre-contact incoming
             // direction, from the palm at t_c, within Δt_eval.
-            let progress = episode
-                .follow_through_m()
-                .min(success.min_follow_through_m);
+            let progress = episode.follow_through_m().min(success.min_follow_through_m);
             if progress > self.rewarded_follow_through {
                 reward += f64::from(w.follow_through) * (progress - self.rewarded_follow_through)
                     / success.min_follow_through_m;

@@ -149,7 +149,11 @@ fn a_restored_catching_episode_continues_bit_identically_under_the_teacher() {
             }
         }
         assert_eq!(got, rewards, "rewards after a restore at step {at}");
-        assert_eq!(e.run(&mut teacher), full, "record after a restore at step {at}");
+        assert_eq!(
+            e.run(&mut teacher),
+            full,
+            "record after a restore at step {at}"
+        );
     }
 }
 
@@ -171,8 +175,7 @@ fn network_initialisation_streams_include_the_stage_name() {
 #[test]
 fn a_condition_that_cannot_be_drawn_is_an_error_not_condition_zero() {
     let world = world();
-    let mut task =
-        CatchTask::new(&world, CatchTaskSpec::default(), 0, "t", "train").expect("task");
+    let mut task = CatchTask::new(&world, CatchTaskSpec::default(), 0, "t", "train").expect("task");
     // Throws far too slow to reach the palm from any launch point.
     task.spec.conditions.speed_mps = [0.1, 0.2];
     let err = task.start(3).err().expect("an error");
@@ -189,5 +192,8 @@ fn a_condition_that_cannot_be_drawn_is_an_error_not_condition_zero() {
     let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "t"));
     let err = train(&task, &mut agent, &config, (0, "t"), &|_| {}).expect_err("training stops");
     assert_eq!((err.iteration, err.episode), (0, 0));
-    assert!(err.to_string().contains("no launch reaches the palm"), "{err}");
+    assert!(
+        err.to_string().contains("no launch reaches the palm"),
+        "{err}"
+    );
 }

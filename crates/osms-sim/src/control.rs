@@ -234,20 +234,28 @@ mod tests {
             dr: DrSpec,
         }
         let parse = |s: &str| toml::from_str::<P>(s).map(|p| p.dr);
-        assert_eq!(parse("dr = \"paper\"").unwrap(), DrSpec::paper());
-        assert_eq!(parse("dr = \"off\"").unwrap(), DrSpec::default());
-        let t = parse("dr = { actuation_noise = 0.1 }").unwrap();
+        assert_eq!(parse("dr = \"paper\"").expect("parses"), DrSpec::paper());
+        assert_eq!(parse("dr = \"off\"").expect("parses"), DrSpec::default());
+        let t = parse("dr = { actuation_noise = 0.1 }").expect("parses");
         assert_eq!(t.actuation_noise, 0.1);
         assert_eq!(t.gain_variation, 0.0);
-        let e = parse("dr = \"papr\"").unwrap_err().to_string();
+        let e = parse("dr = \"papr\"").expect_err("an error").to_string();
         assert!(e.contains("papr") && e.contains("\"paper\""), "{e}");
-        let e = parse("dr = { actuation_nois = 0.1 }").unwrap_err().to_string();
+        let e = parse("dr = { actuation_nois = 0.1 }")
+            .expect_err("an error")
+            .to_string();
         assert!(e.contains("actuation_nois"), "{e}");
         // The store's binary codec round-trips the table.
-        let bytes = postcard::to_allocvec(&DrSpec::paper()).unwrap();
-        assert_eq!(postcard::from_bytes::<DrSpec>(&bytes).unwrap(), DrSpec::paper());
-        let json = serde_json::to_string(&DrSpec::paper()).unwrap();
-        assert_eq!(serde_json::from_str::<DrSpec>(&json).unwrap(), DrSpec::paper());
+        let bytes = postcard::to_allocvec(&DrSpec::paper()).expect("encodes");
+        assert_eq!(
+            postcard::from_bytes::<DrSpec>(&bytes).expect("decodes"),
+            DrSpec::paper()
+        );
+        let json = serde_json::to_string(&DrSpec::paper()).expect("encodes");
+        assert_eq!(
+            serde_json::from_str::<DrSpec>(&json).expect("decodes"),
+            DrSpec::paper()
+        );
     }
 
     #[test]

@@ -681,7 +681,8 @@ mod tests {
         .expect("ω");
         let mut hold = Hold(hold_action(&world.spec.hand_home_rad));
         let stream = || rng::stream(0, "test", "roll", 3);
-        let full = Episode::new(&world, &spec, condition.clone(), stream()).run(&mut hold, &mut NoHooks);
+        let full =
+            Episode::new(&world, &spec, condition.clone(), stream()).run(&mut hold, &mut NoHooks);
 
         let mut ep = Episode::new(&world, &spec, condition, stream());
         for _ in 0..5 {

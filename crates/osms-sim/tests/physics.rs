@@ -169,7 +169,10 @@ fn a_throw_into_the_static_open_palm_hits_when_the_closed_form_says() {
     let phase = |p: Phase| p as u8;
     assert_eq!(rec.phase[k_c], phase(Phase::Contact), "{:?}", rec.phase);
     assert_eq!(
-        rec.phase.iter().filter(|&&p| p == phase(Phase::Contact)).count(),
+        rec.phase
+            .iter()
+            .filter(|&&p| p == phase(Phase::Contact))
+            .count(),
         1
     );
     assert_eq!(rec.phase[0], phase(Phase::Approach));

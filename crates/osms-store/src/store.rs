@@ -460,17 +460,31 @@ impl Store {
     }
 
     /// Keeps the records whose keys are in `keep` and the objects they point to, plus the shards
-    /// of kept stages that are not complete yet (a finished stage's artifact holds every item);
-    /// removes the rest. Callers hold the lock.
-    pub fn gc(&self, keep: &BTreeSet<Hash>, dry_run: bool) -> Result<GcReport> {
+    /// of every stage key in `planned` that has no kept record of its own, so a make interrupted
+    /// mid-stage resumes from its finished shards; removes the rest. A stage whose record is kept
+    /// is complete, and its artifact holds every item, so its shards go. Callers hold the lock.
+    ///
+    /// `keep` holds the keys whose artifacts are current, `planned` every stage key the
+    /// pipeline can compute now (current or not): a stage still to be built has no record yet,
+    /// so only its key says its shards are wanted.
+    pub fn gc(
+        &self,
+        keep: &BTreeSet<Hash>,
+        planned: &BTreeSet<Hash>,
+        dry_run: bool,
+    ) -> Result<GcReport> {
         let mut report = GcReport {
             dry_run,
             ..GcReport::default()
         };
         let (records, _) = self.records()?;
-        let complete: BTreeSet<Hash> = records.iter().map(|r| r.key).collect();
+        let complete: BTreeSet<Hash> = records
+            .iter()
+            .filter(|r| r.shard.is_none() && keep.contains(&r.key))
+            .map(|r| r.key)
+            .collect();
         let kept = |r: &Record| match r.shard {
-            Some(s) => keep.contains(&s.stage_key) && !complete.contains(&s.stage_key),
+            Some(s) => planned.contains(&s.stage_key) && !complete.contains(&s.stage_key),
             None => keep.contains(&r.key),
         };
         let mut live = BTreeSet::new();
@@ -653,13 +667,13 @@ mod tests {
         assert_eq!(store.records().expect("records").0.len(), 2);
 
         let keep: BTreeSet<Hash> = [ka].into();
-        let dry = store.gc(&keep, true).expect("gc");
+        let dry = store.gc(&keep, &keep, true).expect("gc");
         assert_eq!(
             (dry.objects_removed.clone(), dry.records_removed.clone()),
             (vec![b], vec![kb])
         );
         assert_eq!(store.object_state(&b).expect("state"), ObjectState::Present);
-        store.gc(&keep, false).expect("gc");
+        store.gc(&keep, &keep, false).expect("gc");
         assert_eq!(store.object_state(&b).expect("state"), ObjectState::Missing);
         assert_eq!(store.record(&kb).expect("read"), None);
         assert_eq!(store.object_state(&a).expect("state"), ObjectState::Present);
@@ -670,6 +684,84 @@ mod tests {
             problems[..],
             [VerifyProblem::MissingObject { .. }]
         ));
+    }
+
+    #[test]
+    fn gc_keeps_the_shards_of_planned_stages_until_they_are_complete() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path()).expect("open");
+        let mut n = 0;
+        let mut put = |store: &Store| {
+            n += 1;
+            store
+                .put(&encode(&Blob(vec![n])).expect("encode"))
+                .expect("put")
+        };
+        let shard = |store: &Store, stage_key: Hash, start: u64, content_hash: Hash| {
+            let key = Hash::of(format!("{stage_key} {start}").as_bytes());
+            let mut r = record(key, content_hash);
+            r.shard = Some(ShardOf {
+                stage_key,
+                start,
+                end: start + 1,
+            });
+            store.put_record(&r).expect("record");
+            key
+        };
+        let [interrupted, complete, outdated, not_current] =
+            ["interrupted", "complete", "outdated", "not current"].map(|s| Hash::of(s.as_bytes()));
+        // Two shards of a stage the plan computes but that was killed before it finished.
+        let resumable = [
+            shard(&store, interrupted, 0, put(&store)),
+            shard(&store, interrupted, 1, put(&store)),
+        ];
+        // A finished stage: its artifact holds every item, so its shards are dead weight.
+        let done = put(&store);
+        store.put_record(&record(complete, done)).expect("record");
+        let done_shard = shard(&store, complete, 0, put(&store));
+        // A shard of a stage the pipeline no longer computes (e.g. its params changed).
+        let outdated_shard = shard(&store, outdated, 0, put(&store));
+        // A finished stage whose record gc drops because its artifact is not current (in osms:
+        // the object is damaged or missing): the stage is unfinished again, and its shards let
+        // the next make rebuild it without recomputing them.
+        let not_current_output = put(&store);
+        store
+            .put_record(&record(not_current, not_current_output))
+            .expect("record");
+        let rescue_shard = shard(&store, not_current, 0, put(&store));
+        let shard_objects = |keys: &[Hash]| -> Vec<Hash> {
+            keys.iter()
+                .map(|k| store.record(k).expect("read").expect("record").content_hash)
+                .collect()
+        };
+        let kept_objects = shard_objects(&[resumable[0], resumable[1], rescue_shard]);
+        let removed_objects = shard_objects(&[done_shard, outdated_shard]);
+
+        let keep: BTreeSet<Hash> = [complete].into();
+        let planned: BTreeSet<Hash> = [interrupted, complete, not_current].into();
+        let report = store.gc(&keep, &planned, false).expect("gc");
+        let mut removed = vec![done_shard, outdated_shard, not_current];
+        removed.sort();
+        assert_eq!(report.records_removed, removed);
+        let mut gone = removed_objects.clone();
+        gone.push(not_current_output);
+        gone.sort();
+        assert_eq!(report.objects_removed, gone);
+        for key in [resumable[0], resumable[1], rescue_shard, complete] {
+            assert!(store.record(&key).expect("read").is_some(), "{key}");
+        }
+        for hash in kept_objects.into_iter().chain([done]) {
+            assert_eq!(
+                store.object_state(&hash).expect("state"),
+                ObjectState::Present
+            );
+        }
+        for hash in removed_objects {
+            assert_eq!(
+                store.object_state(&hash).expect("state"),
+                ObjectState::Missing
+            );
+        }
     }
 
     #[test]

@@ -9,8 +9,9 @@ use crate::commands::{human_bytes, print_json};
 use crate::context::Context;
 
 pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
-    let store = ctx.store()?;
+    // The pipeline first: a mistyped --pipeline must not leave a new store beside it.
     let default = Pipeline::load(&ctx.pipeline_path, None)?;
+    let store = ctx.store()?;
     let profiles = if args.profiles.is_empty() {
         default.profiles.clone()
     } else {
@@ -44,6 +45,9 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
     let _lock = store
         .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
     let mut keep = BTreeSet::new();
+    // Every key the plan can compute now, built or not: an unbuilt one may have shards from an
+    // interrupted make, which the store keeps until the stage is complete.
+    let mut planned = BTreeSet::new();
     for profile in &profiles {
         let pipeline = Pipeline::load(&ctx.pipeline_path, Some(profile))?;
         let plan = Plan::new(&pipeline, &ctx.registry)?;
@@ -51,9 +55,10 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
             if s.state == State::Cached {
                 keep.extend(s.key);
             }
+            planned.extend(s.key);
         }
     }
-    let report = store.gc(&keep, args.dry_run)?;
+    let report = store.gc(&keep, &planned, args.dry_run)?;
     if args.json {
         print_json(&report)?;
     } else if !ctx.quiet {

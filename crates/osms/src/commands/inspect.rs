@@ -32,10 +32,11 @@ struct Resolved {
 /// The record a `show`/`export` target names: a stage instance of the plan (its current build)
 /// or a key or content-hash prefix.
 fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<Resolved> {
+    // The plan first: a mistyped --pipeline must not leave a new store beside it.
+    let plan = ctx.plan(selection.profile.as_deref())?;
     let store = ctx.store()?;
     let (records, _) = store.records()?;
     let name = target.split('@').next().unwrap_or(target);
-    let plan = ctx.plan(selection.profile.as_deref())?;
     if plan.stage_index(name).is_some() {
         let seed = Context::seeds(selection, &plan)[0];
         let lineage = osms_make::why(&plan, &store, target, seed)?;
