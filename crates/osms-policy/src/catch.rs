@@ -270,12 +270,11 @@ impl<'w> Task for CatchTask<'w> {
         = CatchEpisode<'a>
     where
         Self: 'a;
+    type Error = osms_sim::SimError;
 
     fn obs_len(&self) -> usize {
         OBS_LEN
     }
-
-    type Error = osms_sim::SimError;
 
     fn act_len(&self) -> usize {
         self.spec.act_len()
