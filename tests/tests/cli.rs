@@ -298,3 +298,27 @@ fn make_json_reports_every_instance() {
             .all(|i| i["outcome"] == "built" && i["content_hash"].is_string())
     );
 }
+
+#[test]
+fn a_panicking_stage_fails_with_exit_1_and_the_rest_is_built() {
+    let p = Project::new(&format!(
+        "{CLI_PIPELINE}\n[stages.boom]\nkind = \"panicky\"\nparams = {{ n = 4, panic_at_item = 2 }}\n\n\
+         [stages.boom_total]\nkind = \"sum\"\ninputs = {{ values = \"boom\" }}\n"
+    ));
+    // Not snapshotted: the default panic hook's line names a source line of the test kinds.
+    let (text, out) = transcript(&p, &["make", "-j", "2"]);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert!(
+        text.contains("  FAILED boom: stage panicked: item 2 panicked on purpose (panic_at_item)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("  skipped boom_total (input boom failed)"),
+        "{text}"
+    );
+    assert!(text.contains("  built total@0 -> "), "{text}");
+    assert!(
+        text.contains("osms make: 4 built, 0 cached, 0 cut off, 1 failed, 1 skipped"),
+        "{text}"
+    );
+}

@@ -278,7 +278,8 @@ fn status_names_why_each_stage_would_run() {
         .register(osms_tests::kinds::SignsKind)
         .register(osms_tests::kinds::ShiftKind)
         .register(osms_tests::kinds::SumKind)
-        .register(osms_tests::kinds::CombineKind);
+        .register(osms_tests::kinds::CombineKind)
+        .register_itemised(osms_tests::kinds::PanicKind);
     assert_eq!(bumped.names(), registry().names());
     p.registry = bumped;
     let after_bump = status(&p);
@@ -320,6 +321,109 @@ fn a_failing_stage_skips_its_dependents_and_the_rest_is_built() {
     assert!(err.is_some_and(|e| e.contains("item 4 failed on purpose")));
 }
 
+/// The engine pipeline plus a `panicky` stage with `params` and a dependent of it.
+fn with_panicky(params: &str) -> String {
+    format!(
+        "{ENGINE_PIPELINE}\n[stages.boom]\nkind = \"panicky\"\nshards = 2\nparams = {{ n = 6, {params} }}\n\n\
+         [stages.boom_total]\nkind = \"sum\"\ninputs = {{ values = \"boom\" }}\n"
+    )
+}
+
+#[test]
+fn a_panicking_stage_fails_alone_and_leaves_no_record() {
+    for (params, message) in [
+        // On a rayon worker of the make's pool, mid-stage (after the first shard was stored).
+        (
+            "panic_at_item = 4",
+            "item 4 panicked on purpose (panic_at_item)",
+        ),
+        ("panic_in_prepare = true", "prepare panicked on purpose"),
+        ("panic_in_merge = true", "merge panicked on purpose"),
+    ] {
+        let p = Project::new(&with_panicky(params));
+        let report = p.make(Some("tiny"), &[0], 2);
+        let o = outcomes(&report);
+        assert_eq!(o["boom"], "failed", "{params}");
+        assert_eq!(o["boom_total"], "skipped", "{params}");
+        for built in [
+            "numbers@0",
+            "signs@0",
+            "total@0",
+            "drops@0",
+            "reference",
+            "report@0",
+        ] {
+            assert_eq!(o[built], "built", "{params}: {built}");
+        }
+        let err = report
+            .instances
+            .iter()
+            .find_map(|r| match &r.outcome {
+                osms_make::Outcome::Failed { error } => Some(error.clone()),
+                _ => None,
+            })
+            .expect("a failure");
+        assert!(
+            err.starts_with("stage panicked: ") && err.contains(message),
+            "{params}: {err}"
+        );
+        let (records, unreadable) = p.open_store().records().expect("records");
+        assert!(unreadable.is_empty());
+        assert!(
+            !records
+                .iter()
+                .any(|r| r.stage == "boom" && r.shard.is_none()),
+            "{params}: a panicked stage has a record"
+        );
+    }
+}
+
+#[test]
+fn an_unreadable_index_record_is_rebuilt_not_fatal() {
+    let p = Project::engine();
+    let first = p.make(Some("tiny"), &[0], 2);
+    let total = first
+        .instances
+        .iter()
+        .find(|r| r.instance == "total@0")
+        .and_then(|r| r.key)
+        .expect("total's key");
+    let hex = total.to_hex();
+    let record = p
+        .store
+        .join("index")
+        .join(&hex[..2])
+        .join(format!("{hex}.json"));
+    assert!(record.is_file(), "{}", record.display());
+    // A record cut short mid-write by something other than osms.
+    std::fs::write(&record, b"{\"key\": \"").expect("garble the record");
+
+    let plan = p.plan(Some("tiny")).expect("plan");
+    let statuses = osms_make::status(&plan, &p.open_store(), &[], &[0]).expect("status");
+    let st = statuses
+        .iter()
+        .find(|s| s.instance == "total@0")
+        .expect("total");
+    assert_eq!(st.state, State::Missing);
+    assert_eq!(st.reasons, [Reason::RecordUnreadable { key: total }]);
+    // Its dependents cannot know their key until it is rebuilt.
+    let report = statuses
+        .iter()
+        .find(|s| s.instance == "report@0")
+        .expect("report");
+    assert_eq!(report.state, State::Stale);
+
+    let second = p.make(Some("tiny"), &[0], 2);
+    let o = outcomes(&second);
+    assert_eq!(o["total@0"], "built");
+    assert_eq!(o["report@0"], "cut off");
+    assert_eq!(o["numbers@0"], "cached");
+    assert_eq!(hashes(&second), hashes(&first));
+    let plan = p.plan(Some("tiny")).expect("plan");
+    let after = osms_make::status(&plan, &p.open_store(), &[], &[0]).expect("status");
+    assert!(after.iter().all(|s| s.state == State::Cached));
+}
+
 fn plan_error(text: &str) -> String {
     let p = Project::new(text);
     match p.plan(Some("small")) {
@@ -341,7 +445,7 @@ fn unknown_stage_kind_names_the_stage_and_the_known_kinds() {
     let err = plan_error("[stages.gen]\nkind = \"numbres\"\nparams = { n = 3 }\n");
     assert_eq!(
         err,
-        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `numbers`, `shift`, `signs`, `sum`"
+        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `numbers`, `panicky`, `shift`, `signs`, `sum`"
     );
 }
 

@@ -1,8 +1,10 @@
 //! `osms make`: build the instances a target needs, in dependency order, reusing every
 //! artifact whose key is already in the store.
 
+use std::any::Any;
 use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Range;
+use std::panic::{self, AssertUnwindSafe};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -156,8 +158,9 @@ pub fn make(
         }
 
         let key = plan.key(id, &input_hashes);
-        let reason = match store.record(&key)? {
-            Some(rec) => match store.object_state_cached(&rec.content_hash)? {
+        let reason = match readable_record(store, &key)? {
+            Err(unreadable) => unreadable.to_string(),
+            Ok(Some(rec)) => match store.object_state_cached(&rec.content_hash)? {
                 ObjectState::Present => {
                     let cut_off = inputs.iter().any(|(_, up)| built.contains(up));
                     available.insert(id, rec.content_hash);
@@ -189,7 +192,7 @@ pub fn make(
                 }
                 .to_string(),
             },
-            None => heads.reason_to_build(plan, id, &name, &input_hashes),
+            Ok(None) => heads.reason_to_build(plan, id, &name, &input_hashes),
         };
 
         if opts.dry_run {
@@ -292,7 +295,13 @@ fn build(
         progress,
         shards: &shards,
     };
-    let bytes = pool.install(|| stage.kind.run(&env))?;
+    // A panicking kind must fail its own stage only, not the whole make. rayon resumes a
+    // worker's panic in the caller of the parallel op, so catching here covers item threads too.
+    // Nothing the stage left half-done is observable: it wrote at most complete shards, and
+    // its record is only written after this returns `Ok`.
+    let bytes =
+        panic::catch_unwind(AssertUnwindSafe(|| pool.install(|| stage.kind.run(&env))))
+            .map_err(|payload| format!("stage panicked: {}", panic_message(payload.as_ref())))??;
     let tag = read_header(&bytes)?.type_tag;
     if tag != stage.info.output_tag {
         return Err(format!(
@@ -302,6 +311,31 @@ fn build(
         .into());
     }
     Ok((store.put(&bytes)?, bytes.len() as u64))
+}
+
+/// The record of `key`; an unreadable one is a reason to rebuild, as a missing one is.
+///
+/// A garbled index file (a disk error, a hand edit) must not stop every make and status that
+/// needs its key: rebuilding replaces it atomically.
+pub(crate) fn readable_record(store: &Store, key: &Hash) -> Result<Result<Option<Record>, Reason>> {
+    match store.record(key) {
+        Ok(rec) => Ok(Ok(rec)),
+        Err(osms_store::Error::BadRecord { path, reason }) => {
+            tracing::warn!("ignoring index record {}: {reason}", path.display());
+            Ok(Err(Reason::RecordUnreadable { key: *key }))
+        }
+        Err(e) => Err(e.into()),
+    }
+}
+
+fn panic_message(payload: &(dyn Any + Send)) -> &str {
+    if let Some(s) = payload.downcast_ref::<&'static str>() {
+        s
+    } else if let Some(s) = payload.downcast_ref::<String>() {
+        s
+    } else {
+        "(no message)"
+    }
 }
 
 fn record(

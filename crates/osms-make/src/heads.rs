@@ -77,6 +77,9 @@ pub enum Reason {
     ObjectDamaged {
         hash: Hash,
     },
+    RecordUnreadable {
+        key: Hash,
+    },
     UpstreamNotUpToDate {
         input: String,
     },
@@ -117,6 +120,9 @@ impl fmt::Display for Reason {
             Reason::NotInStore => write!(f, "not in the store"),
             Reason::ObjectMissing { hash } => write!(f, "object {} is missing", hash.short()),
             Reason::ObjectDamaged { hash } => write!(f, "object {} is damaged", hash.short()),
+            Reason::RecordUnreadable { key } => {
+                write!(f, "index record {} is unreadable", key.short())
+            }
             Reason::UpstreamNotUpToDate { input } => write!(f, "input `{input}` is not up to date"),
         }
     }

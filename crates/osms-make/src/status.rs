@@ -7,6 +7,7 @@ use osms_store::{Hash, ObjectState, Store};
 use serde::Serialize;
 
 use crate::error::Result;
+use crate::exec::readable_record;
 use crate::heads::{Heads, Reason};
 use crate::plan::{InstanceId, Plan};
 
@@ -17,7 +18,7 @@ pub enum State {
     Cached,
     /// Built before, but something it depends on changed.
     Stale,
-    /// Never built, or its object is gone or damaged.
+    /// Never built, or its object is gone or damaged, or its index record unreadable.
     Missing,
 }
 
@@ -81,8 +82,12 @@ pub fn status(
         }
         let key = plan.key(id, &input_hashes);
         st.key = Some(key);
-        match store.record(&key)? {
-            Some(rec) => match store.object_state_cached(&rec.content_hash)? {
+        match readable_record(store, &key)? {
+            Err(unreadable) => {
+                st.state = State::Missing;
+                st.reasons = vec![unreadable];
+            }
+            Ok(Some(rec)) => match store.object_state_cached(&rec.content_hash)? {
                 ObjectState::Present => {
                     st.state = State::Cached;
                     st.content_hash = Some(rec.content_hash);
@@ -101,7 +106,7 @@ pub fn status(
                     }];
                 }
             },
-            None => {
+            Ok(None) => {
                 st.reasons = heads.reasons(plan, id, &instance, &input_hashes);
                 st.state = if st.reasons == [Reason::New] {
                     State::Missing
