@@ -322,10 +322,6 @@ impl<'w> Episode<'w> {
         self.evaluator.follow_through_m()
     }
 
-    pub fn condition(&self) -> &TaskCondition {
-        &self.condition
-    }
-
     /// The record so far (its outcome and metrics are filled in by [`Episode::finish`]).
     pub fn record(&self) -> &RolloutRecord {
         &self.record
