@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use mujoco_rs::prelude::MjModel;
 use osms_make::rng::{self, StreamRng};
-use osms_make::{Ctx, ItemStage, Registry, Stage, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Registry, Slot, Stage, StageError, Summarize};
 use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
@@ -17,7 +17,10 @@ pub fn registry() -> Registry {
         .register(ShiftKind)
         .register(SumKind)
         .register(CombineKind)
-        .register_itemised(PanicKind);
+        .register_itemised(PanicKind)
+        .register(FoldRowsKind)
+        .register(GatherKind)
+        .register(SumOfAKind);
     r
 }
 
@@ -54,6 +57,17 @@ pub struct NumbersParams {
     /// Item index at which to fail (tests failure handling).
     #[serde(default)]
     pub fail_at: Option<u32>,
+    /// A role for the typed-slot tests.
+    #[serde(default)]
+    pub role: Option<TestRole>,
+}
+
+/// Roles test numbers can play.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TestRole {
+    A,
+    B,
 }
 fn default_len() -> u32 {
     4
@@ -68,13 +82,19 @@ impl ItemStage for NumbersKind {
     const KIND: &'static str = "numbers";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &[];
+    const INPUTS: &'static [Slot] = &[];
     const DOC: &'static str = "rows of scaled standard-normal numbers (test kind)";
     type Params = NumbersParams;
     type Prepared = ();
     type Item = Vec<f64>;
     type Output = Numbers;
 
+    fn output_role(params: &NumbersParams) -> Option<&'static str> {
+        params.role.map(|r| match r {
+            TestRole::A => "a",
+            TestRole::B => "b",
+        })
+    }
     fn prepare(&self, _: &Ctx<'_, NumbersParams>) -> Result<(), StageError> {
         Ok(())
     }
@@ -117,7 +137,7 @@ impl Stage for SignsKind {
     const KIND: &'static str = "signs";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [&'static str] = &["values"];
+    const INPUTS: &'static [Slot] = &[Slot::one::<Numbers>("values")];
     const DOC: &'static str = "the sign of every value (test kind)";
     type Params = NoParams;
     type Output = Numbers;
@@ -145,7 +165,7 @@ impl Stage for ShiftKind {
     const KIND: &'static str = "shift";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [&'static str] = &["values"];
+    const INPUTS: &'static [Slot] = &[Slot::one::<Numbers>("values")];
     const DOC: &'static str = "every value plus a constant (test kind)";
     type Params = ShiftParams;
     type Output = Numbers;
@@ -182,7 +202,7 @@ impl Stage for SumKind {
     const KIND: &'static str = "sum";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [&'static str] = &["values"];
+    const INPUTS: &'static [Slot] = &[Slot::one::<Numbers>("values")];
     const DOC: &'static str = "count and sum of the values (test kind)";
     type Params = NoParams;
     type Output = Total;
@@ -245,12 +265,19 @@ impl ItemStage for DropKind {
     const KIND: &'static str = "drop";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &[];
+    const INPUTS: &'static [Slot] = &[];
     const DOC: &'static str = "MuJoCo box throws onto a plane (test kind)";
     type Params = DropParams;
     type Prepared = MjModel;
     type Item = Vec<f64>;
     type Output = Drops;
+
+    fn numerics() -> Vec<Numerics> {
+        vec![Numerics {
+            name: "mujoco",
+            version: osms_sim::mujoco_version(),
+        }]
+    }
 
     fn prepare(&self, _: &Ctx<'_, DropParams>) -> Result<MjModel, StageError> {
         Ok(MjModel::from_xml_string(DROP_XML)?)
@@ -305,7 +332,11 @@ impl Stage for CombineKind {
     const KIND: &'static str = "combine";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [&'static str] = &["total", "drops", "reference"];
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<Total>("total"),
+        Slot::one::<Drops>("drops"),
+        Slot::one::<Numbers>("reference"),
+    ];
     const DOC: &'static str = "a small report over three inputs (test kind)";
     type Params = NoParams;
     type Output = Combined;
@@ -342,7 +373,7 @@ impl ItemStage for PanicKind {
     const KIND: &'static str = "panicky";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [&'static str] = &[];
+    const INPUTS: &'static [Slot] = &[];
     const DOC: &'static str = "one row per item, or a panic on demand (test kind)";
     type Params = PanicParams;
     type Prepared = ();
@@ -380,5 +411,86 @@ impl ItemStage for PanicKind {
             panic!("merge panicked on purpose (panic_in_merge)");
         }
         Ok(Numbers { rows: items })
+    }
+}
+
+/// The rows of fold k of `count` (row i belongs to fold i mod count), or every row when the
+/// stage has no folds: a cross-fitting split in miniature.
+pub struct FoldRowsKind;
+impl Stage for FoldRowsKind {
+    const KIND: &'static str = "fold_rows";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [Slot] = &[Slot::one::<Numbers>("values")];
+    const DOC: &'static str = "the rows of this instance's fold (test kind)";
+    type Params = NoParams;
+    type Output = Numbers;
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Numbers, StageError> {
+        let v: Numbers = ctx.input("values")?;
+        let keep = |i: usize| {
+            ctx.fold()
+                .is_none_or(|f| i % f.count as usize == f.index as usize)
+        };
+        Ok(Numbers {
+            rows: v
+                .rows
+                .into_iter()
+                .enumerate()
+                .filter(|(i, _)| keep(*i))
+                .map(|(_, r)| r)
+                .collect(),
+        })
+    }
+}
+
+/// Every gathered total, with the instance it came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Gathered {
+    /// (`#fold@seed` of the member, its sum), in the order the slot received them.
+    pub members: Vec<(String, f64)>,
+}
+impl Artifact for Gathered {
+    const TYPE_TAG: &'static str = "test.gathered";
+    const SCHEMA_VERSION: u16 = 1;
+}
+impl Summarize for Gathered {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::to_value(self).unwrap_or_default()
+    }
+}
+
+/// Lists the totals of a gather slot (test kind for `stage@*` and `stage#*`).
+pub struct GatherKind;
+impl Stage for GatherKind {
+    const KIND: &'static str = "gather_totals";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [Slot] = &[Slot::gather::<Total>("totals")];
+    const DOC: &'static str = "every total of a gather slot, in order (test kind)";
+    type Params = NoParams;
+    type Output = Gathered;
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Gathered, StageError> {
+        Ok(Gathered {
+            members: ctx
+                .gathered::<Total>("totals")?
+                .into_iter()
+                .map(|(m, t)| (m.suffix(), t.sum))
+                .collect(),
+        })
+    }
+}
+
+/// The sum of numbers of role `a` only (test kind for typed slots with roles).
+pub struct SumOfAKind;
+impl Stage for SumOfAKind {
+    const KIND: &'static str = "sum_of_a";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [Slot] = &[Slot::one::<Numbers>("values").roles(&["a"])];
+    const DOC: &'static str = "count and sum of numbers of role a (test kind)";
+    type Params = NoParams;
+    type Output = Total;
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Total, StageError> {
+        SumKind.run(ctx)
     }
 }

@@ -178,7 +178,7 @@ impl ItemStage for NumbersV2 {
     const KIND: &'static str = "numbers";
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &[];
+    const INPUTS: &'static [osms_make::Slot] = &[];
     const DOC: &'static str = "numbers, bumped";
     type Params = NumbersParams;
     type Prepared = ();
@@ -279,7 +279,10 @@ fn status_names_why_each_stage_would_run() {
         .register(osms_tests::kinds::ShiftKind)
         .register(osms_tests::kinds::SumKind)
         .register(osms_tests::kinds::CombineKind)
-        .register_itemised(osms_tests::kinds::PanicKind);
+        .register_itemised(osms_tests::kinds::PanicKind)
+        .register(osms_tests::kinds::FoldRowsKind)
+        .register(osms_tests::kinds::GatherKind)
+        .register(osms_tests::kinds::SumOfAKind);
     assert_eq!(bumped.names(), registry().names());
     p.registry = bumped;
     let after_bump = status(&p);
@@ -445,7 +448,7 @@ fn unknown_stage_kind_names_the_stage_and_the_known_kinds() {
     let err = plan_error("[stages.gen]\nkind = \"numbres\"\nparams = { n = 3 }\n");
     assert_eq!(
         err,
-        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `numbers`, `panicky`, `shift`, `signs`, `sum`"
+        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `fold_rows`, `gather_totals`, `numbers`, `panicky`, `shift`, `signs`, `sum`, `sum_of_a`"
     );
 }
 

@@ -2,7 +2,7 @@
 //! artifact whose key is already in the store.
 
 use std::any::Any;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::ops::Range;
 use std::panic::{self, AssertUnwindSafe};
 use std::sync::Arc;
@@ -13,8 +13,8 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::heads::{Heads, Reason};
-use crate::kind::{Progress, RunEnv, ShardIo, StageError};
-use crate::plan::{InstanceId, Plan, shard_key, shard_ranges};
+use crate::kind::{InputBytes, Progress, RunEnv, ShardIo, StageError};
+use crate::plan::{InputInstance, InstanceId, Plan, shard_key, shard_ranges};
 
 /// Options of one `make`.
 #[derive(Debug, Clone)]
@@ -115,20 +115,24 @@ pub fn make(
     let mut built: BTreeSet<InstanceId> = BTreeSet::new();
     let mut unavailable: BTreeMap<InstanceId, String> = BTreeMap::new();
 
-    for id in instances {
+    // A worklist rather than a loop: an input found damaged while loading it for a downstream
+    // stage goes back to the front, to be rebuilt before that stage runs again.
+    let mut queue: VecDeque<InstanceId> = instances.into();
+    let mut requeued: BTreeSet<InstanceId> = BTreeSet::new();
+    while let Some(id) = queue.pop_front() {
         let name = plan.display(id);
-        let inputs = plan.input_instances(id);
+        let inputs = plan.input_instances(id, &opts.seeds);
         let mut input_hashes = Vec::with_capacity(inputs.len());
         let mut blocked = None;
-        for (slot, up) in &inputs {
-            match available.get(up) {
-                Some(h) => input_hashes.push((slot.clone(), *h)),
+        for input in &inputs {
+            match available.get(&input.id) {
+                Some(h) => input_hashes.push((input.label.clone(), *h)),
                 None => {
                     blocked = Some(
                         unavailable
-                            .get(up)
+                            .get(&input.id)
                             .cloned()
-                            .unwrap_or_else(|| plan.display(*up)),
+                            .unwrap_or_else(|| plan.display(input.id)),
                     );
                     break;
                 }
@@ -162,7 +166,7 @@ pub fn make(
             Err(unreadable) => unreadable.to_string(),
             Ok(Some(rec)) => match store.object_state_cached(&rec.content_hash)? {
                 ObjectState::Present => {
-                    let cut_off = inputs.iter().any(|(_, up)| built.contains(up));
+                    let cut_off = inputs.iter().any(|i| built.contains(&i.id));
                     available.insert(id, rec.content_hash);
                     // A dry run holds no lock, so it writes nothing but the stat cache.
                     if !opts.dry_run {
@@ -210,16 +214,44 @@ pub fn make(
         }
 
         let started = Instant::now();
+        let loaded = match load_inputs(store, &inputs, &input_hashes) {
+            Ok(loaded) => loaded,
+            // The stat cache vouched for this input when it was found cached, but its bytes no
+            // longer match: rebuild it (once), then come back to this instance.
+            Err(Damaged { input, hash }) if !requeued.contains(&input) => {
+                let up = plan.display(input);
+                tracing::warn!(
+                    "input `{up}` of `{name}`: object {} is damaged; rebuilding it",
+                    hash.short()
+                );
+                store.distrust(&hash);
+                available.remove(&input);
+                requeued.insert(input);
+                report.instances.retain(|r| r.instance != up);
+                queue.push_front(id);
+                queue.push_front(input);
+                continue;
+            }
+            Err(Damaged { input, hash }) => Err(format!(
+                "input `{}`: object {} is damaged again after a rebuild",
+                plan.display(input),
+                hash.short()
+            )
+            .into()),
+        };
         let progress = observer.started(&name, &reason);
-        let result = build(
-            plan,
-            store,
-            id,
-            key,
-            &input_hashes,
-            &pool,
-            progress.as_ref(),
-        );
+        let result = loaded.and_then(|loaded| {
+            build(
+                plan,
+                store,
+                id,
+                key,
+                loaded,
+                &input_hashes,
+                &pool,
+                progress.as_ref(),
+            )
+        });
         drop(progress);
         let wall_time_secs = started.elapsed().as_secs_f64();
         let r = match result {
@@ -265,20 +297,54 @@ pub fn make(
     Ok(report)
 }
 
+/// An input whose object failed its hash check when loaded.
+struct Damaged {
+    input: InstanceId,
+    hash: Hash,
+}
+
+/// Reads every input object, slot by slot (a gather slot's members in order).
+fn load_inputs(
+    store: &Store,
+    inputs: &[InputInstance],
+    input_hashes: &[(String, Hash)],
+) -> Result<Result<BTreeMap<String, Vec<InputBytes>>, StageError>, Damaged> {
+    let mut loaded: BTreeMap<String, Vec<InputBytes>> = BTreeMap::new();
+    for (input, (_, hash)) in inputs.iter().zip(input_hashes) {
+        let bytes = match store.get(hash) {
+            Ok(bytes) => bytes,
+            Err(osms_store::Error::Damaged { .. }) => {
+                return Err(Damaged {
+                    input: input.id,
+                    hash: *hash,
+                });
+            }
+            Err(e) => return Ok(Err(e.into())),
+        };
+        loaded
+            .entry(input.slot.clone())
+            .or_default()
+            .push(InputBytes {
+                member: input.id.member(),
+                bytes: Arc::new(bytes),
+            });
+    }
+    Ok(Ok(loaded))
+}
+
+#[allow(clippy::too_many_arguments)]
 fn build(
     plan: &Plan,
     store: &Store,
     id: InstanceId,
     key: Hash,
+    inputs: BTreeMap<String, Vec<InputBytes>>,
     input_hashes: &[(String, Hash)],
     pool: &rayon::ThreadPool,
     progress: &dyn Progress,
 ) -> Result<(Hash, u64), StageError> {
     let stage = &plan.stages[id.stage];
-    let mut inputs = BTreeMap::new();
-    for (slot, hash) in input_hashes {
-        inputs.insert(slot.clone(), Arc::new(store.get(hash)?));
-    }
+    let stream_name = plan.stream_name(id);
     let shards = StoreShards {
         plan,
         store,
@@ -288,8 +354,9 @@ fn build(
         shards: stage.shards,
     };
     let env = RunEnv {
-        stage: &stage.name,
+        stage: &stream_name,
         seed: plan.effective_seed(id),
+        fold: plan.fold(id),
         params: &stage.params,
         inputs: &inputs,
         progress,
@@ -355,6 +422,7 @@ fn record(
         kind: stage.info.name.to_string(),
         code_version: stage.info.code_version,
         seed: plan.effective_seed(id),
+        fold: id.fold,
         shard: None,
         params: stage.params.json.clone(),
         inputs: input_hashes.to_vec(),

@@ -48,19 +48,83 @@ pub trait Summarize {
     }
 }
 
+/// One input slot of a kind: its name, the artifact type it takes and, for kinds that tell
+/// artifacts of one type apart by role (datasets: D_M, D_E, D_R), the roles it accepts.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Slot {
+    pub name: &'static str,
+    /// The type tag of the artifact the slot takes ([`Artifact::TYPE_TAG`]).
+    pub tag: &'static str,
+    /// Roles it accepts; empty accepts any.
+    pub roles: &'static [&'static str],
+    /// A gather slot receives every instance its reference names (`stage@*`, `stage#*`),
+    /// in a fixed order; a plain slot receives exactly one.
+    pub gather: bool,
+}
+
+impl Slot {
+    /// A slot that takes one artifact of type `A`.
+    pub const fn one<A: Artifact>(name: &'static str) -> Slot {
+        Slot {
+            name,
+            tag: A::TYPE_TAG,
+            roles: &[],
+            gather: false,
+        }
+    }
+
+    /// A slot that takes every instance its reference names (seeds, folds), each of type `A`.
+    pub const fn gather<A: Artifact>(name: &'static str) -> Slot {
+        Slot {
+            gather: true,
+            ..Slot::one::<A>(name)
+        }
+    }
+
+    /// Only artifacts whose producing stage declares one of `roles`.
+    pub const fn roles(self, roles: &'static [&'static str]) -> Slot {
+        Slot { roles, ..self }
+    }
+}
+
+/// A version that enters the keys of every kind whose output depends on it: a crate's
+/// numerics (bump when its metrics, episode or kernel code may change bytes) or a library
+/// loaded at run time (MuJoCo's own version string).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Numerics {
+    pub name: &'static str,
+    pub version: String,
+}
+
 /// A stage that computes one artifact.
 pub trait Stage: Send + Sync + 'static {
     const KIND: &'static str;
     const CODE_VERSION: u32;
-    /// Whether the stage draws random numbers; if not, its key ignores the seed and seed sweeps
-    /// share one build.
+    /// Whether the stage can draw random numbers; if not, its key ignores the seed and seed
+    /// sweeps share one build.
     const USES_RNG: bool;
-    const INPUTS: &'static [&'static str];
+    const INPUTS: &'static [Slot];
     const DOC: &'static str;
     type Params: Serialize + DeserializeOwned + Send + Sync + 'static;
     type Output: Artifact + Summarize;
 
     fn run(&self, ctx: &Ctx<'_, Self::Params>) -> Result<Self::Output, StageError>;
+
+    /// Whether a stage with these params draws random numbers (e.g. an evaluation with domain
+    /// randomisation off draws none): if not, it is shared by every seed of a sweep.
+    fn draws_randomness(_params: &Self::Params) -> bool {
+        Self::USES_RNG
+    }
+
+    /// The role of the output (e.g. `d_m`), checked against the roles of the slots it feeds.
+    fn output_role(_params: &Self::Params) -> Option<&'static str> {
+        None
+    }
+
+    /// The numerics versions this kind's output depends on.
+    fn numerics() -> Vec<Numerics> {
+        Vec::new()
+    }
 }
 
 /// A stage whose work is a list of independent items (e.g. rollouts). Item `i` draws from the
@@ -70,7 +134,7 @@ pub trait ItemStage: Send + Sync + 'static {
     const KIND: &'static str;
     const CODE_VERSION: u32;
     const USES_RNG: bool;
-    const INPUTS: &'static [&'static str];
+    const INPUTS: &'static [Slot];
     const DOC: &'static str;
     type Params: Serialize + DeserializeOwned + Send + Sync + 'static;
     /// Decoded inputs and anything built once per stage (e.g. a simulator model).
@@ -93,6 +157,57 @@ pub trait ItemStage: Send + Sync + 'static {
         prepared: Self::Prepared,
         items: Vec<Self::Item>,
     ) -> Result<Self::Output, StageError>;
+
+    /// As [`Stage::draws_randomness`].
+    fn draws_randomness(_params: &Self::Params) -> bool {
+        Self::USES_RNG
+    }
+
+    /// As [`Stage::output_role`].
+    fn output_role(_params: &Self::Params) -> Option<&'static str> {
+        None
+    }
+
+    /// As [`Stage::numerics`].
+    fn numerics() -> Vec<Numerics> {
+        Vec::new()
+    }
+}
+
+/// Which fold of a stage declared with `folds = count` an instance is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct Fold {
+    pub index: u32,
+    pub count: u32,
+}
+
+/// Which instance of its stage an input is: the run seed (seed-dependent stages) and the fold
+/// (folded stages). Gather slots list their members in (fold, seed) order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+pub struct Member {
+    pub fold: Option<u32>,
+    pub seed: Option<u64>,
+}
+
+impl Member {
+    /// `#fold@seed`, the suffix of the instance's name (empty for a stage's only instance).
+    pub fn suffix(&self) -> String {
+        let mut s = String::new();
+        if let Some(f) = self.fold {
+            s.push_str(&format!("#{f}"));
+        }
+        if let Some(seed) = self.seed {
+            s.push_str(&format!("@{seed}"));
+        }
+        s
+    }
+}
+
+/// One input artifact, encoded, with the instance it came from.
+#[derive(Debug, Clone)]
+pub struct InputBytes {
+    pub member: Member,
+    pub bytes: Arc<Vec<u8>>,
 }
 
 /// What a running stage sees: its params, its inputs, its random streams and a progress sink.
@@ -101,29 +216,59 @@ pub struct Ctx<'a, P> {
     pub params: &'a P,
     stage: &'a str,
     seed: Option<u64>,
-    inputs: &'a BTreeMap<String, Arc<Vec<u8>>>,
+    fold: Option<Fold>,
+    inputs: &'a BTreeMap<String, Vec<InputBytes>>,
     progress: &'a dyn Progress,
 }
 
 impl<P> Ctx<'_, P> {
+    /// The name that names this instance's random streams: the stage, with `#fold` for folds.
     pub fn stage(&self) -> &str {
         self.stage
     }
 
-    /// Decodes the artifact bound to input `slot`.
-    pub fn input<A: Artifact>(&self, slot: &str) -> Result<A, StageError> {
-        let bytes = self
-            .inputs
+    /// The fold this instance is, for stages declared with `folds`.
+    pub fn fold(&self) -> Option<Fold> {
+        self.fold
+    }
+
+    fn slot(&self, slot: &str) -> Result<&[InputBytes], StageError> {
+        self.inputs
             .get(slot)
-            .ok_or_else(|| format!("stage `{}` has no input slot `{slot}`", self.stage))?;
-        decode(bytes).map_err(|e| format!("input `{slot}`: {e}").into())
+            .map(Vec::as_slice)
+            .ok_or_else(|| format!("stage `{}` has no input slot `{slot}`", self.stage).into())
+    }
+
+    /// Decodes the artifact bound to the plain input `slot`.
+    pub fn input<A: Artifact>(&self, slot: &str) -> Result<A, StageError> {
+        match self.slot(slot)? {
+            [one] => decode(&one.bytes).map_err(|e| format!("input `{slot}`: {e}").into()),
+            many => Err(format!(
+                "input `{slot}` of stage `{}` is a gather slot with {} members: read it with `gathered`",
+                self.stage,
+                many.len()
+            )
+            .into()),
+        }
+    }
+
+    /// Decodes every artifact of the gather slot `slot`, in (fold, seed) order.
+    pub fn gathered<A: Artifact>(&self, slot: &str) -> Result<Vec<(Member, A)>, StageError> {
+        self.slot(slot)?
+            .iter()
+            .map(|i| {
+                decode(&i.bytes)
+                    .map(|a| (i.member, a))
+                    .map_err(|e| format!("input `{slot}{}`: {e}", i.member.suffix()).into())
+            })
+            .collect()
     }
 
     /// The generator of stream (`name`, `index`) of this stage.
     pub fn rng(&self, name: &str, index: u64) -> StreamRng {
         let seed = self.seed.unwrap_or_else(|| {
             panic!(
-                "stage kind of `{}` declares USES_RNG = false but asked for a stream",
+                "stage `{}` draws no random numbers (its kind's USES_RNG or draws_randomness) but asked for a stream",
                 self.stage
             )
         });
@@ -161,10 +306,12 @@ pub trait ShardIo: Sync {
 
 /// Everything a type-erased kind needs to run once.
 pub struct RunEnv<'a> {
+    /// The stream name of the instance (the stage, with `#fold` for folds).
     pub stage: &'a str,
     pub seed: Option<u64>,
+    pub fold: Option<Fold>,
     pub params: &'a ParsedParams,
-    pub inputs: &'a BTreeMap<String, Arc<Vec<u8>>>,
+    pub inputs: &'a BTreeMap<String, Vec<InputBytes>>,
     pub progress: &'a dyn Progress,
     pub shards: &'a dyn ShardIo,
 }
@@ -175,16 +322,22 @@ pub struct KindInfo {
     pub name: &'static str,
     pub code_version: u32,
     pub uses_rng: bool,
-    pub inputs: &'static [&'static str],
+    pub inputs: &'static [Slot],
     pub doc: &'static str,
     pub itemised: bool,
     pub output_tag: &'static str,
+    pub output_schema: u16,
+    pub numerics: Vec<Numerics>,
 }
 
 /// A kind with its types erased.
 pub trait DynKind: Send + Sync {
     fn info(&self) -> KindInfo;
     fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError>;
+    /// Whether a stage with these params draws random numbers.
+    fn draws_randomness(&self, params: &ParsedParams) -> bool;
+    /// The role of the output of a stage with these params.
+    fn output_role(&self, params: &ParsedParams) -> Option<&'static str>;
     /// Runs the stage and returns the encoded output artifact.
     fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError>;
     /// Decodes an output artifact of this kind and summarises it.
@@ -235,16 +388,21 @@ fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
     })
 }
 
+impl ParsedParams {
+    fn typed<P: 'static>(&self) -> &P {
+        self.typed
+            .downcast_ref::<P>()
+            .expect("params were parsed by the same kind")
+    }
+}
+
 impl RunEnv<'_> {
     fn ctx<P: 'static>(&self) -> Ctx<'_, P> {
         Ctx {
-            params: self
-                .params
-                .typed
-                .downcast_ref::<P>()
-                .expect("params were parsed by the same kind"),
+            params: self.params.typed(),
             stage: self.stage,
             seed: self.seed,
+            fold: self.fold,
             inputs: self.inputs,
             progress: self.progress,
         }
@@ -276,10 +434,18 @@ macro_rules! shared_kind_methods {
                 doc: S::DOC,
                 itemised: $itemised,
                 output_tag: <S::Output as Artifact>::TYPE_TAG,
+                output_schema: <S::Output as Artifact>::SCHEMA_VERSION,
+                numerics: S::numerics(),
             }
         }
         fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
             parse_typed::<S::Params>(value)
+        }
+        fn draws_randomness(&self, params: &ParsedParams) -> bool {
+            S::USES_RNG && S::draws_randomness(params.typed::<S::Params>())
+        }
+        fn output_role(&self, params: &ParsedParams) -> Option<&'static str> {
+            S::output_role(params.typed::<S::Params>())
         }
         fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
             Ok(decode::<S::Output>(bytes)?.summary())

@@ -17,11 +17,13 @@ pub use error::{Error, Invalid, Location, Result};
 pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, make};
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
-    Ctx, DynKind, ItemStage, KindInfo, NoProgress, ParsedParams, Progress, Registry, Stage,
-    StageError, Summarize,
+    Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Member, NoProgress, Numerics,
+    ParsedParams, Progress, Registry, Slot, Stage, StageError, Summarize,
 };
 pub use pipeline::{Pipeline, StageSpec};
-pub use plan::{InstanceId, Plan, PlannedStage, shard_key, shard_ranges};
+pub use plan::{
+    FoldRef, InputInstance, InstanceId, Plan, PlannedInput, PlannedStage, shard_key, shard_ranges,
+};
 pub use status::{InstanceStatus, Lineage, State, status, why};
 
 /// The osms version recorded in every artifact's metadata.

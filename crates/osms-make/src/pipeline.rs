@@ -13,6 +13,15 @@
 //! seed = 7                    # optional: a fixed seed, shared by every run of a seed sweep
 //! params = { n = 1000 }
 //!
+//! [stages.student]
+//! kind = "train"
+//! folds = 2                   # instances student#0, student#1, each told its fold index
+//! inputs = { data = "rollouts" }
+//!
+//! [stages.summary]
+//! kind = "aggregate"
+//! inputs = { runs = "student#*@*" }  # a gather slot: every fold, every run seed
+//!
 //! [profiles.tiny.rollouts]    # profile `tiny` overlays params (deep merge) and shards
 //! params = { n = 10 }
 //! ```
@@ -66,6 +75,7 @@ struct RawStage {
     #[serde(default)]
     params: toml::Table,
     shards: Option<u32>,
+    folds: Option<u32>,
     seed: Option<u64>,
 }
 
@@ -75,6 +85,7 @@ struct RawOverlay {
     #[serde(default)]
     params: toml::Table,
     shards: Option<u32>,
+    folds: Option<u32>,
 }
 
 /// One stage as declared, with the chosen profile applied.
@@ -85,6 +96,8 @@ pub struct StageSpec {
     pub inputs: BTreeMap<String, String>,
     pub params: toml::Table,
     pub shards: u32,
+    /// `Some(n)`: the stage has n instances per run seed, `name#0` .. `name#n-1`.
+    pub folds: Option<u32>,
     pub fixed_seed: Option<u64>,
     /// Whether the chosen profile overlays any of this stage's params (for error locations).
     pub params_overlaid: bool,
@@ -158,6 +171,7 @@ impl Pipeline {
                     inputs: s.inputs,
                     params: s.params,
                     shards: s.shards.unwrap_or(1),
+                    folds: s.folds,
                     fixed_seed: s.seed,
                     params_overlaid: false,
                 },
@@ -182,6 +196,9 @@ impl Pipeline {
                 merge(&mut stage.params, &overlay.params);
                 if let Some(shards) = overlay.shards {
                     stage.shards = shards;
+                }
+                if let Some(folds) = overlay.folds {
+                    stage.folds = Some(folds);
                 }
             }
         }

@@ -8,7 +8,7 @@ use osms_store::Hash;
 use serde::Serialize;
 
 use crate::error::{Error, Result, list};
-use crate::kind::{DynKind, KindInfo, ParsedParams, Registry};
+use crate::kind::{DynKind, Fold, KindInfo, Member, ParsedParams, Registry};
 use crate::pipeline::Pipeline;
 
 /// One stage of the graph, independent of the run seed.
@@ -17,15 +17,47 @@ pub struct PlannedStage {
     pub kind: Arc<dyn DynKind>,
     pub info: KindInfo,
     pub params: ParsedParams,
-    /// Input slot -> index of the upstream stage in [`Plan::stages`], in slot order.
-    pub inputs: Vec<(String, usize)>,
+    /// One entry per input slot, in the kind's slot order.
+    pub inputs: Vec<PlannedInput>,
     pub shards: u32,
+    /// `Some(n)`: instances `name#0` .. `name#n-1` per run seed.
+    pub folds: Option<u32>,
     pub fixed_seed: Option<u64>,
-    /// Whether the stage's output depends on the run seed, directly or through an input.
+    /// Whether the stage draws random numbers with these params.
+    pub uses_rng: bool,
+    /// The role its output plays (e.g. `d_m`), as its kind reads it from the params.
+    pub role: Option<&'static str>,
+    /// Whether the stage's output depends on the run seed, directly or through an input that
+    /// is not a gather over seeds.
     pub seed_dependent: bool,
-    /// Hash of what the declaration says (kind, code version, params, seed rule, input
-    /// wiring): independent of any computed content, so identical on every platform.
+    /// Hash of what the declaration says (kind, code version, output schema, numerics,
+    /// params, seed rule, folds, input wiring): independent of any computed content, so
+    /// identical on every platform.
     pub definition: Hash,
+}
+
+/// Which folds of a folded upstream an input takes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FoldRef {
+    /// The consumer's own fold (or the upstream's only instance, if it has no folds).
+    Same,
+    /// `stage#k`.
+    Fixed(u32),
+    /// `stage#*`.
+    All,
+}
+
+/// One input slot, wired to an upstream stage by a reference such as `d_e`, `pibar#*`,
+/// `eval_student@*`.
+pub struct PlannedInput {
+    pub slot: String,
+    pub upstream: usize,
+    /// The reference as written in pipeline.toml.
+    pub reference: String,
+    pub folds: FoldRef,
+    /// `@*`: every run seed of the sweep (a gather).
+    pub all_seeds: bool,
+    pub gather: bool,
 }
 
 /// The stage graph in dependency order (ties broken by name).
@@ -36,19 +68,74 @@ pub struct Plan {
     index: BTreeMap<String, usize>,
 }
 
-/// A stage instantiated for a run seed. Seed-independent stages have one instance shared by
-/// every seed of a sweep.
+/// A stage instantiated for a run seed and fold. Seed-independent stages have one instance
+/// (per fold) shared by every seed of a sweep.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 pub struct InstanceId {
     pub stage: usize,
+    pub fold: Option<u32>,
     pub run_seed: Option<u64>,
+}
+
+impl InstanceId {
+    pub fn member(&self) -> Member {
+        Member {
+            fold: self.fold,
+            seed: self.run_seed,
+        }
+    }
+}
+
+/// One input instance of an instance: the slot, the label its content hash is recorded
+/// under (the slot, or `slot[#fold@seed]` for a gather's members) and the instance.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InputInstance {
+    pub slot: String,
+    pub label: String,
+    pub id: InstanceId,
+}
+
+/// `name`, `name#k`, `name#*`, each optionally followed by `@*`.
+struct Reference<'a> {
+    stage: &'a str,
+    folds: FoldRef,
+    all_seeds: bool,
+}
+
+fn parse_reference(text: &str) -> std::result::Result<Reference<'_>, String> {
+    let (rest, all_seeds) = match text.split_once('@') {
+        Some((rest, "*")) => (rest, true),
+        Some((_, other)) => {
+            return Err(format!(
+                "`@{other}`: an input takes every run seed (`@*`) or the consumer's own (no `@`)"
+            ));
+        }
+        None => (text, false),
+    };
+    let (stage, folds) = match rest.split_once('#') {
+        Some((stage, "*")) => (stage, FoldRef::All),
+        Some((stage, k)) => match k.parse::<u32>() {
+            Ok(k) => (stage, FoldRef::Fixed(k)),
+            Err(_) => {
+                return Err(format!(
+                    "`#{k}` is not a fold: write `#0`, `#1`, ... or `#*`"
+                ));
+            }
+        },
+        None => (rest, FoldRef::Same),
+    };
+    Ok(Reference {
+        stage,
+        folds,
+        all_seeds,
+    })
 }
 
 impl Plan {
     pub fn new(pipeline: &Pipeline, registry: &Registry) -> Result<Self> {
         let order = topo_order(pipeline)?;
         let mut stages: Vec<PlannedStage> = Vec::with_capacity(order.len());
-        let mut index = BTreeMap::new();
+        let mut index: BTreeMap<String, usize> = BTreeMap::new();
         for name in order {
             let spec = &pipeline.stages[&name];
             let kind = registry.get(&spec.kind).ok_or_else(|| {
@@ -60,28 +147,23 @@ impl Plan {
             })?;
             let info = kind.info();
             let stage_desc = format!("stage `{name}` (kind `{}`)", info.name);
+            let slot_names = || list(info.inputs.iter().map(|s| s.name));
 
-            let declared: BTreeSet<&str> = info.inputs.iter().copied().collect();
             for slot in spec.inputs.keys() {
-                if !declared.contains(slot.as_str()) {
+                if !info.inputs.iter().any(|s| s.name == slot) {
                     return Err(Error::invalid(
                         pipeline.locate(&["stages", &name, "inputs", slot]),
                         format!("{stage_desc} has no input slot `{slot}`"),
-                        Some(format!("its input slots are {}", list(info.inputs))),
+                        Some(format!("its input slots are {}", slot_names())),
                     ));
                 }
             }
-            let mut inputs = Vec::new();
-            for slot in info.inputs {
-                let upstream = spec.inputs.get(*slot).ok_or_else(|| {
-                    Error::invalid(
-                        pipeline.locate(&["stages", &name]),
-                        format!("{stage_desc} is missing input `{slot}`"),
-                        Some(format!("add `inputs = {{ {slot} = \"<stage>\" }}` to it")),
-                    )
-                })?;
-                // topo_order already checked that every upstream exists and comes first.
-                inputs.push((slot.to_string(), index[upstream]));
+            if spec.folds == Some(0) {
+                return Err(Error::invalid(
+                    pipeline.locate(&["stages", &name, "folds"]),
+                    format!("{stage_desc}: folds must be at least 1"),
+                    Some("remove `folds` or set it to 2 or more".into()),
+                ));
             }
 
             let params_value = toml::Value::Table(spec.params.clone());
@@ -105,6 +187,115 @@ impl Plan {
                 )
             })?;
 
+            let mut inputs = Vec::new();
+            for slot in info.inputs {
+                let reference = spec.inputs.get(slot.name).ok_or_else(|| {
+                    Error::invalid(
+                        pipeline.locate(&["stages", &name]),
+                        format!("{stage_desc} is missing input `{}`", slot.name),
+                        Some(format!(
+                            "add `inputs = {{ {} = \"<stage>\" }}` to it",
+                            slot.name
+                        )),
+                    )
+                })?;
+                let at = || pipeline.locate(&["stages", &name, "inputs", slot.name]);
+                let input_desc = format!("{stage_desc}, input `{}` = \"{reference}\"", slot.name);
+                // topo_order already checked the reference and that its stage comes first.
+                let r = parse_reference(reference)
+                    .map_err(|e| Error::invalid(at(), format!("{input_desc}: {e}"), None))?;
+                let up = &stages[index[r.stage]];
+                if up.info.output_tag != slot.tag {
+                    return Err(Error::invalid(
+                        at(),
+                        format!(
+                            "{input_desc}: the slot takes a `{}` artifact, but stage `{}` (kind `{}`) produces a `{}`",
+                            slot.tag, up.name, up.info.name, up.info.output_tag
+                        ),
+                        Some(format!(
+                            "wire a stage whose kind produces `{}` ({})",
+                            slot.tag,
+                            list(
+                                stages
+                                    .iter()
+                                    .filter(|s| s.info.output_tag == slot.tag)
+                                    .map(|s| s.name.as_str())
+                            )
+                        )),
+                    ));
+                }
+                if !slot.roles.is_empty() && !up.role.is_some_and(|r| slot.roles.contains(&r)) {
+                    return Err(Error::invalid(
+                        at(),
+                        format!(
+                            "{input_desc}: the slot takes role {}, but stage `{}` produces {}",
+                            list(slot.roles),
+                            up.name,
+                            up.role
+                                .map(|r| format!("role `{r}`"))
+                                .unwrap_or_else(|| "an artifact without a role".into())
+                        ),
+                        Some(format!("wire a stage with role {}", list(slot.roles))),
+                    ));
+                }
+                match (r.folds, up.folds, spec.folds) {
+                    (FoldRef::Same, Some(n), consumer) if consumer != Some(n) => {
+                        return Err(Error::invalid(
+                            at(),
+                            format!(
+                                "{input_desc}: stage `{}` has {n} folds, and this stage {}",
+                                up.name,
+                                match consumer {
+                                    Some(m) => format!("has {m}"),
+                                    None => "has none".to_string(),
+                                }
+                            ),
+                            Some(format!(
+                                "take every fold with `{0}#*` (a gather slot) or one with `{0}#0`",
+                                up.name
+                            )),
+                        ));
+                    }
+                    (FoldRef::Fixed(_) | FoldRef::All, None, _) => {
+                        return Err(Error::invalid(
+                            at(),
+                            format!("{input_desc}: stage `{}` has no folds", up.name),
+                            Some(format!("write `{}`", r.stage)),
+                        ));
+                    }
+                    (FoldRef::Fixed(k), Some(n), _) if k >= n => {
+                        return Err(Error::invalid(
+                            at(),
+                            format!(
+                                "{input_desc}: stage `{}` has folds #0 to #{}",
+                                up.name,
+                                n - 1
+                            ),
+                            None,
+                        ));
+                    }
+                    _ => {}
+                }
+                if !slot.gather && (r.all_seeds || r.folds == FoldRef::All) {
+                    return Err(Error::invalid(
+                        at(),
+                        format!(
+                            "{input_desc}: `{}` takes one artifact, but the reference names several",
+                            slot.name
+                        ),
+                        Some(format!("remove `@*` / `#*`: write `{}`", r.stage)),
+                    ));
+                }
+                inputs.push(PlannedInput {
+                    slot: slot.name.to_string(),
+                    upstream: index[r.stage],
+                    reference: reference.clone(),
+                    folds: r.folds,
+                    all_seeds: r.all_seeds,
+                    gather: slot.gather,
+                });
+            }
+
             if spec.shards == 0 || (spec.shards > 1 && !info.itemised) {
                 let why = if spec.shards == 0 {
                     "shards must be at least 1".to_string()
@@ -122,33 +313,36 @@ impl Plan {
                     Some("remove `shards` or set it to 1".into()),
                 ));
             }
-            if spec.fixed_seed.is_some() && !info.uses_rng {
+            let uses_rng = kind.draws_randomness(&params);
+            if spec.fixed_seed.is_some() && !uses_rng {
                 return Err(Error::invalid(
                     pipeline.locate(&["stages", &name, "seed"]),
                     format!(
-                        "{stage_desc} draws no random numbers, so a fixed `seed` means nothing"
+                        "{stage_desc} draws no random numbers with these params, so a fixed `seed` means nothing"
                     ),
                     Some("remove `seed` from it".into()),
                 ));
             }
+            let role = kind.output_role(&params);
 
-            let seed_dependent = (info.uses_rng && spec.fixed_seed.is_none())
+            let seed_dependent = (uses_rng && spec.fixed_seed.is_none())
                 || inputs
                     .iter()
-                    .any(|(_, up): &(String, usize)| stages[*up].seed_dependent);
+                    .any(|i| !i.all_seeds && stages[i.upstream].seed_dependent);
             let definition = {
-                let mut h = blake3::Hasher::new_derive_key("osms stage definition v1");
-                put_str(&mut h, info.name);
-                h.update(&info.code_version.to_le_bytes());
+                let mut h = blake3::Hasher::new_derive_key("osms stage definition v2");
+                put_kind(&mut h, &info);
                 put_bytes(&mut h, &params.canonical);
-                put_seed_rule(&mut h, info.uses_rng, spec.fixed_seed);
-                if info.uses_rng {
+                put_seed_rule(&mut h, uses_rng, spec.fixed_seed);
+                if uses_rng {
                     put_str(&mut h, &name);
                 }
+                put_folds(&mut h, spec.folds.map(|n| (None, n)));
                 h.update(&(inputs.len() as u64).to_le_bytes());
-                for (slot, up) in &inputs {
-                    put_str(&mut h, slot);
-                    h.update(stages[*up].definition.0.as_slice());
+                for i in &inputs {
+                    put_str(&mut h, &i.slot);
+                    put_str(&mut h, &i.reference);
+                    h.update(stages[i.upstream].definition.0.as_slice());
                 }
                 Hash::from(h.finalize())
             };
@@ -160,7 +354,10 @@ impl Plan {
                 params,
                 inputs,
                 shards: spec.shards,
+                folds: spec.folds,
                 fixed_seed: spec.fixed_seed,
+                uses_rng,
+                role,
                 seed_dependent,
                 definition,
             });
@@ -181,19 +378,38 @@ impl Plan {
         self.stages.iter().map(|s| s.name.as_str()).collect()
     }
 
-    /// The instance of `stage` for `run_seed`.
-    pub fn instance(&self, stage: usize, run_seed: u64) -> InstanceId {
+    /// The instances of `stage` for the run seeds `seeds`: every fold, and every seed if the
+    /// stage depends on it; (fold, seed) order.
+    pub fn stage_instances(&self, stage: usize, seeds: &[u64]) -> Vec<InstanceId> {
         let s = &self.stages[stage];
-        InstanceId {
-            stage,
-            run_seed: s.seed_dependent.then_some(run_seed),
-        }
+        let folds: Vec<Option<u32>> = match s.folds {
+            Some(n) => (0..n).map(Some).collect(),
+            None => vec![None],
+        };
+        let run_seeds: Vec<Option<u64>> = if s.seed_dependent {
+            let mut sorted: Vec<u64> = seeds.to_vec();
+            sorted.sort_unstable();
+            sorted.dedup();
+            sorted.into_iter().map(Some).collect()
+        } else {
+            vec![None]
+        };
+        folds
+            .iter()
+            .flat_map(|&fold| {
+                run_seeds.iter().map(move |&run_seed| InstanceId {
+                    stage,
+                    fold,
+                    run_seed,
+                })
+            })
+            .collect()
     }
 
     /// The seed a stage's random streams use, or `None` if it draws none.
     pub fn effective_seed(&self, id: InstanceId) -> Option<u64> {
         let s = &self.stages[id.stage];
-        if !s.info.uses_rng {
+        if !s.uses_rng {
             None
         } else {
             Some(
@@ -204,56 +420,106 @@ impl Plan {
         }
     }
 
-    /// How instances are named to people: `stage`, or `stage@seed` in the seed-dependent part.
+    /// The fold of an instance, with the stage's fold count.
+    pub fn fold(&self, id: InstanceId) -> Option<Fold> {
+        Some(Fold {
+            index: id.fold?,
+            count: self.stages[id.stage].folds?,
+        })
+    }
+
+    /// How instances are named to people: `stage`, `stage#fold`, `stage@seed`,
+    /// `stage#fold@seed`. The name without `@seed` also names the instance's random streams.
     pub fn display(&self, id: InstanceId) -> String {
+        format!("{}{}", self.stages[id.stage].name, id.member().suffix())
+    }
+
+    /// The name that names an instance's random streams: the stage, with `#fold` for folds.
+    pub fn stream_name(&self, id: InstanceId) -> String {
         let name = &self.stages[id.stage].name;
-        match id.run_seed {
-            Some(seed) => format!("{name}@{seed}"),
+        match id.fold {
+            Some(f) => format!("{name}#{f}"),
             None => name.clone(),
         }
     }
 
-    pub fn input_instances(&self, id: InstanceId) -> Vec<(String, InstanceId)> {
-        self.stages[id.stage]
-            .inputs
-            .iter()
-            .map(|(slot, up)| {
-                (
-                    slot.clone(),
-                    InstanceId {
-                        stage: *up,
-                        run_seed: if self.stages[*up].seed_dependent {
-                            id.run_seed
-                        } else {
-                            None
-                        },
-                    },
-                )
-            })
-            .collect()
+    /// The input instances of `id` in a make for `seeds`, slot by slot; a gather slot's
+    /// members in (fold, seed) order.
+    pub fn input_instances(&self, id: InstanceId, seeds: &[u64]) -> Vec<InputInstance> {
+        let mut out = Vec::new();
+        for input in &self.stages[id.stage].inputs {
+            let up = &self.stages[input.upstream];
+            let folds: Vec<Option<u32>> = match (input.folds, up.folds) {
+                (_, None) => vec![None],
+                (FoldRef::Same, Some(_)) => vec![id.fold],
+                (FoldRef::Fixed(k), Some(_)) => vec![Some(k)],
+                (FoldRef::All, Some(n)) => (0..n).map(Some).collect(),
+            };
+            let run_seeds: Vec<Option<u64>> = if !up.seed_dependent {
+                vec![None]
+            } else if input.all_seeds {
+                let mut sorted: Vec<u64> = seeds.to_vec();
+                sorted.sort_unstable();
+                sorted.dedup();
+                sorted.into_iter().map(Some).collect()
+            } else {
+                vec![id.run_seed]
+            };
+            for &fold in &folds {
+                for &run_seed in &run_seeds {
+                    let up_id = InstanceId {
+                        stage: input.upstream,
+                        fold,
+                        run_seed,
+                    };
+                    let label = if input.gather {
+                        format!("{}[{}]", input.slot, up_id.member().suffix())
+                    } else {
+                        input.slot.clone()
+                    };
+                    out.push(InputInstance {
+                        slot: input.slot.clone(),
+                        label,
+                        id: up_id,
+                    });
+                }
+            }
+        }
+        out
     }
 
     /// The instances needed to build `targets` for `seeds`, in dependency order, each once. A
-    /// target is a stage name (every seed of `seeds`) or `name@seed` (that seed only); no
-    /// targets means every stage.
+    /// target is a stage name (every fold and seed of `seeds`), optionally narrowed to a fold
+    /// (`name#1`) and a seed (`name@3`, `name#1@3`); no targets means every stage.
     pub fn instances(&self, targets: &[String], seeds: &[u64]) -> Result<Vec<InstanceId>> {
         let mut stack: Vec<InstanceId> = Vec::new();
         if targets.is_empty() {
-            for &seed in seeds {
-                stack.extend((0..self.stages.len()).map(|stage| self.instance(stage, seed)));
+            for stage in 0..self.stages.len() {
+                stack.extend(self.stage_instances(stage, seeds));
             }
         }
         for target in targets {
-            let (name, seed) = match target.split_once('@') {
-                Some((name, seed)) => {
+            let (rest, seed) = match target.split_once('@') {
+                Some((rest, seed)) => {
                     let seed = seed.parse::<u64>().map_err(|_| {
                         Error::usage(format!(
                             "target `{target}`: `{seed}` is not a seed\nhint: write `stage@3`"
                         ))
                     })?;
-                    (name, Some(seed))
+                    (rest, Some(seed))
                 }
                 None => (target.as_str(), None),
+            };
+            let (name, fold) = match rest.split_once('#') {
+                Some((name, fold)) => {
+                    let fold = fold.parse::<u32>().map_err(|_| {
+                        Error::usage(format!(
+                            "target `{target}`: `{fold}` is not a fold\nhint: write `stage#0`"
+                        ))
+                    })?;
+                    (name, Some(fold))
+                }
+                None => (rest, None),
             };
             let stage = self.stage_index(name).ok_or_else(|| {
                 Error::usage(format!(
@@ -261,40 +527,63 @@ impl Plan {
                     list(self.stage_names())
                 ))
             })?;
-            match seed {
-                Some(seed) => stack.push(self.instance(stage, seed)),
-                None => stack.extend(seeds.iter().map(|&seed| self.instance(stage, seed))),
+            let s = &self.stages[stage];
+            if let Some(fold) = fold {
+                match s.folds {
+                    None => {
+                        return Err(Error::usage(format!(
+                            "target `{target}`: stage `{name}` has no folds\nhint: write `{name}`"
+                        )));
+                    }
+                    Some(n) if fold >= n => {
+                        return Err(Error::usage(format!(
+                            "target `{target}`: stage `{name}` has folds #0 to #{}",
+                            n - 1
+                        )));
+                    }
+                    Some(_) => {}
+                }
             }
+            let target_seeds = match seed {
+                Some(seed) => vec![seed],
+                None => seeds.to_vec(),
+            };
+            stack.extend(
+                self.stage_instances(stage, &target_seeds)
+                    .into_iter()
+                    .filter(|id| fold.is_none() || id.fold == fold),
+            );
         }
         let mut wanted = BTreeSet::new();
         while let Some(id) = stack.pop() {
             if wanted.insert(id) {
-                stack.extend(self.input_instances(id).into_iter().map(|(_, up)| up));
+                stack.extend(self.input_instances(id, seeds).into_iter().map(|i| i.id));
             }
         }
-        // Stage order is a topological order; seeds in ascending order within a stage.
+        // Stage order is a topological order; folds, then seeds, ascending within a stage.
         Ok(wanted.into_iter().collect())
     }
 
-    /// The stage key (ARCHITECTURE.md, "Keys, hashes, seeds"): kind, code version, canonical
-    /// params, input content hashes, effective seed and, for stages that draw random numbers,
-    /// the stage name that names their streams.
+    /// The stage key (ARCHITECTURE.md, "Keys, hashes, seeds"): kind, code version, output
+    /// schema, numerics versions, canonical params, input content hashes (by label, so a
+    /// gather's members in order), fold, effective seed and, for stages that draw random
+    /// numbers, the name that names their streams.
     pub fn key(&self, id: InstanceId, input_hashes: &[(String, Hash)]) -> Hash {
         let s = &self.stages[id.stage];
-        let mut h = blake3::Hasher::new_derive_key("osms stage key v1");
-        put_str(&mut h, s.info.name);
-        h.update(&s.info.code_version.to_le_bytes());
+        let mut h = blake3::Hasher::new_derive_key("osms stage key v2");
+        put_kind(&mut h, &s.info);
         put_bytes(&mut h, &s.params.canonical);
         h.update(&(input_hashes.len() as u64).to_le_bytes());
-        for (slot, hash) in input_hashes {
-            put_str(&mut h, slot);
+        for (label, hash) in input_hashes {
+            put_str(&mut h, label);
             h.update(hash.0.as_slice());
         }
+        put_folds(&mut h, s.folds.map(|n| (id.fold, n)));
         match self.effective_seed(id) {
             Some(seed) => {
                 h.update(&[1]);
                 h.update(&seed.to_le_bytes());
-                put_str(&mut h, &s.name);
+                put_str(&mut h, &self.stream_name(id));
             }
             None => {
                 h.update(&[0]);
@@ -302,6 +591,28 @@ impl Plan {
         }
         Hash::from(h.finalize())
     }
+}
+
+fn put_kind(h: &mut blake3::Hasher, info: &KindInfo) {
+    put_str(h, info.name);
+    h.update(&info.code_version.to_le_bytes());
+    put_str(h, info.output_tag);
+    h.update(&info.output_schema.to_le_bytes());
+    h.update(&(info.numerics.len() as u64).to_le_bytes());
+    for n in &info.numerics {
+        put_str(h, n.name);
+        put_str(h, &n.version);
+    }
+}
+
+fn put_folds(h: &mut blake3::Hasher, folds: Option<(Option<u32>, u32)>) {
+    match folds {
+        None => h.update(&[0]),
+        Some((fold, count)) => h
+            .update(&[1])
+            .update(&fold.map_or(u32::MAX, |f| f).to_le_bytes())
+            .update(&count.to_le_bytes()),
+    };
 }
 
 /// The key of the shard holding items `[start, end)` of the stage with key `stage_key`.
@@ -348,7 +659,16 @@ fn put_seed_rule(h: &mut blake3::Hasher, uses_rng: bool, fixed: Option<u64>) {
 /// Stage names in dependency order; errors name missing inputs and cycles.
 fn topo_order(pipeline: &Pipeline) -> Result<Vec<String>> {
     for (name, spec) in &pipeline.stages {
-        for (slot, upstream) in &spec.inputs {
+        for (slot, reference) in &spec.inputs {
+            let upstream = parse_reference(reference)
+                .map_err(|e| {
+                    Error::invalid(
+                        pipeline.locate(&["stages", name, "inputs", slot]),
+                        format!("stage `{name}`, input `{slot}` = \"{reference}\": {e}"),
+                        None,
+                    )
+                })?
+                .stage;
             if !pipeline.stages.contains_key(upstream) {
                 return Err(Error::invalid(
                     pipeline.locate(&["stages", name, "inputs", slot]),
@@ -395,7 +715,10 @@ fn topo_order(pipeline: &Pipeline) -> Result<Vec<String>> {
         }
         marks.insert(name.to_string(), Mark::Open);
         path.push(name.to_string());
-        for upstream in pipeline.stages[name].inputs.values() {
+        for reference in pipeline.stages[name].inputs.values() {
+            let upstream = parse_reference(reference)
+                .map(|r| r.stage)
+                .unwrap_or(reference);
             visit(upstream, pipeline, marks, path, out)?;
         }
         path.pop();

@@ -51,11 +51,11 @@ pub fn status(
         let instance = plan.display(id);
         let mut input_hashes = Vec::new();
         let mut reasons = Vec::new();
-        for (slot, up) in plan.input_instances(id) {
-            match known.get(&up) {
-                Some(h) => input_hashes.push((slot, *h)),
+        for input in plan.input_instances(id, seeds) {
+            match known.get(&input.id) {
+                Some(h) => input_hashes.push((input.label, *h)),
                 None => reasons.push(Reason::UpstreamNotUpToDate {
-                    input: plan.display(up),
+                    input: plan.display(input.id),
                 }),
             }
         }
@@ -130,9 +130,10 @@ pub struct Lineage {
     pub inputs: Vec<Lineage>,
 }
 
-/// The lineage of `target` (a stage name, optionally `name@seed`) for `seed`.
-pub fn why(plan: &Plan, store: &Store, target: &str, seed: u64) -> Result<Lineage> {
-    let statuses = status(plan, store, &[target.to_string()], &[seed])?;
+/// The lineage of `target` (a stage name, optionally with `#fold` and `@seed`) for `seeds`
+/// (a gather over run seeds takes every one of them).
+pub fn why(plan: &Plan, store: &Store, target: &str, seeds: &[u64]) -> Result<Lineage> {
+    let statuses = status(plan, store, &[target.to_string()], seeds)?;
     // `status` resolved the target; its instance comes last in dependency order.
     let root = statuses
         .last()
@@ -141,6 +142,7 @@ pub fn why(plan: &Plan, store: &Store, target: &str, seed: u64) -> Result<Lineag
     let by_id: BTreeMap<InstanceId, &InstanceStatus> = statuses.iter().map(|s| (s.id, s)).collect();
     fn node(
         plan: &Plan,
+        seeds: &[u64],
         by_id: &BTreeMap<InstanceId, &InstanceStatus>,
         id: InstanceId,
         slot: Option<String>,
@@ -149,11 +151,11 @@ pub fn why(plan: &Plan, store: &Store, target: &str, seed: u64) -> Result<Lineag
             slot,
             status: by_id[&id].clone(),
             inputs: plan
-                .input_instances(id)
+                .input_instances(id, seeds)
                 .into_iter()
-                .map(|(s, up)| node(plan, by_id, up, Some(s)))
+                .map(|i| node(plan, seeds, by_id, i.id, Some(i.label)))
                 .collect(),
         }
     }
-    Ok(node(plan, &by_id, root, None))
+    Ok(node(plan, seeds, &by_id, root, None))
 }

@@ -20,6 +20,11 @@ pub use layers::{Activation, Linear, LinearGrad, Mlp, MlpCache, flatten_grads, m
 pub use matrix::Matrix;
 pub use optim::{Adam, AdamConfig, Schedule, global_norm};
 
+/// The numerics version of osms-nn: bump it whenever a kernel, layer, loss or optimiser change
+/// may change the bits of a trained network. Kinds that train or run networks put it in their
+/// keys.
+pub const NUMERICS_VERSION: u32 = 1;
+
 impl osms_store::Artifact for Mlp {
     const TYPE_TAG: &'static str = "nn.mlp";
     const SCHEMA_VERSION: u16 = 1;

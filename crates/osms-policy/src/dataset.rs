@@ -9,6 +9,33 @@ use osms_sim::control::DrDraw;
 use osms_sim::{N_ACTION, N_ARM, RolloutRecord, conditions::TaskCondition, spec::ObjectVariant};
 use serde::{Deserialize, Serialize};
 
+/// The three teacher datasets of paper section 4, each from its own condition stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DatasetRole {
+    /// D_M: successes, for the motion manifold.
+    DM,
+    /// D_E: successes, for the cross-fitted IL students behind the action-error model.
+    DE,
+    /// D_R: mixed outcomes, the rollouts to refine (successes) and repair (failures).
+    DR,
+}
+
+impl DatasetRole {
+    pub fn name(self) -> &'static str {
+        match self {
+            DatasetRole::DM => "d_m",
+            DatasetRole::DE => "d_e",
+            DatasetRole::DR => "d_r",
+        }
+    }
+
+    /// Whether datasets of this role keep successes only.
+    pub fn successes_only(self) -> bool {
+        !matches!(self, DatasetRole::DR)
+    }
+}
+
 /// How the outcome-sensitive window is cut. Every default lives here.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

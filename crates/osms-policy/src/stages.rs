@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_make::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Stage, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Slot, Stage, StageError, Summarize};
 use osms_sim::World;
 use osms_sim::conditions::sample;
 use osms_sim::control::DrSpec;
@@ -14,8 +14,19 @@ use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::catch::{CatchTask, CatchTaskSpec, rollout};
-use crate::dataset::{Dataset, DatasetItem, DemoRollout, OswSpec, OswWindow};
+use crate::dataset::{Dataset, DatasetItem, DatasetRole, DemoRollout, OswSpec, OswWindow};
 use crate::ppo::{Agent, IterationStats, PpoConfig, Task, train};
+
+/// What a kind that rolls out or trains networks depends on beyond its inputs: MuJoCo,
+/// osms-sim's and osms-nn's numerics.
+fn policy_numerics() -> Vec<Numerics> {
+    let mut n = osms_sim::numerics();
+    n.push(Numerics {
+        name: "osms-nn",
+        version: osms_nn::NUMERICS_VERSION.to_string(),
+    });
+    n
+}
 
 /// Params of kinds that take none (any given is an error).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -155,11 +166,15 @@ impl Stage for TeacherStage {
     const KIND: &'static str = "teacher";
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &["world"];
+    const INPUTS: &'static [Slot] = &[Slot::one::<WorldArtifact>("world")];
     const DOC: &'static str =
         "the privileged PPO teacher: a residual on the scripted catcher, rewarded by paper 5.1";
     type Params = TeacherParams;
     type Output = Teacher;
+
+    fn numerics() -> Vec<Numerics> {
+        policy_numerics()
+    }
 
     fn run(&self, ctx: &Ctx<'_, TeacherParams>) -> Result<Teacher, StageError> {
         let world = ctx.input::<WorldArtifact>("world")?.world()?;
@@ -208,7 +223,11 @@ impl ItemStage for EvalTeacherStage {
     const KIND: &'static str = "eval_teacher";
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &["world", "conditions", "teacher"];
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<WorldArtifact>("world"),
+        Slot::one::<Conditions>("conditions"),
+        Slot::one::<Teacher>("teacher"),
+    ];
     const DOC: &'static str =
         "a frozen teacher evaluated on a condition set (table per family x size)";
     type Params = EvalTeacherParams;
@@ -216,6 +235,9 @@ impl ItemStage for EvalTeacherStage {
     type Item = EvalRow;
     type Output = Evaluation;
 
+    fn numerics() -> Vec<Numerics> {
+        policy_numerics()
+    }
     fn prepare(&self, ctx: &Ctx<'_, EvalTeacherParams>) -> Result<Self::Prepared, StageError> {
         let mut teacher: Teacher = ctx.input("teacher")?;
         teacher.task = with_dr(&teacher.task, &ctx.params.dr);
@@ -369,7 +391,11 @@ impl Stage for TeacherTableStage {
     const KIND: &'static str = "teacher_table";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [&'static str] = &["scripted", "catch_only", "teacher"];
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<Evaluation>("scripted"),
+        Slot::one::<Evaluation>("catch_only"),
+        Slot::one::<Evaluation>("teacher"),
+    ];
     const DOC: &'static str =
         "Table I analog: scripted prior, catching-only teacher and teacher on held-out conditions";
     type Params = NoParams;
@@ -397,6 +423,10 @@ pub struct CollectParams {
     /// Keep only successes (D_M, D_E): each item retries fresh conditions until one succeeds.
     #[serde(default)]
     pub successes_only: bool,
+    /// The dataset's role in the method (`d_m`, `d_e`, `d_r`): stages that take a dataset
+    /// accept only the roles they are meant for, checked before anything runs.
+    #[serde(default)]
+    pub role: Option<DatasetRole>,
     /// Attempts an item may take before the stage gives up on a teacher that rarely succeeds.
     #[serde(default = "default_max_attempts")]
     pub max_attempts: u32,
@@ -420,7 +450,10 @@ impl ItemStage for CollectStage {
     const KIND: &'static str = "collect";
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &["world", "teacher"];
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<WorldArtifact>("world"),
+        Slot::one::<Teacher>("teacher"),
+    ];
     const DOC: &'static str =
         "teacher rollouts with OSW alignment (D_M / D_E: successes only; D_R: mixed)";
     type Params = CollectParams;
@@ -428,7 +461,24 @@ impl ItemStage for CollectStage {
     type Item = DatasetItem;
     type Output = Dataset;
 
+    fn numerics() -> Vec<Numerics> {
+        policy_numerics()
+    }
+    fn output_role(params: &CollectParams) -> Option<&'static str> {
+        params.role.map(DatasetRole::name)
+    }
     fn prepare(&self, ctx: &Ctx<'_, CollectParams>) -> Result<Self::Prepared, StageError> {
+        if let Some(role) = ctx.params.role
+            && role.successes_only() != ctx.params.successes_only
+        {
+            return Err(format!(
+                "params: a `{}` dataset has successes_only = {}\nhint: set successes_only = {} or change the role",
+                role.name(),
+                role.successes_only(),
+                role.successes_only()
+            )
+            .into());
+        }
         if ctx.params.max_attempts == 0 {
             return Err("params.max_attempts must be at least 1".into());
         }

@@ -36,6 +36,14 @@ pub struct RolloutSpec {
     pub history_steps: usize,
 }
 
+impl RolloutSpec {
+    /// Whether a rollout under this spec draws from its random stream: only domain
+    /// randomisation does, so with it off the record does not depend on the stream.
+    pub fn draws_randomness(&self) -> bool {
+        !self.dr.is_off()
+    }
+}
+
 impl Default for RolloutSpec {
     fn default() -> Self {
         RolloutSpec {
@@ -694,5 +702,37 @@ mod tests {
         assert!(ep.data.warning().iter().all(|w| w.number == 0));
         let resumed = ep.run(&mut hold, &mut NoHooks);
         assert_eq!(resumed, full);
+    }
+
+    /// The premise of sharing a DR-off evaluation across a seed sweep: with DR off the record
+    /// does not depend on the rollout's stream; with it on it does.
+    #[test]
+    fn only_domain_randomisation_reads_the_stream() {
+        let world = World::new(WorldSpec::default()).expect("world");
+        let condition = conditions::sample(
+            &ConditionSpec::default(),
+            world.home_palm_pos,
+            &mut rng::stream(0, "test", "omega", 5),
+        )
+        .expect("ω");
+        let run = |spec: &RolloutSpec, seed: u64| {
+            let mut hold = Hold(hold_action(&world.spec.hand_home_rad));
+            Episode::new(
+                &world,
+                spec,
+                condition.clone(),
+                rng::stream(seed, "test", "roll", 5),
+            )
+            .run(&mut hold, &mut NoHooks)
+        };
+        let off = RolloutSpec::default();
+        assert!(!off.draws_randomness());
+        assert_eq!(run(&off, 1), run(&off, 2));
+        let on = RolloutSpec {
+            dr: DrSpec::paper(),
+            ..RolloutSpec::default()
+        };
+        assert!(on.draws_randomness());
+        assert_ne!(run(&on, 1), run(&on, 2));
     }
 }

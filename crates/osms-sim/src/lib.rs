@@ -23,6 +23,34 @@ pub use metrics::{Failure, FirstContact, Metrics, Outcome, Phase, SuccessSpec};
 pub use spec::{ObjectFamily, ObjectSize, ObjectVariant, WorldSpec};
 pub use world::{GeomClass, Ids, World};
 
+/// The numerics version of osms-sim: bump it whenever world, control, episode or metrics code
+/// may change the bytes of an artifact built by simulation, so no stale artifact stays cached.
+/// It enters the keys of every kind that simulates (with MuJoCo's own version).
+pub const NUMERICS_VERSION: u32 = 1;
+
+/// The MuJoCo release osms is pinned to (scripts/setup-mujoco installs it).
+pub const MUJOCO_PINNED: &str = "3.17.0";
+
+/// The version of the MuJoCo library actually loaded (its own `mj_versionString`).
+pub fn mujoco_version() -> String {
+    mujoco_rs::mujoco_version().to_string()
+}
+
+/// What the output of a kind that steps MuJoCo through osms-sim depends on beyond its inputs:
+/// the loaded MuJoCo and osms-sim's numerics.
+pub fn numerics() -> Vec<osms_make::Numerics> {
+    vec![
+        osms_make::Numerics {
+            name: "mujoco",
+            version: mujoco_version(),
+        },
+        osms_make::Numerics {
+            name: "osms-sim",
+            version: NUMERICS_VERSION.to_string(),
+        },
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use mujoco_rs::prelude::*;

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_make::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Stage, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Slot, Stage, StageError, Summarize};
 use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
@@ -56,11 +56,15 @@ impl Stage for WorldStage {
     const KIND: &'static str = "world";
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [&'static str] = &[];
+    const INPUTS: &'static [Slot] = &[];
     const DOC: &'static str =
         "the MuJoCo catching world: xArm7 + ORCA-like hand + ten objects (MJCF per object)";
     type Params = WorldSpec;
     type Output = WorldArtifact;
+
+    fn numerics() -> Vec<Numerics> {
+        crate::numerics()
+    }
 
     fn run(&self, ctx: &Ctx<'_, WorldSpec>) -> Result<WorldArtifact, StageError> {
         let world = World::new(ctx.params.clone())?;
@@ -115,13 +119,19 @@ impl ItemStage for ConditionsStage {
     const KIND: &'static str = "conditions";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &["world"];
+    const INPUTS: &'static [Slot] = &[Slot::one::<WorldArtifact>("world")];
     const DOC: &'static str = "task conditions ω (object, mass, launch, posture perturbation)";
     type Params = ConditionsParams;
     type Prepared = [f64; 3];
     type Item = TaskCondition;
     type Output = Conditions;
 
+    fn numerics() -> Vec<Numerics> {
+        vec![Numerics {
+            name: "osms-sim",
+            version: crate::NUMERICS_VERSION.to_string(),
+        }]
+    }
     fn prepare(&self, ctx: &Ctx<'_, ConditionsParams>) -> Result<[f64; 3], StageError> {
         Ok(ctx.input::<WorldArtifact>("world")?.home_palm_pos)
     }
@@ -301,7 +311,10 @@ impl ItemStage for EvalScriptedStage {
     const KIND: &'static str = "eval_scripted";
     const CODE_VERSION: u32 = 4;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [&'static str] = &["world", "conditions"];
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<WorldArtifact>("world"),
+        Slot::one::<Conditions>("conditions"),
+    ];
     const DOC: &'static str =
         "the scripted privileged catcher evaluated on a condition set (table per family x size)";
     type Params = EvalParams;
@@ -309,6 +322,13 @@ impl ItemStage for EvalScriptedStage {
     type Item = EvalRow;
     type Output = Evaluation;
 
+    fn numerics() -> Vec<Numerics> {
+        crate::numerics()
+    }
+    /// Without domain randomisation a scripted rollout draws nothing: shared by a sweep.
+    fn draws_randomness(params: &EvalParams) -> bool {
+        params.rollout.draws_randomness()
+    }
     fn prepare(&self, ctx: &Ctx<'_, EvalParams>) -> Result<(World, Conditions), StageError> {
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,

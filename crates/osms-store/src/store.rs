@@ -39,6 +39,9 @@ pub struct Record {
     pub code_version: u32,
     /// `None` for stages that draw no random numbers.
     pub seed: Option<u64>,
+    /// The fold of an instance of a stage declared with `folds`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fold: Option<u32>,
     /// Set on the records of shards of an itemised stage.
     pub shard: Option<ShardOf>,
     pub params: serde_json::Value,
@@ -48,6 +51,21 @@ pub struct Record {
     pub size_bytes: u64,
     pub osms_version: String,
     pub wall_time_secs: f64,
+}
+
+impl Record {
+    /// The instance it is a build of, as osms names it: `stage`, `stage#fold`, `stage@seed`,
+    /// `stage#fold@seed`.
+    pub fn instance(&self) -> String {
+        let mut s = self.stage.clone();
+        if let Some(f) = self.fold {
+            s.push_str(&format!("#{f}"));
+        }
+        if let Some(seed) = self.seed {
+            s.push_str(&format!("@{seed}"));
+        }
+        s
+    }
 }
 
 /// Which stage a shard belongs to and which items `[start, end)` it holds.
@@ -334,6 +352,15 @@ impl Store {
         Ok(state)
     }
 
+    /// Forgets that an object was verified, so the next [`Store::object_state_cached`]
+    /// re-hashes it (its bytes were found damaged although its metadata did not change).
+    pub fn distrust(&self, hash: &Hash) {
+        let mut guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(cache) = guard.as_mut() {
+            cache.forget(hash);
+        }
+    }
+
     /// Saves what [`Store::object_state_cached`] learnt. Losing an update (two processes saving
     /// at once) only costs a re-hash later.
     pub fn save_stat_cache(&self) -> Result<()> {
@@ -591,6 +618,7 @@ mod tests {
             kind: "k".into(),
             code_version: 1,
             seed: Some(0),
+            fold: None,
             shard: None,
             params: serde_json::json!({"n": 3}),
             inputs: vec![],

@@ -36,10 +36,10 @@ fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<Resolve
     let plan = ctx.plan(selection.profile.as_deref())?;
     let store = ctx.store()?;
     let (records, _) = store.records()?;
-    let name = target.split('@').next().unwrap_or(target);
+    let name = target.split(['@', '#']).next().unwrap_or(target);
     if plan.stage_index(name).is_some() {
-        let seed = Context::seeds(selection, &plan)[0];
-        let lineage = osms_make::why(&plan, &store, target, seed)?;
+        let seeds = Context::seeds(selection, &plan);
+        let lineage = osms_make::why(&plan, &store, target, &seeds)?;
         let s = &lineage.status;
         let found = match (s.state, s.key) {
             (State::Cached, Some(key)) => records.iter().find(|r| r.key == key),
@@ -248,7 +248,20 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
                 if k.inputs.is_empty() {
                     "none".to_string()
                 } else {
-                    k.inputs.join(", ")
+                    k.inputs
+                        .iter()
+                        .map(|s| {
+                            let mut text = format!("{}: {}", s.name, s.tag);
+                            if !s.roles.is_empty() {
+                                text.push_str(&format!(" ({})", s.roles.join(" | ")));
+                            }
+                            if s.gather {
+                                text.push_str(" (gather)");
+                            }
+                            text
+                        })
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 }
             );
             println!("    {}", k.doc);
@@ -285,10 +298,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     let dir = match &args.out {
         Some(d) => d.clone(),
         None => {
-            let instance = match record.seed {
-                Some(seed) => format!("{}@{seed}", record.stage),
-                None => record.stage.clone(),
-            };
+            let instance = record.instance();
             ctx.pipeline_path
                 .parent()
                 .unwrap_or_else(|| std::path::Path::new("."))

@@ -1,8 +1,8 @@
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::Result;
-use osms_make::{MakeOptions, Outcome};
+use anyhow::{Result, bail};
+use osms_make::{MakeOptions, Outcome, Plan};
 
 use crate::EXIT_FAILURE;
 use crate::cli::MakeArgs;
@@ -13,6 +13,9 @@ use crate::progress::MakeObserver;
 pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     let started = Instant::now();
     let plan = ctx.plan(args.selection.profile.as_deref())?;
+    if let Some(problem) = foreign_mujoco(&plan, osms_sim::MUJOCO_PINNED) {
+        bail!("{problem}");
+    }
     let store = ctx.store()?;
     let seeds = Context::seeds(&args.selection, &plan);
     let jobs = args.jobs.unwrap_or_else(|| {
@@ -86,5 +89,59 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             failed.join(", ")
         );
         Ok(ExitCode::from(EXIT_FAILURE))
+    }
+}
+
+/// Why `plan` must not be built with the MuJoCo that is loaded, if it must not: a stage steps
+/// MuJoCo and the library is not the pinned release. Its version would enter the keys, so
+/// nothing cached would be reused wrongly, but results from an unpinned MuJoCo are not the
+/// project's results (a `MUJOCO_DYNAMIC_LINK_DIR` in the shell links another one at build time).
+fn foreign_mujoco(plan: &Plan, pinned: &str) -> Option<String> {
+    let (stage, loaded) = plan.stages.iter().find_map(|s| {
+        s.info
+            .numerics
+            .iter()
+            .find(|n| n.name == "mujoco" && n.version != pinned)
+            .map(|n| (s.name.as_str(), n.version.clone()))
+    })?;
+    Some(format!(
+        "stage `{stage}` steps MuJoCo, and the loaded MuJoCo is {loaded}, not the pinned {pinned}\n\
+         hint: unset MUJOCO_DYNAMIC_LINK_DIR (and LD_LIBRARY_PATH entries with another MuJoCo), run \
+         scripts/setup-mujoco, then rebuild osms (`./osms` does both); `osms doctor` shows what is loaded"
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use osms_make::Pipeline;
+
+    use super::*;
+
+    fn plan(text: &str) -> Plan {
+        let pipeline = Pipeline::parse(Path::new("pipeline.toml"), text.to_string(), None)
+            .expect("pipeline parses");
+        Plan::new(&pipeline, &crate::registry()).expect("plans")
+    }
+
+    #[test]
+    fn a_foreign_mujoco_is_refused_with_the_stage_and_both_versions() {
+        let world = plan("[stages.world]\nkind = \"world\"\n");
+        let loaded = osms_sim::mujoco_version();
+        assert_eq!(foreign_mujoco(&world, &loaded), None);
+        let problem = foreign_mujoco(&world, "9.9.9").expect("refused");
+        assert!(
+            problem.starts_with(&format!(
+                "stage `world` steps MuJoCo, and the loaded MuJoCo is {loaded}, not the pinned 9.9.9"
+            )),
+            "{problem}"
+        );
+        assert!(problem.contains("MUJOCO_DYNAMIC_LINK_DIR"), "{problem}");
+    }
+
+    #[test]
+    fn the_pinned_mujoco_is_the_loaded_one() {
+        assert_eq!(osms_sim::mujoco_version(), osms_sim::MUJOCO_PINNED);
     }
 }

@@ -64,8 +64,8 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
 pub fn why(ctx: &Context, args: &WhyArgs) -> Result<ExitCode> {
     let plan = ctx.plan(args.selection.profile.as_deref())?;
     let store = ctx.store()?;
-    let seed = Context::seeds(&args.selection, &plan)[0];
-    let lineage = osms_make::why(&plan, &store, &args.target, seed)?;
+    let seeds = Context::seeds(&args.selection, &plan);
+    let lineage = osms_make::why(&plan, &store, &args.target, &seeds)?;
     if args.json {
         print_json(&lineage)?;
     } else {
