@@ -375,3 +375,35 @@ fn a_damaged_input_is_rebuilt_rather_than_failing_its_consumer() {
         .get(&numbers)
         .expect("the object is whole again");
 }
+
+#[test]
+fn a_scripted_evaluation_without_domain_randomisation_is_shared_by_a_sweep() {
+    let shipped = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../pipeline.toml"))
+        .expect("pipeline.toml");
+    let plan_of = |text: &str| {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("pipeline.toml");
+        std::fs::write(&path, text).expect("write");
+        let pipeline = osms_make::Pipeline::load(&path, Some("tiny")).expect("parses");
+        osms_make::Plan::new(&pipeline, &osms::registry()).expect("plans")
+    };
+    let names = |plan: &osms_make::Plan| -> Vec<String> {
+        plan.instances(&["eval_scripted".to_string()], &[0, 1, 2])
+            .expect("instances")
+            .into_iter()
+            .map(|id| plan.display(id))
+            .filter(|n| n.starts_with("eval_scripted"))
+            .collect()
+    };
+    let with_dr = plan_of(&shipped);
+    assert_eq!(
+        names(&with_dr),
+        ["eval_scripted@0", "eval_scripted@1", "eval_scripted@2"]
+    );
+    let off = shipped.replace(
+        "params = { rollout = { dr = \"paper\" } }",
+        "params = { rollout = { dr = \"off\" } }",
+    );
+    assert_ne!(off, shipped);
+    assert_eq!(names(&plan_of(&off)), ["eval_scripted"]);
+}

@@ -12,7 +12,7 @@ use crate::commands::print_json;
 use crate::context::Context;
 
 /// The MuJoCo version osms is built for; scripts/setup-mujoco fetches the same.
-const MUJOCO_EXPECTED: &str = "3.17.0";
+const MUJOCO_EXPECTED: &str = osms_sim::MUJOCO_PINNED;
 
 #[derive(Serialize)]
 struct Report {
@@ -21,7 +21,10 @@ struct Report {
     mujoco_expected: &'static str,
     mujoco_lib_dir: Option<&'static str>,
     mujoco_smoke_test: Result<String, String>,
+    /// `<arch>-libm-<8 hex>`: golden content hashes are kept per class (`osms::platform`).
     platform_class: String,
+    /// What the class is made of: the libm fingerprint, glibc version, CPU features.
+    platform: crate::platform::Report,
     pipeline: Option<PathBuf>,
     pipeline_check: Result<String, String>,
     store: Option<PathBuf>,
@@ -47,6 +50,54 @@ fn smoke_test() -> Result<String, String> {
         Err(format!(
             "a falling sphere reached z = {z:.4} m after 0.5 s, expected about -0.226 m"
         ))
+    }
+}
+
+/// The class and what it is made of, for humans: which libm variant golden hashes are kept for.
+fn print_platform(p: &crate::platform::Report) {
+    println!(
+        "platform class  {} (golden content hashes are kept per class)",
+        p.class
+    );
+    let names: Vec<&str> = p.libm.functions.iter().map(|(n, _)| *n).collect();
+    println!(
+        "  libm          fingerprint {} of {} functions MuJoCo and osms may call ({}){}",
+        &p.libm.digest[..16],
+        names.len(),
+        names.join(" "),
+        p.glibc_version
+            .as_ref()
+            .map(|v| format!(", glibc {v}"))
+            .unwrap_or_default()
+    );
+    let yes_no = |b: Option<bool>| if b == Some(true) { "yes" } else { "no" };
+    if p.cpu_fma.is_some() {
+        let masked = p
+            .glibc_tunables
+            .as_deref()
+            .is_some_and(|t| t.contains("-FMA") || t.contains("-AVX2"));
+        let fma_variants = p.cpu_fma == Some(true) && p.cpu_avx2 == Some(true);
+        println!(
+            "  CPU           FMA {}, AVX2 {}, AVX-512F {}: {}",
+            yes_no(p.cpu_fma),
+            yes_no(p.cpu_avx2),
+            yes_no(p.cpu_avx512f),
+            match (fma_variants, masked) {
+                (true, false) => {
+                    "a glibc libm picks its FMA variants of exp/log/pow/sin/cos/tan/atan2/asin/..., \
+                     whose last bits differ from the plain ones on some inputs (exp: ~1 in 1300)"
+                }
+                (true, true) => {
+                    "but GLIBC_TUNABLES masks FMA/AVX2, so a glibc libm uses its plain variants \
+                     of exp/log/pow/sin/cos/..."
+                }
+                (false, _) =>
+                    "a glibc libm uses its plain (non-FMA) variants of exp/log/pow/sin/cos/...",
+            }
+        );
+    }
+    if let Some(t) = &p.glibc_tunables {
+        println!("  GLIBC_TUNABLES {t} (can mask CPU features from glibc, changing the class)");
     }
 }
 
@@ -84,13 +135,15 @@ pub fn run(global: &Global, registry: &Registry, json: bool) -> Result<ExitCode>
         ),
     };
     let setup_complete = mujoco_version == MUJOCO_EXPECTED && smoke.is_ok();
+    let platform = crate::platform::report();
     let report = Report {
         osms_version: osms_make::OSMS_VERSION,
         mujoco_version,
         mujoco_expected: MUJOCO_EXPECTED,
         mujoco_lib_dir: option_env!("OSMS_MUJOCO_LIB_DIR"),
         mujoco_smoke_test: smoke,
-        platform_class: crate::platform::class(),
+        platform_class: platform.class.clone(),
+        platform,
         pipeline,
         pipeline_check,
         store,
@@ -116,7 +169,7 @@ pub fn run(global: &Global, registry: &Registry, json: bool) -> Result<ExitCode>
                 .unwrap_or("(found by the system loader)")
         );
         println!("MuJoCo check    {}", show(&report.mujoco_smoke_test));
-        println!("platform class  {}", report.platform_class);
+        print_platform(&report.platform);
         println!(
             "pipeline        {} ({})",
             report

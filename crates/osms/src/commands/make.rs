@@ -141,7 +141,18 @@ mod tests {
     }
 
     #[test]
-    fn the_pinned_mujoco_is_the_loaded_one() {
+    fn the_pinned_mujoco_is_the_loaded_one_and_the_installed_one() {
         assert_eq!(osms_sim::mujoco_version(), osms_sim::MUJOCO_PINNED);
+        let script = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scripts/setup-mujoco"
+        ))
+        .expect("scripts/setup-mujoco");
+        assert!(
+            script
+                .lines()
+                .any(|l| l == format!("MJ_VERSION={}", osms_sim::MUJOCO_PINNED)),
+            "scripts/setup-mujoco installs another MuJoCo than osms_sim::MUJOCO_PINNED"
+        );
     }
 }
