@@ -50,7 +50,7 @@ pub fn outputs(plan: &Plan, report: &MakeReport) -> Vec<Output> {
         .instances
         .iter()
         .map(|r| {
-            let stage = r.instance.split('@').next().unwrap_or(&r.instance);
+            let stage = r.instance.split(['@', '#']).next().unwrap_or(&r.instance);
             let info = &plan.stages[plan.stage_index(stage).expect("stage")].info;
             Output {
                 instance: r.instance.clone(),

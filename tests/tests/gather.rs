@@ -407,3 +407,39 @@ fn a_scripted_evaluation_without_domain_randomisation_is_shared_by_a_sweep() {
     assert_ne!(off, shipped);
     assert_eq!(names(&plan_of(&off)), ["eval_scripted"]);
 }
+
+#[test]
+fn the_cli_names_folds_and_gathered_members() {
+    let p = Project::new(FOLDS);
+    let bin = std::path::Path::new(env!("CARGO_BIN_EXE_osms-test"));
+    let run = |args: &[&str]| {
+        let out = p.run(bin, args);
+        let text = String::from_utf8_lossy(&out.stdout).into_owned()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "osms {args:?} failed:\n{text}");
+        text
+    };
+    run(&["make", "--seeds", "0,1", "-q"]);
+    let status = run(&["status", "--seeds", "0,1", "--json"]);
+    let status: serde_json::Value = serde_json::from_str(&status).expect("json");
+    let names: Vec<&str> = status
+        .as_array()
+        .expect("a list")
+        .iter()
+        .filter_map(|s| s["instance"].as_str())
+        .collect();
+    for name in ["part#0@0", "part_sum#1@1", "all"] {
+        assert!(names.contains(&name), "{name} not in {names:?}");
+    }
+    let why = run(&["why", "first_fold", "--seeds", "0,1"]);
+    assert!(why.contains("totals[#0@1]: part_sum#0@1 [sum]"), "{why}");
+    let show = run(&["show", "part#1@1", "--json"]);
+    let shown: serde_json::Value = serde_json::from_str(&show).expect("json");
+    assert_eq!(shown["fold"], 1, "{show}");
+    // A sweep the gathers were not built for: they are not up to date; the rest is.
+    let other = run(&["status", "--seeds", "0,1,2"]);
+    assert!(
+        other.contains("stale    all: input `part_sum#0@2` is not up to date"),
+        "{other}"
+    );
+}
