@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use mujoco_rs::prelude::MjModel;
 use osms_make::rng::{self, StreamRng};
-use osms_make::{Ctx, ItemStage, Numerics, Registry, Slot, Stage, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Registry, Sharded, Slot, Stage, StageError, Summarize};
 use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
@@ -31,7 +31,17 @@ pub struct Numbers {
 }
 impl Artifact for Numbers {
     const TYPE_TAG: &'static str = "test.numbers";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: itemised kinds store it as a manifest of their shards.
+    const SCHEMA_VERSION: u16 = 2;
+}
+impl Sharded for Numbers {
+    type Item = Vec<f64>;
+    fn take_items(&mut self) -> Vec<Vec<f64>> {
+        std::mem::take(&mut self.rows)
+    }
+    fn set_items(&mut self, items: Vec<Vec<f64>>) {
+        self.rows = items;
+    }
 }
 impl Summarize for Numbers {
     fn summary(&self) -> serde_json::Value {
@@ -142,7 +152,7 @@ impl Stage for SignsKind {
     type Params = NoParams;
     type Output = Numbers;
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Numbers, StageError> {
-        let v: Numbers = ctx.input("values")?;
+        let v: Numbers = ctx.sharded("values")?;
         Ok(Numbers {
             rows: v
                 .rows
@@ -170,7 +180,7 @@ impl Stage for ShiftKind {
     type Params = ShiftParams;
     type Output = Numbers;
     fn run(&self, ctx: &Ctx<'_, ShiftParams>) -> Result<Numbers, StageError> {
-        let v: Numbers = ctx.input("values")?;
+        let v: Numbers = ctx.sharded("values")?;
         Ok(Numbers {
             rows: v
                 .rows
@@ -206,9 +216,12 @@ impl Stage for SumKind {
     const DOC: &'static str = "count and sum of the values (test kind)";
     type Params = NoParams;
     type Output = Total;
+    /// Streams the rows (shard by shard when the input is sharded).
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Total, StageError> {
-        let v: Numbers = ctx.input("values")?;
-        let values: Vec<f64> = v.rows.into_iter().flatten().collect();
+        let mut values = Vec::new();
+        for row in ctx.items::<Numbers>("values")? {
+            values.extend(row?);
+        }
         Ok(Total {
             count: values.len() as u64,
             sum: values.iter().sum(),
@@ -237,7 +250,17 @@ pub struct Drops {
 }
 impl Artifact for Drops {
     const TYPE_TAG: &'static str = "test.drops";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: itemised kinds store it as a manifest of their shards.
+    const SCHEMA_VERSION: u16 = 2;
+}
+impl Sharded for Drops {
+    type Item = Vec<f64>;
+    fn take_items(&mut self) -> Vec<Vec<f64>> {
+        std::mem::take(&mut self.finals)
+    }
+    fn set_items(&mut self, items: Vec<Vec<f64>>) {
+        self.finals = items;
+    }
 }
 impl Summarize for Drops {
     fn summary(&self) -> serde_json::Value {
@@ -342,8 +365,8 @@ impl Stage for CombineKind {
     type Output = Combined;
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Combined, StageError> {
         let total: Total = ctx.input("total")?;
-        let drops: Drops = ctx.input("drops")?;
-        let reference: Numbers = ctx.input("reference")?;
+        let drops: Drops = ctx.sharded("drops")?;
+        let reference: Numbers = ctx.sharded("reference")?;
         Ok(Combined {
             total: total.sum,
             drops: drops.finals.len() as u64,
@@ -426,7 +449,7 @@ impl Stage for FoldRowsKind {
     type Params = NoParams;
     type Output = Numbers;
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Numbers, StageError> {
-        let v: Numbers = ctx.input("values")?;
+        let v: Numbers = ctx.sharded("values")?;
         let keep = |i: usize| {
             ctx.fold()
                 .is_none_or(|f| i % f.count as usize == f.index as usize)

@@ -70,7 +70,12 @@ fn folds_and_gathers_name_order_and_key_every_member() {
     }
 
     // Each fold holds its own rows (row i in fold i mod 2), and the folds split the whole.
-    let all_rows: Numbers = read(&p, &h["numbers@1"]);
+    let store = p.open_store();
+    let all_rows: Numbers = osms_make::assemble(
+        &store.get(&h["numbers@1"]).expect("object"),
+        &osms_make::StoreObjects(&store),
+    )
+    .expect("assemble");
     let fold0: Numbers = read(&p, &h["part#0@1"]);
     let fold1: Numbers = read(&p, &h["part#1@1"]);
     assert_eq!(

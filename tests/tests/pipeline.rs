@@ -65,11 +65,24 @@ fn make(text: &str, jobs: usize, teachers_from: Option<&Made>) -> Made {
 }
 
 fn load<A: osms_store::Artifact>(made: &Made, instance: &str) -> A {
+    osms_store::decode(&object(made, instance)).expect("decode")
+}
+
+fn object(made: &Made, instance: &str) -> Vec<u8> {
     let hash = made
         .hashes
         .get(instance)
         .unwrap_or_else(|| panic!("{instance} built"));
-    osms_store::decode(&made.store.get(hash).expect("object")).expect("decode")
+    made.store.get(hash).expect("object")
+}
+
+/// The whole artifact of an itemised stage (a manifest of its items in the store).
+fn load_sharded<A: osms_make::Sharded>(made: &Made, instance: &str) -> A {
+    osms_make::assemble(
+        &object(made, instance),
+        &osms_make::StoreObjects(&made.store),
+    )
+    .expect("assemble")
 }
 
 #[test]
@@ -77,10 +90,11 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 11, "{reference:?}");
+    assert_eq!(reference.len(), 12, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
+    the_osw_projection_is_its_datasets_windows(&first);
     the_tiny_teacher_beats_the_scripted_prior(&first);
     a_damaged_dataset_shard_is_detected_and_rebuilt(&first);
     let two = make(&text, 2, Some(&first));
@@ -127,14 +141,14 @@ fn datasets_are_disjoint_successes_and_aligned(made: &Made) {
     use osms_sim::N_ARM;
     use osms_sim::stages::Conditions;
 
-    let heldout: Conditions = load(made, "heldout");
+    let heldout: Conditions = load_sharded(made, "heldout");
     let mut seen: Vec<(String, String)> = heldout
         .items
         .iter()
         .map(|c| ("heldout".to_string(), format!("{c:?}")))
         .collect();
     for name in ["d_m@0", "d_e@0", "d_r@0"] {
-        let d: Dataset = load(made, name);
+        let d: Dataset = load_sharded(made, name);
         let stats = d.stats();
         assert!(!d.items.is_empty(), "{name} is empty");
         if name != "d_r@0" {
@@ -241,7 +255,7 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
         .expect("object_geom");
     let mut with_contact = 0;
     for name in ["d_m", "d_r"] {
-        let d: Dataset = load(made, &format!("{name}@0"));
+        let d: Dataset = load_sharded(made, &format!("{name}@0"));
         for item in &d.items {
             let r = &item.rollout;
             let stream = osms_make::rng::stream(
@@ -300,7 +314,7 @@ fn successful_rollouts_pass_through_all_five_phases(made: &Made) {
     use osms_policy::dataset::Dataset;
     use osms_sim::Phase;
 
-    let d: Dataset = load(made, "d_m@0");
+    let d: Dataset = load_sharded(made, "d_m@0");
     for r in d.rollouts() {
         let phases = &r.record.phase;
         let count = |p: Phase| phases.iter().filter(|&&x| x == p as u8).count();
@@ -333,7 +347,7 @@ fn successful_rollouts_pass_through_all_five_phases(made: &Made) {
 fn the_tiny_teacher_beats_the_scripted_prior(made: &Made) {
     use osms_sim::stages::Evaluation;
     let success = |name: &str| {
-        let e: Evaluation = load(made, name);
+        let e: Evaluation = load_sharded(made, name);
         e.table().pop().map_or(0.0, |l| l.success_rate)
     };
     let (teacher, scripted) = (success("eval_teacher@0"), success("eval_scripted@0"));
@@ -345,19 +359,37 @@ fn the_tiny_teacher_beats_the_scripted_prior(made: &Made) {
 
 /// Damage one stored shard of D_M and the merged artifact: the next make detects both,
 /// recomputes the shard and rebuilds D_M to the same bytes.
+/// The projection holds exactly the OSW windows and ω̄ of D_M's rollouts, in order.
+fn the_osw_projection_is_its_datasets_windows(made: &Made) {
+    use osms_policy::dataset::Dataset;
+    use osms_policy::stages::OswSet;
+
+    let d: Dataset = load_sharded(made, "d_m@0");
+    let p: OswSet = load(made, "d_m_osw@0");
+    assert_eq!(p.osw, d.osw);
+    assert_eq!(p.windows.len(), d.items.len());
+    for (w, r) in p.windows.iter().zip(d.rollouts()) {
+        assert_eq!((w.item, w.attempt), (r.item, r.attempt));
+        assert_eq!(w.zeta_org, r.osw.zeta_org);
+        assert_eq!(w.omega_bar, r.osw.omega_bar);
+        assert_eq!(w.complete, r.osw.complete);
+        assert!(w.success);
+    }
+}
+
 fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
     let d_m = made.hashes["d_m@0"];
     let (records, _) = made.store.records().expect("records");
-    let key = records
+    let rec = records
         .iter()
         .find(|r| r.content_hash == d_m && r.shard.is_none())
-        .expect("d_m record")
-        .key;
+        .expect("d_m record");
     let shard = records
         .iter()
-        .find(|r| r.shard.as_ref().is_some_and(|s| s.stage_key == key))
+        .find(|r| r.shard.as_ref().is_some_and(|s| s.stage_key == rec.key))
         .expect("a stored shard of d_m");
-    for hash in [shard.content_hash, d_m] {
+    // The shard (a list of items), the manifest and one rollout.
+    for hash in [shard.content_hash, d_m, rec.parts[0]] {
         let path = made.store.object_path(&hash);
         let mut bytes = std::fs::read(&path).expect("read");
         let mid = bytes.len() / 2;
@@ -379,6 +411,6 @@ fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
     assert_eq!(hashes(&report)["d_m@0"], d_m, "rebuilt to the same bytes");
     assert!(
         made.store.verify().expect("verify").problems.is_empty(),
-        "shard and D_M repaired"
+        "shard, rollout and D_M repaired"
     );
 }

@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::heads::{Heads, Reason};
-use crate::kind::{InputBytes, Progress, RunEnv, ShardIo, StageError};
+use crate::kind::{InputBytes, Objects, Progress, RunEnv, ShardIo, StageError};
 use crate::plan::{InputInstance, InstanceId, Plan, shard_key, shard_ranges};
 
 /// Options of one `make`.
@@ -164,8 +164,8 @@ pub fn make(
         let key = plan.key(id, &input_hashes);
         let reason = match readable_record(store, &key)? {
             Err(unreadable) => unreadable.to_string(),
-            Ok(Some(rec)) => match store.object_state_cached(&rec.content_hash)? {
-                ObjectState::Present => {
+            Ok(Some(rec)) => match record_state(store, &rec)? {
+                (_, ObjectState::Present) => {
                     let cut_off = inputs.iter().any(|i| built.contains(&i.id));
                     available.insert(id, rec.content_hash);
                     // A dry run holds no lock, so it writes nothing but the stat cache.
@@ -187,14 +187,8 @@ pub fn make(
                     report.instances.push(r);
                     continue;
                 }
-                ObjectState::Missing => Reason::ObjectMissing {
-                    hash: rec.content_hash,
-                }
-                .to_string(),
-                ObjectState::Damaged { .. } => Reason::ObjectDamaged {
-                    hash: rec.content_hash,
-                }
-                .to_string(),
+                (hash, ObjectState::Missing) => Reason::ObjectMissing { hash }.to_string(),
+                (hash, ObjectState::Damaged { .. }) => Reason::ObjectDamaged { hash }.to_string(),
             },
             Ok(None) => heads.reason_to_build(plan, id, &name, &input_hashes),
         };
@@ -214,7 +208,7 @@ pub fn make(
         }
 
         let started = Instant::now();
-        let loaded = match load_inputs(store, &inputs, &input_hashes) {
+        let loaded = match load_inputs(plan, store, &inputs, &input_hashes) {
             Ok(loaded) => loaded,
             // The stat cache vouched for this input when it was found cached, but its bytes no
             // longer match: rebuild it (once), then come back to this instance.
@@ -255,8 +249,8 @@ pub fn make(
         drop(progress);
         let wall_time_secs = started.elapsed().as_secs_f64();
         let r = match result {
-            Ok((content_hash, size_bytes)) => {
-                let rec = record(
+            Ok((content_hash, size_bytes, parts)) => {
+                let mut rec = record(
                     plan,
                     id,
                     key,
@@ -265,6 +259,7 @@ pub fn make(
                     size_bytes,
                     wall_time_secs,
                 );
+                rec.parts = parts;
                 store.put_record(&rec)?;
                 heads.update(&name, &rec)?;
                 available.insert(id, content_hash);
@@ -303,8 +298,33 @@ struct Damaged {
     hash: Hash,
 }
 
-/// Reads every input object, slot by slot (a gather slot's members in order).
+/// The state of a record's artifact: its object's, or the first part (shard) that is not
+/// present, since a manifest is only as whole as its shards.
+pub(crate) fn record_state(store: &Store, rec: &Record) -> Result<(Hash, ObjectState)> {
+    for hash in std::iter::once(&rec.content_hash).chain(&rec.parts) {
+        let state = store.object_state_cached(hash)?;
+        if state != ObjectState::Present {
+            return Ok((*hash, state));
+        }
+    }
+    Ok((rec.content_hash, ObjectState::Present))
+}
+
+/// The store as a kind sees it: objects by hash, verified.
+pub struct StoreObjects<'a>(pub &'a Store);
+impl Objects for StoreObjects<'_> {
+    fn get(&self, hash: &Hash) -> Result<Vec<u8>, StageError> {
+        Ok(self.0.get(hash)?)
+    }
+    fn put(&self, bytes: &[u8]) -> Result<Hash, StageError> {
+        Ok(self.0.put(bytes)?)
+    }
+}
+
+/// Reads every input object, slot by slot (a gather slot's members in order). The shards of a
+/// sharded input are read when the stage streams them.
 fn load_inputs(
+    plan: &Plan,
     store: &Store,
     inputs: &[InputInstance],
     input_hashes: &[(String, Hash)],
@@ -327,6 +347,7 @@ fn load_inputs(
             .push(InputBytes {
                 member: input.id.member(),
                 bytes: Arc::new(bytes),
+                manifest: plan.stages[input.id.stage].info.itemised,
             });
     }
     Ok(Ok(loaded))
@@ -342,7 +363,7 @@ fn build(
     input_hashes: &[(String, Hash)],
     pool: &rayon::ThreadPool,
     progress: &dyn Progress,
-) -> Result<(Hash, u64), StageError> {
+) -> Result<(Hash, u64, Vec<Hash>), StageError> {
     let stage = &plan.stages[id.stage];
     let stream_name = plan.stream_name(id);
     let shards = StoreShards {
@@ -359,6 +380,7 @@ fn build(
         fold: plan.fold(id),
         params: &stage.params,
         inputs: &inputs,
+        objects: &StoreObjects(store),
         progress,
         shards: &shards,
     };
@@ -366,9 +388,9 @@ fn build(
     // worker's panic in the caller of the parallel op, so catching here covers item threads too.
     // Nothing the stage left half-done is observable: it wrote at most complete shards, and
     // its record is only written after this returns `Ok`.
-    let bytes =
-        panic::catch_unwind(AssertUnwindSafe(|| pool.install(|| stage.kind.run(&env))))
-            .map_err(|payload| format!("stage panicked: {}", panic_message(payload.as_ref())))??;
+    let out = panic::catch_unwind(AssertUnwindSafe(|| pool.install(|| stage.kind.run(&env))))
+        .map_err(|payload| format!("stage panicked: {}", panic_message(payload.as_ref())))??;
+    let bytes = out.bytes;
     let tag = read_header(&bytes)?.type_tag;
     if tag != stage.info.output_tag {
         return Err(format!(
@@ -377,7 +399,7 @@ fn build(
         )
         .into());
     }
-    Ok((store.put(&bytes)?, bytes.len() as u64))
+    Ok((store.put(&bytes)?, bytes.len() as u64, out.parts))
 }
 
 /// The record of `key`; an unreadable one is a reason to rebuild, as a missing one is.
@@ -424,6 +446,7 @@ fn record(
         seed: plan.effective_seed(id),
         fold: id.fold,
         shard: None,
+        parts: Vec::new(),
         params: stage.params.json.clone(),
         inputs: input_hashes.to_vec(),
         type_tag: stage.info.output_tag.to_string(),
@@ -450,19 +473,17 @@ impl ShardIo for StoreShards<'_> {
     }
 
     fn load(&self, range: &Range<usize>) -> Option<Vec<u8>> {
-        if self.shards <= 1 {
-            return None;
-        }
         let key = shard_key(&self.stage_key, range.start as u64, range.end as u64);
         let rec = self.store.record(&key).ok()??;
         self.store.get(&rec.content_hash).ok()
     }
 
-    fn save(&self, range: &Range<usize>, bytes: Vec<u8>) -> Result<(), StageError> {
-        // One shard would duplicate the stage's own artifact.
-        if self.shards <= 1 {
-            return Ok(());
-        }
+    fn save(
+        &self,
+        range: &Range<usize>,
+        bytes: Vec<u8>,
+        items: Vec<Hash>,
+    ) -> Result<(), StageError> {
         let (start, end) = (range.start as u64, range.end as u64);
         let content_hash = self.store.put(&bytes)?;
         let mut rec = record(
@@ -479,6 +500,8 @@ impl ShardIo for StoreShards<'_> {
             start,
             end,
         });
+        // The items' objects stay with the shard through a gc, for the resume.
+        rec.parts = items;
         rec.type_tag = "shard".to_string();
         self.store.put_record(&rec)?;
         Ok(())

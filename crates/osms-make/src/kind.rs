@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 use std::sync::Arc;
 
-use osms_store::{Artifact, decode, encode};
+use osms_store::{Artifact, Hash, decode, encode};
 use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -96,6 +96,71 @@ pub struct Numerics {
     pub version: String,
 }
 
+/// The output of an itemised kind: a head plus the items, in index order. The store keeps each
+/// item once, as an object of its own, and the head in a [`Manifest`] that lists them, so a
+/// large dataset is stored once and consumers can read it item by item ([`Ctx::items`]).
+/// Objects per item, not per shard, keep the manifest (and so every key downstream) the same
+/// whatever the shard count.
+pub trait Sharded: Artifact {
+    type Item: Serialize + DeserializeOwned + Send + 'static;
+    /// Moves the items out, leaving the head.
+    fn take_items(&mut self) -> Vec<Self::Item>;
+    /// Puts the items back into a head.
+    fn set_items(&mut self, items: Vec<Self::Item>);
+}
+
+/// The stored form of an itemised stage's output: the object of every item, in index order,
+/// and the head (the output without its items). Its type tag and schema are the head's: a
+/// manifest is told from a plain artifact by the kind that produced it.
+#[derive(Serialize, Deserialize)]
+pub struct Manifest<H> {
+    pub items: Vec<Hash>,
+    pub head: H,
+}
+
+impl<H: Artifact> Artifact for Manifest<H> {
+    const TYPE_TAG: &'static str = H::TYPE_TAG;
+    const SCHEMA_VERSION: u16 = H::SCHEMA_VERSION;
+}
+
+/// Reads and writes objects of the store (verified by hash) for kinds that store or stream
+/// items.
+pub trait Objects: Sync {
+    fn get(&self, hash: &Hash) -> Result<Vec<u8>, StageError>;
+    fn put(&self, bytes: &[u8]) -> Result<Hash, StageError>;
+}
+
+/// The stored form of one item.
+#[derive(Serialize, Deserialize)]
+#[serde(transparent)]
+struct StoredItem<I>(I);
+impl<I: Serialize + DeserializeOwned> Artifact for StoredItem<I> {
+    const TYPE_TAG: &'static str = "item";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+fn load_item<I: Serialize + DeserializeOwned>(
+    objects: &dyn Objects,
+    hash: &Hash,
+) -> Result<I, StageError> {
+    Ok(decode::<StoredItem<I>>(&objects.get(hash)?)
+        .map_err(|e| format!("item {}: {e}", hash.short()))?
+        .0)
+}
+
+/// A sharded artifact with its items put back (what `osms show` and `export` render).
+pub fn assemble<A: Sharded>(bytes: &[u8], objects: &dyn Objects) -> Result<A, StageError> {
+    let manifest: Manifest<A> = decode(bytes)?;
+    let items = manifest
+        .items
+        .iter()
+        .map(|h| load_item::<A::Item>(objects, h))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut head = manifest.head;
+    head.set_items(items);
+    Ok(head)
+}
+
 /// A stage that computes one artifact.
 pub trait Stage: Send + Sync + 'static {
     const KIND: &'static str;
@@ -140,7 +205,8 @@ pub trait ItemStage: Send + Sync + 'static {
     /// Decoded inputs and anything built once per stage (e.g. a simulator model).
     type Prepared: Send + Sync;
     type Item: Serialize + DeserializeOwned + Send;
-    type Output: Artifact + Summarize;
+    /// Stored as a [`Manifest`] of the shards that hold its items.
+    type Output: Sharded<Item = Self::Item> + Summarize;
 
     fn prepare(&self, ctx: &Ctx<'_, Self::Params>) -> Result<Self::Prepared, StageError>;
     fn n_items(&self, ctx: &Ctx<'_, Self::Params>, prepared: &Self::Prepared) -> usize;
@@ -208,6 +274,8 @@ impl Member {
 pub struct InputBytes {
     pub member: Member,
     pub bytes: Arc<Vec<u8>>,
+    /// The bytes are a [`Manifest`] (the producer is itemised).
+    pub manifest: bool,
 }
 
 /// What a running stage sees: its params, its inputs, its random streams and a progress sink.
@@ -218,6 +286,7 @@ pub struct Ctx<'a, P> {
     seed: Option<u64>,
     fold: Option<Fold>,
     inputs: &'a BTreeMap<String, Vec<InputBytes>>,
+    objects: &'a dyn Objects,
     progress: &'a dyn Progress,
 }
 
@@ -239,9 +308,27 @@ impl<P> Ctx<'_, P> {
             .ok_or_else(|| format!("stage `{}` has no input slot `{slot}`", self.stage).into())
     }
 
-    /// Decodes the artifact bound to the plain input `slot`.
+    fn one(&self, slot: &str) -> Result<&InputBytes, StageError> {
+        match self.slot(slot)? {
+            [one] => Ok(one),
+            many => Err(format!(
+                "input `{slot}` of stage `{}` is a gather slot with {} members: read it with `gathered`",
+                self.stage,
+                many.len()
+            )
+            .into()),
+        }
+    }
+
+    /// Decodes the artifact bound to the plain input `slot`, produced by a kind that is not
+    /// itemised (those are read with [`Ctx::sharded`], [`Ctx::head`] or [`Ctx::items`]).
     pub fn input<A: Artifact>(&self, slot: &str) -> Result<A, StageError> {
         match self.slot(slot)? {
+            [one] if one.manifest => Err(format!(
+                "input `{slot}` of stage `{}` is sharded: read it with `sharded`, `head` or `items`",
+                self.stage
+            )
+            .into()),
             [one] => decode(&one.bytes).map_err(|e| format!("input `{slot}`: {e}").into()),
             many => Err(format!(
                 "input `{slot}` of stage `{}` is a gather slot with {} members: read it with `gathered`",
@@ -250,6 +337,53 @@ impl<P> Ctx<'_, P> {
             )
             .into()),
         }
+    }
+
+    /// The whole artifact bound to `slot`, items included, whether its producer stored it
+    /// sharded or not.
+    pub fn sharded<A: Sharded>(&self, slot: &str) -> Result<A, StageError> {
+        let one = self.one(slot)?;
+        if one.manifest {
+            assemble(&one.bytes, self.objects).map_err(|e| format!("input `{slot}`: {e}").into())
+        } else {
+            decode(&one.bytes).map_err(|e| format!("input `{slot}`: {e}").into())
+        }
+    }
+
+    /// The artifact bound to `slot` without its items (cheap for sharded inputs).
+    pub fn head<A: Sharded>(&self, slot: &str) -> Result<A, StageError> {
+        let one = self.one(slot)?;
+        let mut head = if one.manifest {
+            decode::<Manifest<A>>(&one.bytes)
+                .map_err(|e| format!("input `{slot}`: {e}"))?
+                .head
+        } else {
+            decode::<A>(&one.bytes).map_err(|e| format!("input `{slot}`: {e}"))?
+        };
+        head.take_items();
+        Ok(head)
+    }
+
+    /// The items of the artifact bound to `slot`, in index order, decoded one at a time.
+    pub fn items<A: Sharded>(
+        &self,
+        slot: &str,
+    ) -> Result<impl Iterator<Item = Result<A::Item, StageError>> + '_, StageError> {
+        let one = self.one(slot)?;
+        let (stored, whole) = if one.manifest {
+            let manifest: Manifest<A> =
+                decode(&one.bytes).map_err(|e| format!("input `{slot}`: {e}"))?;
+            (manifest.items, Vec::new())
+        } else {
+            let mut whole: A = decode(&one.bytes).map_err(|e| format!("input `{slot}`: {e}"))?;
+            (Vec::new(), whole.take_items())
+        };
+        let objects = self.objects;
+        let slot = slot.to_string();
+        let streamed = stored.into_iter().map(move |hash| {
+            load_item::<A::Item>(objects, &hash).map_err(|e| format!("input `{slot}`: {e}").into())
+        });
+        Ok(whole.into_iter().map(Ok).chain(streamed))
     }
 
     /// Decodes every artifact of the gather slot `slot`, in (fold, seed) order.
@@ -301,7 +435,14 @@ pub trait ShardIo: Sync {
     fn ranges(&self, n_items: usize) -> Vec<Range<usize>>;
     /// A previously stored shard, if one is intact.
     fn load(&self, range: &Range<usize>) -> Option<Vec<u8>>;
-    fn save(&self, range: &Range<usize>, bytes: Vec<u8>) -> Result<(), StageError>;
+    /// Stores a shard (the list of its items' objects, `items`), so a killed make resumes
+    /// from it.
+    fn save(
+        &self,
+        range: &Range<usize>,
+        bytes: Vec<u8>,
+        items: Vec<Hash>,
+    ) -> Result<(), StageError>;
 }
 
 /// Everything a type-erased kind needs to run once.
@@ -312,8 +453,16 @@ pub struct RunEnv<'a> {
     pub fold: Option<Fold>,
     pub params: &'a ParsedParams,
     pub inputs: &'a BTreeMap<String, Vec<InputBytes>>,
+    pub objects: &'a dyn Objects,
     pub progress: &'a dyn Progress,
     pub shards: &'a dyn ShardIo,
+}
+
+/// What a kind's run produced: the encoded artifact and, for itemised kinds, the shard objects
+/// its manifest lists.
+pub struct RunOutput {
+    pub bytes: Vec<u8>,
+    pub parts: Vec<Hash>,
 }
 
 /// Static facts about a kind.
@@ -339,13 +488,22 @@ pub trait DynKind: Send + Sync {
     /// The role of the output of a stage with these params.
     fn output_role(&self, params: &ParsedParams) -> Option<&'static str>;
     /// Runs the stage and returns the encoded output artifact.
-    fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError>;
-    /// Decodes an output artifact of this kind and summarises it.
-    fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error>;
+    fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError>;
+    /// Decodes an output artifact of this kind (reading its shards from `objects`) and
+    /// summarises it.
+    fn summarize(
+        &self,
+        bytes: &[u8],
+        objects: &dyn Objects,
+    ) -> Result<serde_json::Value, StageError>;
     /// Decodes an output artifact of this kind and renders its text, if it has one.
-    fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error>;
+    fn text(&self, bytes: &[u8], objects: &dyn Objects) -> Result<Option<String>, StageError>;
     /// Decodes an output artifact of this kind and renders its export files.
-    fn files(&self, bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, osms_store::Error>;
+    fn files(
+        &self,
+        bytes: &[u8],
+        objects: &dyn Objects,
+    ) -> Result<Vec<(String, Vec<u8>)>, StageError>;
 }
 
 /// A param that did not deserialize: where (path of keys inside `params`) and why.
@@ -404,6 +562,7 @@ impl RunEnv<'_> {
             seed: self.seed,
             fold: self.fold,
             inputs: self.inputs,
+            objects: self.objects,
             progress: self.progress,
         }
     }
@@ -412,19 +571,20 @@ impl RunEnv<'_> {
 struct Plain<S>(S);
 struct Itemised<S>(S);
 
-/// The stored form of one shard: the items it holds, in index order.
+/// The stored form of one shard: the objects of the items it holds, in index order.
 #[derive(Serialize, Deserialize)]
 #[serde(transparent)]
-struct ShardItems<I>(Vec<I>);
-impl<I: Serialize + DeserializeOwned> Artifact for ShardItems<I> {
+struct ShardItems(Vec<Hash>);
+impl Artifact for ShardItems {
     const TYPE_TAG: &'static str = "shard";
-    const SCHEMA_VERSION: u16 = 1;
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 /// The `DynKind` methods that read only the kind's constants and types, the same for plain and
-/// itemised kinds; `S` is the kind's type parameter at the call site.
+/// itemised kinds; `S` is the kind's type parameter at the call site, `$open` decodes its
+/// output (itemised outputs are manifests whose items live in shards).
 macro_rules! shared_kind_methods {
-    ($itemised:expr) => {
+    ($itemised:expr, $open:expr) => {
         fn info(&self) -> KindInfo {
             KindInfo {
                 name: S::KIND,
@@ -447,44 +607,65 @@ macro_rules! shared_kind_methods {
         fn output_role(&self, params: &ParsedParams) -> Option<&'static str> {
             S::output_role(params.typed::<S::Params>())
         }
-        fn summarize(&self, bytes: &[u8]) -> Result<serde_json::Value, osms_store::Error> {
-            Ok(decode::<S::Output>(bytes)?.summary())
+        fn summarize(
+            &self,
+            bytes: &[u8],
+            objects: &dyn Objects,
+        ) -> Result<serde_json::Value, StageError> {
+            let open: fn(&[u8], &dyn Objects) -> Result<S::Output, StageError> = $open;
+            Ok(open(bytes, objects)?.summary())
         }
-        fn text(&self, bytes: &[u8]) -> Result<Option<String>, osms_store::Error> {
-            Ok(decode::<S::Output>(bytes)?.text())
+        fn text(&self, bytes: &[u8], objects: &dyn Objects) -> Result<Option<String>, StageError> {
+            let open: fn(&[u8], &dyn Objects) -> Result<S::Output, StageError> = $open;
+            Ok(open(bytes, objects)?.text())
         }
-        fn files(&self, bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, osms_store::Error> {
-            Ok(decode::<S::Output>(bytes)?.files())
+        fn files(
+            &self,
+            bytes: &[u8],
+            objects: &dyn Objects,
+        ) -> Result<Vec<(String, Vec<u8>)>, StageError> {
+            let open: fn(&[u8], &dyn Objects) -> Result<S::Output, StageError> = $open;
+            Ok(open(bytes, objects)?.files())
         }
     };
 }
 
 impl<S: Stage> DynKind for Plain<S> {
-    shared_kind_methods!(false);
-    fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
+    shared_kind_methods!(false, |bytes, _| Ok(decode(bytes)?));
+    fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError> {
         let ctx = env.ctx::<S::Params>();
-        Ok(encode(&self.0.run(&ctx)?)?)
+        Ok(RunOutput {
+            bytes: encode(&self.0.run(&ctx)?)?,
+            parts: Vec::new(),
+        })
     }
 }
 
 impl<S: ItemStage> DynKind for Itemised<S> {
-    shared_kind_methods!(true);
-    fn run(&self, env: &RunEnv<'_>) -> Result<Vec<u8>, StageError> {
+    shared_kind_methods!(true, assemble);
+    fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError> {
         let ctx = env.ctx::<S::Params>();
         let prepared = self.0.prepare(&ctx)?;
         let n = self.0.n_items(&ctx, &prepared);
         env.progress.set_total(n as u64);
         let mut items = Vec::with_capacity(n);
+        let mut hashes = Vec::with_capacity(n);
         for range in env.shards.ranges(n) {
-            let stored = env
-                .shards
-                .load(&range)
-                .and_then(|bytes| decode::<ShardItems<S::Item>>(&bytes).ok())
-                .filter(|shard| shard.0.len() == range.len());
-            let shard = match stored {
-                Some(shard) => {
+            // A finished shard of an interrupted make: its items' objects, if all are intact.
+            let stored = env.shards.load(&range).and_then(|bytes| {
+                let shard = decode::<ShardItems>(&bytes).ok()?;
+                let loaded = shard
+                    .0
+                    .iter()
+                    .map(|h| load_item::<S::Item>(env.objects, h))
+                    .collect::<Result<Vec<_>, _>>()
+                    .ok()?;
+                (loaded.len() == range.len()).then_some((shard.0, loaded))
+            });
+            let (shard_hashes, shard_items) = match stored {
+                Some(stored) => {
                     env.progress.inc(range.len() as u64);
-                    shard.0
+                    stored
                 }
                 None => {
                     let computed = range
@@ -503,14 +684,34 @@ impl<S: ItemStage> DynKind for Itemised<S> {
                             item
                         })
                         .collect::<Result<Vec<_>, _>>()?;
-                    let shard = ShardItems(computed);
-                    env.shards.save(&range, encode(&shard)?)?;
-                    shard.0
+                    let mut shard_hashes = Vec::with_capacity(computed.len());
+                    let mut shard_items = Vec::with_capacity(computed.len());
+                    for item in computed {
+                        let stored = StoredItem(item);
+                        shard_hashes.push(env.objects.put(&encode(&stored)?)?);
+                        shard_items.push(stored.0);
+                    }
+                    env.shards.save(
+                        &range,
+                        encode(&ShardItems(shard_hashes.clone()))?,
+                        shard_hashes.clone(),
+                    )?;
+                    (shard_hashes, shard_items)
                 }
             };
-            items.extend(shard);
+            hashes.extend(shard_hashes);
+            items.extend(shard_items);
         }
-        Ok(encode(&self.0.merge(&ctx, prepared, items)?)?)
+        let mut head = self.0.merge(&ctx, prepared, items)?;
+        // The items live in objects of their own; the manifest keeps the rest.
+        drop(head.take_items());
+        Ok(RunOutput {
+            bytes: encode(&Manifest {
+                items: hashes.clone(),
+                head,
+            })?,
+            parts: hashes,
+        })
     }
 }
 

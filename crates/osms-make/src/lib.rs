@@ -14,11 +14,12 @@ pub mod rng;
 mod status;
 
 pub use error::{Error, Invalid, Location, Result};
-pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, make};
+pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, StoreObjects, make};
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
-    Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Member, NoProgress, Numerics,
-    ParsedParams, Progress, Registry, Slot, Stage, StageError, Summarize,
+    Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest, Member, NoProgress, Numerics,
+    Objects, ParsedParams, Progress, Registry, RunOutput, Sharded, Slot, Stage, StageError,
+    Summarize, assemble,
 };
 pub use pipeline::{Pipeline, StageSpec};
 pub use plan::{

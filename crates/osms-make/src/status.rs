@@ -7,7 +7,7 @@ use osms_store::{Hash, ObjectState, Store};
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::exec::readable_record;
+use crate::exec::{readable_record, record_state};
 use crate::heads::{Heads, Reason};
 use crate::plan::{InstanceId, Plan};
 
@@ -87,23 +87,19 @@ pub fn status(
                 st.state = State::Missing;
                 st.reasons = vec![unreadable];
             }
-            Ok(Some(rec)) => match store.object_state_cached(&rec.content_hash)? {
-                ObjectState::Present => {
+            Ok(Some(rec)) => match record_state(store, &rec)? {
+                (_, ObjectState::Present) => {
                     st.state = State::Cached;
                     st.content_hash = Some(rec.content_hash);
                     known.insert(id, rec.content_hash);
                 }
-                ObjectState::Missing => {
+                (hash, ObjectState::Missing) => {
                     st.state = State::Missing;
-                    st.reasons = vec![Reason::ObjectMissing {
-                        hash: rec.content_hash,
-                    }];
+                    st.reasons = vec![Reason::ObjectMissing { hash }];
                 }
-                ObjectState::Damaged { .. } => {
+                (hash, ObjectState::Damaged { .. }) => {
                     st.state = State::Missing;
-                    st.reasons = vec![Reason::ObjectDamaged {
-                        hash: rec.content_hash,
-                    }];
+                    st.reasons = vec![Reason::ObjectDamaged { hash }];
                 }
             },
             Ok(None) => {

@@ -168,7 +168,18 @@ pub struct Dataset {
 
 impl osms_store::Artifact for Dataset {
     const TYPE_TAG: &'static str = "policy.dataset";
-    const SCHEMA_VERSION: u16 = 2;
+    /// 3: stored as a manifest of its shards (the rollouts are stored once).
+    const SCHEMA_VERSION: u16 = 3;
+}
+
+impl osms_make::Sharded for Dataset {
+    type Item = DatasetItem;
+    fn take_items(&mut self) -> Vec<DatasetItem> {
+        std::mem::take(&mut self.items)
+    }
+    fn set_items(&mut self, items: Vec<DatasetItem>) {
+        self.items = items;
+    }
 }
 
 /// Counts behind `osms show` on a dataset.

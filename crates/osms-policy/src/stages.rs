@@ -243,7 +243,7 @@ impl ItemStage for EvalTeacherStage {
         teacher.task = with_dr(&teacher.task, &ctx.params.dr);
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,
-            ctx.input("conditions")?,
+            ctx.sharded("conditions")?,
             teacher,
         ))
     }
@@ -402,9 +402,9 @@ impl Stage for TeacherTableStage {
     type Output = TeacherTable;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<TeacherTable, StageError> {
-        let scripted: Evaluation = ctx.input("scripted")?;
-        let catch_only: Evaluation = ctx.input("catch_only")?;
-        let teacher: Evaluation = ctx.input("teacher")?;
+        let scripted: Evaluation = ctx.sharded("scripted")?;
+        let catch_only: Evaluation = ctx.sharded("catch_only")?;
+        let teacher: Evaluation = ctx.sharded("teacher")?;
         Ok(TeacherTable {
             rows: vec![
                 row("scripted prior", &scripted),
@@ -548,13 +548,89 @@ impl ItemStage for CollectStage {
     }
 }
 
+/// One rollout's outcome-sensitive window and conditioning, without the rest of its record.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OswSample {
+    /// Which draw of the dataset's condition stream the rollout came from: (item, attempt).
+    pub item: u32,
+    pub attempt: u32,
+    pub variant: String,
+    pub success: bool,
+    /// Whether the window has all H_OS steps.
+    pub complete: bool,
+    /// ζ_org, step-major (`[step][arm channel]`).
+    pub zeta_org: Vec<f32>,
+    /// ω̄: ω's features, the DR draws and the privileged state at the window's start.
+    pub omega_bar: Vec<f32>,
+}
+
+/// The OSW windows of a dataset: what the manifold and the candidate search read, a small
+/// fraction of the dataset's bytes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OswSet {
+    pub osw: OswSpec,
+    pub windows: Vec<OswSample>,
+}
+
+impl Artifact for OswSet {
+    const TYPE_TAG: &'static str = "policy.osw_set";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+impl Summarize for OswSet {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::json!({
+            "windows": self.windows.len(),
+            "complete": self.windows.iter().filter(|w| w.complete).count(),
+            "successes": self.windows.iter().filter(|w| w.success).count(),
+            "h_os": self.osw.h_os,
+            "omega_bar_len": self.windows.first().map_or(0, |w| w.omega_bar.len()),
+        })
+    }
+}
+
+/// A projection: streams a dataset shard by shard and keeps each rollout's OSW window and
+/// ω̄, so later stages never decode full records.
+pub struct OswWindowsStage;
+impl Stage for OswWindowsStage {
+    const KIND: &'static str = "osw_windows";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [Slot] = &[Slot::one::<Dataset>("data")];
+    const DOC: &'static str = "the OSW windows ζ_org and conditioning ω̄ of a dataset (projection)";
+    type Params = NoParams;
+    type Output = OswSet;
+
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<OswSet, StageError> {
+        let head: Dataset = ctx.head("data")?;
+        let mut windows = Vec::new();
+        for item in ctx.items::<Dataset>("data")? {
+            let r = item?.rollout;
+            windows.push(OswSample {
+                item: r.item,
+                attempt: r.attempt,
+                variant: r.record.condition.variant.to_string(),
+                success: r.record.outcome.success(),
+                complete: r.osw.complete,
+                zeta_org: r.osw.zeta_org,
+                omega_bar: r.osw.omega_bar,
+            });
+        }
+        Ok(OswSet {
+            osw: head.osw,
+            windows,
+        })
+    }
+}
+
 /// Registers the policy stage kinds.
 pub fn register(registry: &mut osms_make::Registry) {
     registry
         .register(TeacherStage)
         .register_itemised(EvalTeacherStage)
         .register(TeacherTableStage)
-        .register_itemised(CollectStage);
+        .register_itemised(CollectStage)
+        .register(OswWindowsStage);
 }
 
 #[cfg(test)]

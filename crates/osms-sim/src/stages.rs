@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_make::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, Stage, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Sharded, Slot, Stage, StageError, Summarize};
 use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
@@ -94,7 +94,18 @@ pub struct Conditions {
 
 impl Artifact for Conditions {
     const TYPE_TAG: &'static str = "sim.conditions";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: stored as a manifest of its shards.
+    const SCHEMA_VERSION: u16 = 2;
+}
+
+impl Sharded for Conditions {
+    type Item = TaskCondition;
+    fn take_items(&mut self) -> Vec<TaskCondition> {
+        std::mem::take(&mut self.items)
+    }
+    fn set_items(&mut self, items: Vec<TaskCondition>) {
+        self.items = items;
+    }
 }
 
 impl Summarize for Conditions {
@@ -195,7 +206,18 @@ pub struct Evaluation {
 
 impl Artifact for Evaluation {
     const TYPE_TAG: &'static str = "sim.evaluation";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: stored as a manifest of its shards.
+    const SCHEMA_VERSION: u16 = 2;
+}
+
+impl Sharded for Evaluation {
+    type Item = EvalRow;
+    fn take_items(&mut self) -> Vec<EvalRow> {
+        std::mem::take(&mut self.rows)
+    }
+    fn set_items(&mut self, items: Vec<EvalRow>) {
+        self.rows = items;
+    }
 }
 
 /// One line of the evaluation table.
@@ -332,7 +354,7 @@ impl ItemStage for EvalScriptedStage {
     fn prepare(&self, ctx: &Ctx<'_, EvalParams>) -> Result<(World, Conditions), StageError> {
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,
-            ctx.input("conditions")?,
+            ctx.sharded("conditions")?,
         ))
     }
     fn n_items(&self, _: &Ctx<'_, EvalParams>, (_, conditions): &(World, Conditions)) -> usize {

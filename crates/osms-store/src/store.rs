@@ -44,6 +44,10 @@ pub struct Record {
     pub fold: Option<u32>,
     /// Set on the records of shards of an itemised stage.
     pub shard: Option<ShardOf>,
+    /// The objects the artifact refers to (the shards of a sharded stage's manifest): kept,
+    /// verified and checked with it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub parts: Vec<Hash>,
     pub params: serde_json::Value,
     /// Input slot -> content hash, in slot order.
     pub inputs: Vec<(String, Hash)>,
@@ -475,12 +479,14 @@ impl Store {
                 .push(VerifyProblem::BadRecord { path, reason });
         }
         for r in records {
-            if !intact.contains(&r.content_hash) && !self.object_path(&r.content_hash).exists() {
-                report.problems.push(VerifyProblem::MissingObject {
-                    key: r.key,
-                    stage: r.stage,
-                    hash: r.content_hash,
-                });
+            for hash in std::iter::once(&r.content_hash).chain(&r.parts) {
+                if !intact.contains(hash) && !self.object_path(hash).exists() {
+                    report.problems.push(VerifyProblem::MissingObject {
+                        key: r.key,
+                        stage: r.stage.clone(),
+                        hash: *hash,
+                    });
+                }
             }
         }
         Ok(report)
@@ -489,7 +495,8 @@ impl Store {
     /// Keeps the records whose keys are in `keep` and the objects they point to, plus the shards
     /// of every stage key in `planned` that has no kept record of its own, so a make interrupted
     /// mid-stage resumes from its finished shards; removes the rest. A stage whose record is kept
-    /// is complete, and its artifact holds every item, so its shards go. Callers hold the lock.
+    /// is complete: its shard records go, and the shard objects stay as the parts of its record.
+    /// Callers hold the lock.
     ///
     /// `keep` holds the keys whose artifacts are current, `planned` every stage key the
     /// pipeline can compute now (current or not): a stage still to be built has no record yet,
@@ -518,6 +525,7 @@ impl Store {
         for r in &records {
             if kept(r) {
                 live.insert(r.content_hash);
+                live.extend(r.parts.iter().copied());
             } else {
                 report.records_removed.push(r.key);
                 if !dry_run {
@@ -620,6 +628,7 @@ mod tests {
             seed: Some(0),
             fold: None,
             shard: None,
+            parts: vec![],
             params: serde_json::json!({"n": 3}),
             inputs: vec![],
             type_tag: "test-blob".into(),

@@ -2,7 +2,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context as _, Result, bail};
 use osms_make::Registry;
-use osms_make::State;
+use osms_make::{State, StoreObjects};
 use osms_store::{Record, Store, read_header};
 use serde::Serialize;
 
@@ -121,7 +121,15 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
             serde_json::json!({ "shard of": shard.stage_key, "items": format!("{}..{}", shard.start, shard.end) }),
             None,
         ),
-        (Some(kind), None) => (kind.summarize(&bytes)?, kind.text(&bytes)?),
+        (Some(kind), None) => {
+            let objects = StoreObjects(&store);
+            (
+                kind.summarize(&bytes, &objects)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?,
+                kind.text(&bytes, &objects)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?,
+            )
+        }
         (None, None) => (
             serde_json::json!(format!("kind `{}` is not known to this osms", first.kind)),
             None,
@@ -285,7 +293,8 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     let files = if record.shard.is_some() {
         Vec::new()
     } else {
-        kind.files(&bytes)?
+        kind.files(&bytes, &StoreObjects(&store))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
     };
     if files.is_empty() {
         bail!(
