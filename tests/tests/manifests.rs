@@ -47,7 +47,22 @@ fn gc_keeps_the_items_of_a_complete_stage_and_status_sees_a_missing_one() {
     let statuses = osms_make::status(&plan, &store, &[], &[0]).expect("status");
     let keep = statuses.iter().filter_map(|s| s.key).collect();
     let report = store.gc(&keep, &keep, false).expect("gc");
-    assert!(report.objects_removed.is_empty(), "{report:?}");
+    // Only the shard lists of the complete stages go (one per shard: 3 + 2 + 1); every item
+    // stays, as a part of its stage's record.
+    assert_eq!(report.records_removed.len(), 6, "{report:?}");
+    assert_eq!(report.objects_removed.len(), 6, "{report:?}");
+    let (kept, _) = store.records().expect("records");
+    assert!(kept.iter().all(|r| r.shard.is_none()));
+    for r in &kept {
+        for part in &r.parts {
+            assert!(
+                !report.objects_removed.contains(part),
+                "{} lost an item",
+                r.stage
+            );
+            store.get(part).expect("item kept");
+        }
+    }
     assert!(store.verify().expect("verify").problems.is_empty());
     let again = p.make(None, &[0], 2);
     assert!(
