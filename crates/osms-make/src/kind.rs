@@ -205,7 +205,7 @@ pub trait ItemStage: Send + Sync + 'static {
     /// Decoded inputs and anything built once per stage (e.g. a simulator model).
     type Prepared: Send + Sync;
     type Item: Serialize + DeserializeOwned + Send;
-    /// Stored as a [`Manifest`] of the shards that hold its items.
+    /// Stored as a [`Manifest`] of its items, each an object of its own.
     type Output: Sharded<Item = Self::Item> + Summarize;
 
     fn prepare(&self, ctx: &Ctx<'_, Self::Params>) -> Result<Self::Prepared, StageError>;
