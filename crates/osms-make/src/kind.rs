@@ -323,20 +323,15 @@ impl<P> Ctx<'_, P> {
     /// Decodes the artifact bound to the plain input `slot`, produced by a kind that is not
     /// itemised (those are read with [`Ctx::sharded`], [`Ctx::head`] or [`Ctx::items`]).
     pub fn input<A: Artifact>(&self, slot: &str) -> Result<A, StageError> {
-        match self.slot(slot)? {
-            [one] if one.manifest => Err(format!(
+        let one = self.one(slot)?;
+        if one.manifest {
+            return Err(format!(
                 "input `{slot}` of stage `{}` is sharded: read it with `sharded`, `head` or `items`",
                 self.stage
             )
-            .into()),
-            [one] => decode(&one.bytes).map_err(|e| format!("input `{slot}`: {e}").into()),
-            many => Err(format!(
-                "input `{slot}` of stage `{}` is a gather slot with {} members: read it with `gathered`",
-                self.stage,
-                many.len()
-            )
-            .into()),
+            .into());
         }
+        decode(&one.bytes).map_err(|e| format!("input `{slot}`: {e}").into())
     }
 
     /// The whole artifact bound to `slot`, items included, whether its producer stored it

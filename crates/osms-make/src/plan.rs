@@ -387,10 +387,7 @@ impl Plan {
             None => vec![None],
         };
         let run_seeds: Vec<Option<u64>> = if s.seed_dependent {
-            let mut sorted: Vec<u64> = seeds.to_vec();
-            sorted.sort_unstable();
-            sorted.dedup();
-            sorted.into_iter().map(Some).collect()
+            sweep(seeds)
         } else {
             vec![None]
         };
@@ -458,10 +455,7 @@ impl Plan {
             let run_seeds: Vec<Option<u64>> = if !up.seed_dependent {
                 vec![None]
             } else if input.all_seeds {
-                let mut sorted: Vec<u64> = seeds.to_vec();
-                sorted.sort_unstable();
-                sorted.dedup();
-                sorted.into_iter().map(Some).collect()
+                sweep(seeds)
             } else {
                 vec![id.run_seed]
             };
@@ -591,6 +585,14 @@ impl Plan {
         }
         Hash::from(h.finalize())
     }
+}
+
+/// The run seeds of a sweep as instances see them: ascending, each once.
+fn sweep(seeds: &[u64]) -> Vec<Option<u64>> {
+    let mut sorted = seeds.to_vec();
+    sorted.sort_unstable();
+    sorted.dedup();
+    sorted.into_iter().map(Some).collect()
 }
 
 fn put_kind(h: &mut blake3::Hasher, info: &KindInfo) {
