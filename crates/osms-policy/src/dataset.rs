@@ -96,10 +96,14 @@ pub struct OswWindow {
     /// ζ_org: the teacher's arm actions over the window, step-major (`[step][channel]`,
     /// N_ARM channels), k_e − start steps.
     pub zeta_org: Vec<f32>,
-    /// ω̄: ω's features, the rollout's DR draws ([`dr_features`]) and the privileged state at
-    /// the window's first step.
+    /// ω̄: ω's features, the rollout's DR draws ([`dr_features`]), the privileged state at
+    /// the window's first step and the arm's servo targets then ([`OMEGA_BAR_LEN`] values).
     pub omega_bar: Vec<f32>,
 }
+
+/// Length of ω̄: ω, the DR draws, a privileged frame and the arm's servo targets.
+pub const OMEGA_BAR_LEN: usize =
+    OMEGA_LEN + DR_FEATURES_LEN + osms_sim::episode::PRIVILEGED_LEN + N_ARM;
 
 impl OswWindow {
     /// Cuts the window out of a record that kept its privileged frames. Fails if the record
@@ -126,6 +130,12 @@ impl OswWindow {
         let mut omega_bar = omega_features(&record.condition);
         omega_bar.extend(dr_features(&record.dr));
         omega_bar.extend_from_slice(&record.privileged[at * frame..(at + 1) * frame]);
+        // Arm actions are target increments: without the targets they start from, one ζ would
+        // stand for different motions.
+        if record.arm_targets.len() != record.steps * N_ARM {
+            return Err("the rollout kept no arm servo targets".into());
+        }
+        omega_bar.extend_from_slice(&record.arm_targets[at * N_ARM..(at + 1) * N_ARM]);
         Ok(OswWindow {
             event_step: k_e,
             start,
@@ -168,8 +178,9 @@ pub struct Dataset {
 
 impl osms_store::Artifact for Dataset {
     const TYPE_TAG: &'static str = "policy.dataset";
-    /// 3: stored as a manifest of its shards (the rollouts are stored once).
-    const SCHEMA_VERSION: u16 = 3;
+    /// 3: stored as a manifest of its shards (the rollouts are stored once); 4: records keep
+    /// the arm's servo targets and ω̄ ends with them.
+    const SCHEMA_VERSION: u16 = 4;
 }
 
 impl osms_make::Sharded for Dataset {
@@ -361,8 +372,8 @@ mod tests {
         }
     }
 
-    /// A record whose intended action at step k, channel c is 100·k + c and whose privileged
-    /// frame at step k is [k, k + 0.5].
+    /// A record whose intended action at step k, channel c is 100·k + c, whose privileged
+    /// frame at step k is [k, k + 0.5] and whose arm target c at step k is −k − c.
     fn record(steps: usize, event_step: usize) -> RolloutRecord {
         let dr = DrDraw {
             observation_delay_steps: 1,
@@ -379,6 +390,9 @@ mod tests {
         r.privileged = (0..steps)
             .flat_map(|k| [k as f32, k as f32 + 0.5])
             .collect();
+        r.arm_targets = (0..steps)
+            .flat_map(|k| (0..N_ARM).map(move |c| -((k + c) as f32)))
+            .collect();
         r.metrics.event_step = event_step;
         r
     }
@@ -394,13 +408,19 @@ mod tests {
                 assert_eq!(w.zeta_org[j * N_ARM + c], (100 * (12 + j) + c) as f32);
             }
         }
-        assert_eq!(w.omega_bar.len(), OMEGA_LEN + DR_FEATURES_LEN + 2);
+        assert_eq!(w.omega_bar.len(), OMEGA_LEN + DR_FEATURES_LEN + 2 + N_ARM);
         assert_eq!(
             &w.omega_bar[OMEGA_LEN..OMEGA_LEN + DR_FEATURES_LEN],
             &[1.0, 0.0, 1.05, 0.9, 1.25],
             "DR draws"
         );
-        assert_eq!(&w.omega_bar[OMEGA_LEN + DR_FEATURES_LEN..], &[12.0, 12.5]);
+        let state = &w.omega_bar[OMEGA_LEN + DR_FEATURES_LEN..];
+        assert_eq!(&state[..2], &[12.0, 12.5], "privileged frame at the window start");
+        assert_eq!(
+            &state[2..],
+            &[-12.0, -13.0, -14.0, -15.0, -16.0, -17.0, -18.0],
+            "arm servo targets at the window start"
+        );
         assert_eq!(w.omega_bar[3], 1.0, "variant one-hot");
         assert_eq!(&w.omega_bar[11..14], &[1.0, 2.0, 3.0], "launch position");
     }
@@ -415,10 +435,16 @@ mod tests {
         assert_eq!((w.start, w.zeta_org.len()), (0, 5 * N_ARM));
         let w = OswWindow::extract(&record(30, 0), &spec).expect("window");
         assert!(!w.complete && w.zeta_org.is_empty());
-        assert_eq!(&w.omega_bar[OMEGA_LEN + DR_FEATURES_LEN..], &[0.0, 0.5]);
+        assert_eq!(
+            &w.omega_bar[OMEGA_LEN + DR_FEATURES_LEN..OMEGA_LEN + DR_FEATURES_LEN + 2],
+            &[0.0, 0.5]
+        );
         assert!(OswWindow::extract(&record(10, 11), &spec).is_err());
         let mut r = record(30, 20);
         r.privileged.clear();
+        assert!(OswWindow::extract(&r, &spec).is_err());
+        let mut r = record(30, 20);
+        r.arm_targets.clear();
         assert!(OswWindow::extract(&r, &spec).is_err());
     }
 }

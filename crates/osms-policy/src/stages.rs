@@ -448,7 +448,8 @@ fn default_max_attempts() -> u32 {
 pub struct CollectStage;
 impl ItemStage for CollectStage {
     const KIND: &'static str = "collect";
-    const CODE_VERSION: u32 = 2;
+    /// 3: ω̄ carries the arm's servo targets.
+    const CODE_VERSION: u32 = 3;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<WorldArtifact>("world"),
@@ -574,7 +575,8 @@ pub struct OswSet {
 
 impl Artifact for OswSet {
     const TYPE_TAG: &'static str = "policy.osw_set";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: ω̄ ends with the arm's servo targets.
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl Summarize for OswSet {
@@ -594,7 +596,8 @@ impl Summarize for OswSet {
 pub struct OswWindowsStage;
 impl Stage for OswWindowsStage {
     const KIND: &'static str = "osw_windows";
-    const CODE_VERSION: u32 = 1;
+    /// 2: ω̄ carries the arm's servo targets.
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = false;
     const INPUTS: &'static [Slot] = &[Slot::one::<Dataset>("data")];
     const DOC: &'static str = "the OSW windows ζ_org and conditioning ω̄ of a dataset (projection)";

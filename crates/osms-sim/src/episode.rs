@@ -116,6 +116,10 @@ pub struct RolloutRecord {
     pub deployable: Vec<f32>,
     /// Privileged frames, [`PRIVILEGED_LEN`] per step, if recorded.
     pub privileged: Vec<f32>,
+    /// The arm's servo targets when each step starts (before its action), N_ARM per step.
+    /// Arm actions are target increments, so an action snippet means a motion only together
+    /// with the targets it starts from (ω̄ carries them).
+    pub arm_targets: Vec<f32>,
     /// Palm and object position and velocity, 3 each per step.
     pub palm_pos: Vec<f32>,
     pub palm_vel: Vec<f32>,
@@ -142,6 +146,7 @@ impl RolloutRecord {
             executed: Vec::new(),
             deployable: Vec::new(),
             privileged: Vec::new(),
+            arm_targets: Vec::new(),
             palm_pos: Vec::new(),
             palm_vel: Vec::new(),
             object_pos: Vec::new(),
@@ -403,6 +408,7 @@ impl<'w> Episode<'w> {
             palm_vel,
             object_pos,
             object_vel,
+            arm_targets: std::array::from_fn(|i| self.controller.targets[i]),
         }
     }
 
@@ -504,6 +510,8 @@ impl<'w> Episode<'w> {
             r.privileged
                 .extend(frame.privileged.iter().map(|a| *a as f32));
         }
+        r.arm_targets
+            .extend(frame.arm_targets.iter().map(|a| *a as f32));
         push3(&mut r.palm_pos, frame.palm_pos);
         push3(&mut r.palm_vel, frame.palm_vel);
         push3(&mut r.object_pos, frame.object_pos);
@@ -617,6 +625,7 @@ impl<'w> Episode<'w> {
         ] {
             v.truncate(n * 3);
         }
+        r.arm_targets.truncate(n * N_ARM);
         r.normal_force.truncate(n);
         r.phase.truncate(n);
     }
@@ -655,6 +664,8 @@ struct Frame {
     palm_vel: [f64; 3],
     object_pos: [f64; 3],
     object_vel: [f64; 3],
+    /// The arm's servo targets in force when the step starts, before its action moves them.
+    arm_targets: [f64; N_ARM],
 }
 
 #[cfg(test)]
@@ -702,6 +713,47 @@ mod tests {
         assert!(ep.data.warning().iter().all(|w| w.number == 0));
         let resumed = ep.run(&mut hold, &mut NoHooks);
         assert_eq!(resumed, full);
+    }
+
+    /// ω̄ reads the recorded servo targets: they must be the ones the controller used, i.e.
+    /// follow the target recurrence over the executed (applied) actions from the start posture.
+    #[test]
+    fn recorded_arm_targets_follow_the_executed_actions() {
+        let world = World::new(WorldSpec::default()).expect("world");
+        let spec = RolloutSpec {
+            dr: DrSpec::paper(),
+            ..RolloutSpec::default()
+        };
+        let condition = conditions::sample(
+            &ConditionSpec::default(),
+            world.home_palm_pos,
+            &mut rng::stream(0, "test", "omega", 7),
+        )
+        .expect("ω");
+        let mut action = hold_action(&world.spec.hand_home_rad);
+        action[..N_ARM].copy_from_slice(&[0.3, -0.2, 0.1, 0.25, -0.1, 0.05, -0.3]);
+        let record = Episode::new(&world, &spec, condition, rng::stream(0, "test", "roll", 7))
+            .run(&mut Hold(action), &mut NoHooks);
+        assert!(record.steps > 5);
+        assert_eq!(record.arm_targets.len(), record.steps * N_ARM);
+        let mut t = [0.0; N_ACTION];
+        for (i, v) in record.arm_targets[..N_ARM].iter().enumerate() {
+            t[i] = f64::from(*v);
+        }
+        for k in 0..record.steps - 1 {
+            let executed: Action =
+                std::array::from_fn(|c| f64::from(record.executed[k * N_ACTION + c]));
+            t = targets(&spec.control, &t, &executed);
+            for c in 0..N_ARM {
+                let recorded = f64::from(record.arm_targets[(k + 1) * N_ARM + c]);
+                assert!(
+                    (recorded - t[c]).abs() < 1e-5,
+                    "step {k} channel {c}: recorded {recorded}, recurrence {}",
+                    t[c]
+                );
+                t[c] = recorded;
+            }
+        }
     }
 
     /// The premise of sharing a DR-off evaluation across a seed sweep: with DR off the record
