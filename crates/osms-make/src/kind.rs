@@ -60,6 +60,8 @@ pub struct Slot {
     /// A gather slot receives every instance its reference names (`stage@*`, `stage#*`),
     /// in a fixed order; a plain slot receives exactly one.
     pub gather: bool,
+    /// A stage may leave an optional slot unwired ([`Ctx::has_input`] tells).
+    pub optional: bool,
 }
 
 impl Slot {
@@ -70,6 +72,7 @@ impl Slot {
             tag: A::TYPE_TAG,
             roles: &[],
             gather: false,
+            optional: false,
         }
     }
 
@@ -84,6 +87,15 @@ impl Slot {
     /// Only artifacts whose producing stage declares one of `roles`.
     pub const fn roles(self, roles: &'static [&'static str]) -> Slot {
         Slot { roles, ..self }
+    }
+
+    /// A slot the stage may leave unwired (the kind decides, from its params, whether it
+    /// needs it).
+    pub const fn optional(self) -> Slot {
+        Slot {
+            optional: true,
+            ..self
+        }
     }
 }
 
@@ -299,6 +311,11 @@ impl<P> Ctx<'_, P> {
     /// The fold this instance is, for stages declared with `folds`.
     pub fn fold(&self) -> Option<Fold> {
         self.fold
+    }
+
+    /// Whether the optional input `slot` is wired.
+    pub fn has_input(&self, slot: &str) -> bool {
+        self.inputs.contains_key(slot)
     }
 
     fn slot(&self, slot: &str) -> Result<&[InputBytes], StageError> {

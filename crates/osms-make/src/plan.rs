@@ -189,6 +189,9 @@ impl Plan {
 
             let mut inputs = Vec::new();
             for slot in info.inputs {
+                if slot.optional && !spec.inputs.contains_key(slot.name) {
+                    continue;
+                }
                 let reference = spec.inputs.get(slot.name).ok_or_else(|| {
                     Error::invalid(
                         pipeline.locate(&["stages", &name]),

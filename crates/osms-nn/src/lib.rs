@@ -16,6 +16,7 @@ pub use extra::{
     DiagGaussian, GaussianGrad, LayerNorm, LayerNormCache, sinusoidal_embedding,
     sinusoidal_embedding_backward, softmax_cross_entropy,
 };
+pub use layers::Jet;
 pub use layers::{Activation, Linear, LinearGrad, Mlp, MlpCache, flatten_grads, mse, weighted_mse};
 pub use matrix::Matrix;
 pub use optim::{Adam, AdamConfig, Schedule, global_norm};

@@ -415,7 +415,11 @@ mod tests {
             "DR draws"
         );
         let state = &w.omega_bar[OMEGA_LEN + DR_FEATURES_LEN..];
-        assert_eq!(&state[..2], &[12.0, 12.5], "privileged frame at the window start");
+        assert_eq!(
+            &state[..2],
+            &[12.0, 12.5],
+            "privileged frame at the window start"
+        );
         assert_eq!(
             &state[2..],
             &[-12.0, -13.0, -14.0, -15.0, -16.0, -17.0, -18.0],

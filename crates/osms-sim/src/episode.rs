@@ -744,14 +744,14 @@ mod tests {
             let executed: Action =
                 std::array::from_fn(|c| f64::from(record.executed[k * N_ACTION + c]));
             t = targets(&spec.control, &t, &executed);
-            for c in 0..N_ARM {
-                let recorded = f64::from(record.arm_targets[(k + 1) * N_ARM + c]);
+            let next = &record.arm_targets[(k + 1) * N_ARM..(k + 2) * N_ARM];
+            for (c, (t, recorded)) in t.iter_mut().zip(next).enumerate() {
+                let recorded = f64::from(*recorded);
                 assert!(
-                    (recorded - t[c]).abs() < 1e-5,
-                    "step {k} channel {c}: recorded {recorded}, recurrence {}",
-                    t[c]
+                    (recorded - *t).abs() < 1e-5,
+                    "step {k} channel {c}: recorded {recorded}, recurrence {t}"
                 );
-                t[c] = recorded;
+                *t = recorded;
             }
         }
     }

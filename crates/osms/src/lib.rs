@@ -23,6 +23,7 @@ pub fn registry() -> Registry {
     let mut registry = Registry::new();
     osms_sim::stages::register(&mut registry);
     osms_policy::stages::register(&mut registry);
+    osms_method::stages::register(&mut registry);
     registry
 }
 

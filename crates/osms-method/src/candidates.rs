@@ -1,0 +1,526 @@
+//! Candidate sets η (paper Eqs. 5–6) and the ablation generators of paper 6.4.
+//!
+//! - `geodesic` (the method): project ζ_org (Eq. 3), take K Sobol directions orthonormal under
+//!   M(z⁰, ω̄) (Eq. 4), shoot geodesics z⁰ ± r ξ_i (Eq. 5), decode the 2K endpoints and the centre.
+//! - `euclidean`: the same centre and conditional manifold, straight lines z⁰ ± s r ξ_i with
+//!   Euclidean-orthonormal directions.
+//! - `unconditional`: the geodesic search on a manifold trained without ω̄.
+//! - `direct`: ζ_org ± s δ_i with W_a-orthonormal Sobol directions δ_i in action space, clipped
+//!   to the action bounds.
+//!
+//! The ablations are matched to the geodesic set of the same rollout as in the paper: same
+//! |η| = 2K + 1, and the scale s is chosen so that the set's largest ‖ζ − ζ_org‖_{W_a} equals
+//! the geodesic set's.
+
+use osms_make::rng::StreamRng;
+use osms_nn::Matrix;
+use serde::{Deserialize, Serialize};
+
+use crate::cvae::Cvae;
+use crate::geodesic::{Chart, PullbackMetric, ShootSpec, shoot};
+use crate::project::{Projection, ProjectionParams, project};
+use crate::sobol;
+
+/// Which generator builds the candidate sets (paper 6.4, "Candidate generation").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Generator {
+    Geodesic,
+    Euclidean,
+    Unconditional,
+    Direct,
+}
+
+impl Generator {
+    pub fn name(self) -> &'static str {
+        match self {
+            Generator::Geodesic => "geodesic",
+            Generator::Euclidean => "euclidean",
+            Generator::Unconditional => "unconditional",
+            Generator::Direct => "direct",
+        }
+    }
+}
+
+/// The search's settings: the paper's values as defaults (Z = [−3, 3]^8, K = 4, r = 0.75).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SearchParams {
+    pub generator: Generator,
+    /// Z = [−bound, bound]^latent.
+    pub bound: f32,
+    /// K: shooting directions (|η| = 2K + 1).
+    pub directions: usize,
+    /// r: shooting radius.
+    pub radius: f64,
+    /// λ_reg of Eq. 4.
+    pub lambda_reg: f64,
+    /// RK4 steps of a geodesic over t ∈ [0, 1].
+    pub rk4_steps: usize,
+    /// Halvings of r allowed for a direction whose geodesic would leave Z.
+    pub max_shrinks: u32,
+    /// Index of the first Sobol point used. Points 0 and 1 map to (−1, …, −1) and the origin,
+    /// and the four points from index 2 or from index 4 span only three dimensions (in 8 and
+    /// in 56 dimensions alike), so the paper's K = 4 directions start at point 6.
+    pub sobol_first: u64,
+    /// Bisection steps of the ablations' matching scale.
+    pub match_iterations: u32,
+    pub projection: ProjectionParams,
+}
+
+impl Default for SearchParams {
+    fn default() -> Self {
+        SearchParams {
+            generator: Generator::Geodesic,
+            bound: 3.0,
+            directions: 4,
+            radius: 0.75,
+            lambda_reg: 1e-2,
+            rk4_steps: 8,
+            max_shrinks: 6,
+            sobol_first: 6,
+            match_iterations: 16,
+            projection: ProjectionParams::default(),
+        }
+    }
+}
+
+/// One member of η.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Candidate {
+    /// 0 for the centre ζ₀, i for direction ξ_i.
+    pub direction: u8,
+    /// +1 or −1 (0 for the centre).
+    pub sign: i8,
+    /// Its latent code (empty for `direct`).
+    pub z: Vec<f32>,
+    /// The snippet, step-major like ζ_org.
+    pub zeta: Vec<f32>,
+    /// ‖z − z⁰‖₂ (0 for the centre and for `direct`).
+    pub latent_displacement: f64,
+    /// Length of the latent path under M: the geodesic's for geodesic generators, none for
+    /// the straight-line ones.
+    pub geodesic_length: Option<f64>,
+    /// ‖ζ − ζ_org‖_{W_a}.
+    pub deviation: f64,
+    /// Factor applied to r so the path stays inside Z (1: none).
+    pub shrink: f64,
+}
+
+/// η for one rollout.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CandidateSet {
+    /// The projection (none for `direct`).
+    pub projection: Option<Projection>,
+    /// The matching scale s (1 for `geodesic`).
+    pub scale: f64,
+    /// Whether the largest deviation was matched to the reference set's (always for
+    /// `geodesic`); false when no scale reaches it.
+    pub matched: bool,
+    /// Directions whose radius was shrunk to stay inside Z.
+    pub shrunk: u32,
+    pub candidates: Vec<Candidate>,
+}
+
+impl CandidateSet {
+    pub fn max_deviation(&self) -> f64 {
+        self.candidates
+            .iter()
+            .map(|c| c.deviation)
+            .fold(0.0, f64::max)
+    }
+
+    pub fn mean_deviation(&self) -> f64 {
+        let n = self.candidates.len().max(1) as f64;
+        self.candidates.iter().map(|c| c.deviation).sum::<f64>() / n
+    }
+}
+
+/// The decoder G(·, ω̄) at a fixed ω̄ as a chart, its derivatives by osms-nn's forward mode.
+pub struct DecoderChart<'a> {
+    pub model: &'a Cvae,
+    pub omega_n: &'a [f32],
+}
+
+impl DecoderChart<'_> {
+    fn input(&self, z: &[f64]) -> Vec<f32> {
+        let mut x: Vec<f32> = z.iter().map(|v| *v as f32).collect();
+        x.extend_from_slice(self.omega_n);
+        x
+    }
+}
+
+impl Chart for DecoderChart<'_> {
+    fn dim(&self) -> usize {
+        self.model.latent()
+    }
+
+    fn jacobian(&self, z: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let x = self.input(z);
+        let d = z.len();
+        let tangents = Matrix::from_fn(d, x.len(), |k, j| if k == j { 1.0 } else { 0.0 });
+        let jet = self.model.decoder.jet(&x, &tangents, None);
+        let n = jet.y.len();
+        let mut jac = Vec::with_capacity(n * d);
+        for i in 0..n {
+            for k in 0..d {
+                jac.push(f64::from(jet.dy.get(k, i)));
+            }
+        }
+        (jet.y.iter().map(|v| f64::from(*v)).collect(), jac)
+    }
+
+    fn curvature(&self, z: &[f64], v: &[f64]) -> Vec<f64> {
+        let x = self.input(z);
+        let mut dir = vec![0.0f32; x.len()];
+        for (d, v) in dir.iter_mut().zip(v) {
+            *d = *v as f32;
+        }
+        let jet = self
+            .model
+            .decoder
+            .jet(&x, &Matrix::zeros(0, x.len()), Some(&dir));
+        jet.ddy
+            .unwrap_or_default()
+            .iter()
+            .map(|v| f64::from(*v))
+            .collect()
+    }
+
+    fn decode(&self, z: &[f64]) -> Vec<f64> {
+        let zs = vec![z.iter().map(|v| *v as f32).collect::<Vec<f32>>()];
+        self.model.decode(&zs, self.omega_n)[0]
+            .iter()
+            .map(|v| f64::from(*v))
+            .collect()
+    }
+}
+
+/// Why a set cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum SearchError {
+    #[error("the Sobol table has no {0}-dimensional points")]
+    SobolDim(usize),
+    #[error("the Sobol directions are linearly dependent under the metric")]
+    Dependent,
+    #[error("ζ_org has {got} values, the manifold {expected}")]
+    ZetaLength { got: usize, expected: usize },
+}
+
+fn to_f64(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|x| f64::from(*x)).collect()
+}
+
+fn metric_of(model: &Cvae, p: &SearchParams) -> PullbackMetric {
+    PullbackMetric {
+        weights: to_f64(&model.w_a),
+        lambda_reg: p.lambda_reg,
+    }
+}
+
+fn identity(d: usize) -> Vec<f64> {
+    (0..d * d)
+        .map(|i| if i / d == i % d { 1.0 } else { 0.0 })
+        .collect()
+}
+
+/// The centre ζ₀ = G(z⁰, ω̄) as a candidate.
+fn centre(model: &Cvae, omega_n: &[f32], zeta_org: &[f32], z0: &[f32]) -> Candidate {
+    let zeta = model.decode(&[z0.to_vec()], omega_n).remove(0);
+    Candidate {
+        direction: 0,
+        sign: 0,
+        z: z0.to_vec(),
+        deviation: model.weighted_sq(&zeta, zeta_org).sqrt(),
+        zeta,
+        latent_displacement: 0.0,
+        geodesic_length: Some(0.0),
+        shrink: 1.0,
+    }
+}
+
+/// The 2K geodesic endpoints from z⁰ with initial velocities ± radius ξ_i (Eq. 5), each
+/// radius halved (up to `max_shrinks` times) until its geodesic stays inside Z; an endpoint
+/// still outside is clipped into Z.
+fn geodesic_endpoints(
+    model: &Cvae,
+    omega_n: &[f32],
+    zeta_org: &[f32],
+    z0: &[f32],
+    radius: f64,
+    p: &SearchParams,
+) -> Result<Vec<Candidate>, SearchError> {
+    let chart = DecoderChart { model, omega_n };
+    let metric = metric_of(model, p);
+    let d = model.latent();
+    let z0d = to_f64(z0);
+    let m0 = metric.metric(&chart, &z0d);
+    let raw = sobol::directions(d, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(d))?;
+    let xi = metric
+        .orthonormalise(&m0, &raw)
+        .ok_or(SearchError::Dependent)?;
+    let bound = f64::from(p.bound);
+    let spec = ShootSpec {
+        steps: p.rk4_steps.max(1),
+    };
+    let mut out = Vec::with_capacity(2 * xi.len());
+    for (i, x) in xi.iter().enumerate() {
+        for sign in [1i8, -1] {
+            let mut shrink = 1.0;
+            let mut geo = None;
+            for _ in 0..=p.max_shrinks {
+                let v0: Vec<f64> = x
+                    .iter()
+                    .map(|c| f64::from(sign) * radius * shrink * c)
+                    .collect();
+                let g = shoot(&metric, &chart, &z0d, &v0, &spec, Some((-bound, bound)));
+                let inside = g.inside;
+                geo = Some(g);
+                if inside {
+                    break;
+                }
+                shrink *= 0.5;
+            }
+            let Some(g) = geo else { continue };
+            if !g.inside {
+                // Undo the last halving: it was not tried.
+                shrink *= 2.0;
+            }
+            let z: Vec<f32> = g
+                .end
+                .iter()
+                .map(|v| (*v as f32).clamp(-p.bound, p.bound))
+                .collect();
+            let zeta = model.decode(std::slice::from_ref(&z), omega_n).remove(0);
+            out.push(Candidate {
+                direction: i as u8 + 1,
+                sign,
+                latent_displacement: distance(&z, z0),
+                geodesic_length: Some(g.length),
+                deviation: model.weighted_sq(&zeta, zeta_org).sqrt(),
+                z,
+                zeta,
+                shrink,
+            });
+        }
+    }
+    Ok(out)
+}
+
+fn distance(a: &[f32], b: &[f32]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| {
+            let d = f64::from(*x) - f64::from(*y);
+            d * d
+        })
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// Straight latent lines z⁰ ± scale · radius · ξ_i with Euclidean-orthonormal ξ_i, each
+/// shortened so it ends inside Z.
+fn euclidean_endpoints(
+    model: &Cvae,
+    omega_n: &[f32],
+    zeta_org: &[f32],
+    z0: &[f32],
+    step: f64,
+    p: &SearchParams,
+) -> Result<Vec<Candidate>, SearchError> {
+    let d = model.latent();
+    let raw = sobol::directions(d, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(d))?;
+    let xi = metric_of(model, p)
+        .orthonormalise(&identity(d), &raw)
+        .ok_or(SearchError::Dependent)?;
+    let bound = f64::from(p.bound);
+    let mut out = Vec::with_capacity(2 * xi.len());
+    for (i, x) in xi.iter().enumerate() {
+        for sign in [1i8, -1] {
+            let delta: Vec<f64> = x.iter().map(|c| f64::from(sign) * step * c).collect();
+            // The largest fraction of the step that keeps every coordinate inside Z.
+            let mut shrink: f64 = 1.0;
+            for (z, dz) in z0.iter().zip(&delta) {
+                let z = f64::from(*z);
+                if z + dz > bound {
+                    shrink = shrink.min((bound - z) / dz);
+                } else if z + dz < -bound {
+                    shrink = shrink.min((-bound - z) / dz);
+                }
+            }
+            let shrink = shrink.max(0.0);
+            let z: Vec<f32> = z0
+                .iter()
+                .zip(&delta)
+                .map(|(z, dz)| ((f64::from(*z) + shrink * dz) as f32).clamp(-p.bound, p.bound))
+                .collect();
+            let zeta = model.decode(std::slice::from_ref(&z), omega_n).remove(0);
+            out.push(Candidate {
+                direction: i as u8 + 1,
+                sign,
+                latent_displacement: distance(&z, z0),
+                geodesic_length: None,
+                deviation: model.weighted_sq(&zeta, zeta_org).sqrt(),
+                z,
+                zeta,
+                shrink,
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// ζ_org ± scale · δ_i clipped to [−1, 1], δ_i W_a-orthonormal Sobol directions in action
+/// space.
+fn direct_endpoints(
+    model: &Cvae,
+    zeta_org: &[f32],
+    scale: f64,
+    p: &SearchParams,
+) -> Result<Vec<Candidate>, SearchError> {
+    let n = zeta_org.len();
+    let raw = sobol::directions(n, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(n))?;
+    let w = to_f64(&model.w_a);
+    let m: Vec<f64> = (0..n * n)
+        .map(|i| if i / n == i % n { w[i / n] } else { 0.0 })
+        .collect();
+    let delta = metric_of(model, p)
+        .orthonormalise(&m, &raw)
+        .ok_or(SearchError::Dependent)?;
+    let mut out = Vec::with_capacity(2 * delta.len());
+    for (i, d) in delta.iter().enumerate() {
+        for sign in [1i8, -1] {
+            let zeta: Vec<f32> = zeta_org
+                .iter()
+                .zip(d)
+                .map(|(z, d)| {
+                    ((f64::from(*z) + f64::from(sign) * scale * d) as f32).clamp(-1.0, 1.0)
+                })
+                .collect();
+            out.push(Candidate {
+                direction: i as u8 + 1,
+                sign,
+                z: Vec::new(),
+                latent_displacement: 0.0,
+                geodesic_length: None,
+                deviation: model.weighted_sq(&zeta, zeta_org).sqrt(),
+                zeta,
+                shrink: 1.0,
+            });
+        }
+    }
+    Ok(out)
+}
+
+fn max_dev(c: &[Candidate]) -> f64 {
+    c.iter().map(|c| c.deviation).fold(0.0, f64::max)
+}
+
+/// The scale s whose endpoints' largest deviation (with `floor`, the centre's) equals
+/// `target`: doubling until it is reached, then bisection. None when no scale up to 64 reaches
+/// it or the centre alone exceeds it.
+fn match_scale(
+    target: f64,
+    floor: f64,
+    iterations: u32,
+    mut eval: impl FnMut(f64) -> Result<f64, SearchError>,
+) -> Result<Option<f64>, SearchError> {
+    if floor > target {
+        return Ok(None);
+    }
+    let (mut lo, mut hi) = (0.0, 1.0);
+    while eval(hi)?.max(floor) < target {
+        lo = hi;
+        hi *= 2.0;
+        if hi > 64.0 {
+            return Ok(None);
+        }
+    }
+    for _ in 0..iterations {
+        let mid = 0.5 * (lo + hi);
+        if eval(mid)?.max(floor) < target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Ok(Some(hi))
+}
+
+/// Builds η for one window. `reference` is the largest deviation of the geodesic set of the
+/// same rollout (required by every generator but `geodesic`); `rng` seeds the projection's
+/// multi-start samples.
+pub fn candidate_set(
+    model: &Cvae,
+    zeta_org: &[f32],
+    omega_bar: &[f32],
+    reference: Option<f64>,
+    p: &SearchParams,
+    rng: &mut StreamRng,
+) -> Result<CandidateSet, SearchError> {
+    if zeta_org.len() != model.zeta_len() {
+        return Err(SearchError::ZetaLength {
+            got: zeta_org.len(),
+            expected: model.zeta_len(),
+        });
+    }
+    let omega_n = model.normalise(omega_bar);
+    let shrunk = |c: &[Candidate]| c.iter().filter(|c| c.shrink < 1.0).count() as u32;
+    if p.generator == Generator::Direct {
+        let (scale, matched) = match reference {
+            Some(t) => match match_scale(t, 0.0, p.match_iterations, |s| {
+                Ok(max_dev(&direct_endpoints(model, zeta_org, s, p)?))
+            })? {
+                Some(s) => (s, true),
+                None => (p.radius, false),
+            },
+            None => (p.radius, false),
+        };
+        let mut candidates = vec![Candidate {
+            direction: 0,
+            sign: 0,
+            z: Vec::new(),
+            zeta: zeta_org.to_vec(),
+            latent_displacement: 0.0,
+            geodesic_length: None,
+            deviation: 0.0,
+            shrink: 1.0,
+        }];
+        candidates.extend(direct_endpoints(model, zeta_org, scale, p)?);
+        return Ok(CandidateSet {
+            projection: None,
+            scale,
+            matched,
+            shrunk: 0,
+            candidates,
+        });
+    }
+
+    let proj = project(model, zeta_org, &omega_n, p.bound, &p.projection, rng);
+    let c0 = centre(model, &omega_n, zeta_org, &proj.z0);
+    let endpoints = |s: f64| match p.generator {
+        Generator::Euclidean => {
+            euclidean_endpoints(model, &omega_n, zeta_org, &proj.z0, s * p.radius, p)
+        }
+        _ => geodesic_endpoints(model, &omega_n, zeta_org, &proj.z0, s * p.radius, p),
+    };
+    let (scale, matched) = match (p.generator, reference) {
+        (Generator::Geodesic, _) => (1.0, true),
+        (_, Some(t)) => match match_scale(t, c0.deviation, p.match_iterations, |s| {
+            Ok(max_dev(&endpoints(s)?))
+        })? {
+            Some(s) => (s, true),
+            None => (1.0, false),
+        },
+        (_, None) => (1.0, false),
+    };
+    let mut candidates = vec![c0];
+    candidates.extend(endpoints(scale)?);
+    Ok(CandidateSet {
+        projection: Some(proj),
+        scale,
+        matched,
+        shrunk: shrunk(&candidates),
+        candidates,
+    })
+}

@@ -1,0 +1,10 @@
+//! The paper's method (section 4.1): the OSW motion manifold (a conditional VAE), projection of
+//! an original snippet onto it (Eq. 3), the decoder's pullback metric (Eq. 4), Sobol shooting
+//! directions and geodesic shooting (Eq. 5), and the candidate sets η (Eq. 6).
+
+pub mod candidates;
+pub mod cvae;
+pub mod geodesic;
+pub mod project;
+pub mod sobol;
+pub mod stages;
