@@ -15,6 +15,7 @@ pub fn registry() -> Registry {
         .register_itemised(DropKind)
         .register(SignsKind)
         .register(ShiftKind)
+        .register(OffsetKind)
         .register(SumKind)
         .register(CombineKind)
         .register_itemised(PanicKind)
@@ -186,6 +187,36 @@ impl Stage for ShiftKind {
                 .rows
                 .iter()
                 .map(|r| r.iter().map(|x| x + ctx.params.by).collect())
+                .collect(),
+        })
+    }
+}
+
+/// Adds the sum of the optional `offset` input, if wired (an optional slot).
+pub struct OffsetKind;
+impl Stage for OffsetKind {
+    const KIND: &'static str = "offset";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<Numbers>("values"),
+        Slot::one::<Total>("offset").optional(),
+    ];
+    const DOC: &'static str = "every value plus an optional total's sum (test kind)";
+    type Params = NoParams;
+    type Output = Numbers;
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Numbers, StageError> {
+        let v: Numbers = ctx.sharded("values")?;
+        let by = if ctx.has_input("offset") {
+            ctx.input::<Total>("offset")?.sum
+        } else {
+            0.0
+        };
+        Ok(Numbers {
+            rows: v
+                .rows
+                .iter()
+                .map(|r| r.iter().map(|x| x + by).collect())
                 .collect(),
         })
     }

@@ -448,3 +448,40 @@ fn the_cli_names_folds_and_gathered_members() {
         "{other}"
     );
 }
+
+#[test]
+fn an_optional_slot_may_be_left_unwired() {
+    let text = "[stages.numbers]\nkind = \"numbers\"\nparams = { n = 3, len = 2 }\n\
+                [stages.total]\nkind = \"sum\"\ninputs = { values = \"numbers\" }\n\
+                [stages.plain]\nkind = \"offset\"\ninputs = { values = \"numbers\" }\n\
+                [stages.shifted]\nkind = \"offset\"\ninputs = { values = \"numbers\", offset = \"total\" }\n";
+    let p = Project::new(text);
+    let report = p.make(None, &[0], 1);
+    assert!(report.failed().is_empty(), "{report:?}");
+    let h = hashes(&report);
+    let store = p.open_store();
+    let numbers: Numbers = osms_make::assemble(
+        &store.get(&h["numbers@0"]).expect("object"),
+        &osms_make::StoreObjects(&store),
+    )
+    .expect("assemble");
+    let total: Total = read(&p, &h["total@0"]);
+    let plain: Numbers = read(&p, &h["plain@0"]);
+    let shifted: Numbers = read(&p, &h["shifted@0"]);
+    assert_eq!(plain, numbers, "unwired: nothing added");
+    for (s, n) in shifted
+        .rows
+        .iter()
+        .flatten()
+        .zip(numbers.rows.iter().flatten())
+    {
+        assert_eq!(*s, n + total.sum);
+    }
+
+    // A required slot is still required.
+    let err = refused(
+        "[stages.numbers]\nkind = \"numbers\"\nparams = { n = 3 }\n\
+                       [stages.wrong]\nkind = \"offset\"\ninputs = { offset = \"numbers\" }\n",
+    );
+    assert!(err.contains("is missing input `values`"), "{err}");
+}

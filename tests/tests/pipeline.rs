@@ -90,11 +90,12 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 12, "{reference:?}");
+    assert_eq!(reference.len(), 19, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
     the_osw_projection_is_its_datasets_windows(&first);
+    candidate_sets_cover_d_r_and_are_matched(&first);
     the_tiny_teacher_beats_the_scripted_prior(&first);
     a_damaged_dataset_shard_is_detected_and_rebuilt(&first);
     let two = make(&text, 2, Some(&first));
@@ -116,6 +117,14 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
         .replace(
             "params = { n = 6 }\nshards = 2",
             "params = { n = 6 }\nshards = 4",
+        )
+        .replace(
+            "[profiles.tiny.candidates]\nshards = 2",
+            "[profiles.tiny.candidates]\nshards = 3",
+        )
+        .replace(
+            "[profiles.tiny.candidates_unconditional]\nshards = 2",
+            "[profiles.tiny.candidates_unconditional]\nshards = 5",
         );
     assert_eq!(
         (
@@ -123,7 +132,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
             reshard.matches("shards = 3").count(),
             reshard.matches("params = { n = 6 }\nshards = 4").count()
         ),
-        (1, 1, 2),
+        (2, 2, 2),
         "the overlays were edited"
     );
     assert_eq!(
@@ -374,6 +383,64 @@ fn the_osw_projection_is_its_datasets_windows(made: &Made) {
         assert_eq!(w.omega_bar, r.osw.omega_bar);
         assert_eq!(w.complete, r.osw.complete);
         assert!(w.success);
+    }
+}
+
+/// Every complete D_R window gets |η| = 2K + 1 candidates inside Z from each generator; the
+/// ablations share the geodesic sets' rollouts and are matched to their largest deviation.
+fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
+    use osms_method::candidates::Generator;
+    use osms_method::cvae::Cvae;
+    use osms_method::stages::CandidateSets;
+    use osms_policy::stages::OswSet;
+
+    let windows: OswSet = load(made, "d_r_osw@0");
+    let manifold: Cvae = load(made, "manifold@0");
+    assert!(manifold.params.conditional);
+    assert_eq!(manifold.w_a.len(), 8 * osms_sim::N_ARM);
+    assert_eq!(manifold.windows_train + manifold.windows_heldout, 6);
+    assert!(!load::<Cvae>(made, "manifold_uncond@0").params.conditional);
+    let geo: CandidateSets = load_sharded(made, "candidates@0");
+    assert_eq!(geo.params.generator, Generator::Geodesic);
+    for (name, generator) in [
+        ("candidates@0", Generator::Geodesic),
+        ("candidates_euclidean@0", Generator::Euclidean),
+        ("candidates_unconditional@0", Generator::Unconditional),
+        ("candidates_direct@0", Generator::Direct),
+    ] {
+        let sets: CandidateSets = load_sharded(made, name);
+        assert_eq!(sets.params.generator, generator);
+        assert_eq!(sets.items.len(), windows.windows.len(), "{name}");
+        for ((item, w), g) in sets.items.iter().zip(&windows.windows).zip(&geo.items) {
+            assert_eq!(
+                (item.item, item.attempt, item.success),
+                (w.item, w.attempt, w.success)
+            );
+            assert_eq!(
+                item.set.is_some(),
+                w.complete,
+                "{name}: sets for complete windows only"
+            );
+            let (Some(set), Some(g)) = (&item.set, &g.set) else {
+                continue;
+            };
+            assert_eq!(
+                set.candidates.len(),
+                2 * sets.params.directions + 1,
+                "{name}"
+            );
+            for c in &set.candidates {
+                assert!(
+                    c.z.iter().all(|v| v.abs() <= sets.params.bound),
+                    "{name}: z in Z"
+                );
+                assert!(c.zeta.iter().all(|v| v.abs() <= 1.0), "{name}: ζ in bounds");
+            }
+            if set.matched && generator != Generator::Geodesic {
+                let rel = (set.max_deviation() - g.max_deviation()).abs() / g.max_deviation();
+                assert!(rel < 1e-3, "{name}: matched deviation off by {rel}");
+            }
+        }
     }
 }
 

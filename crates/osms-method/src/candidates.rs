@@ -75,7 +75,7 @@ impl Default for SearchParams {
             bound: 3.0,
             directions: 4,
             radius: 0.75,
-            lambda_reg: 1e-2,
+            lambda_reg: 0.1,
             rk4_steps: 8,
             max_shrinks: 6,
             sobol_first: 6,
@@ -523,4 +523,216 @@ pub fn candidate_set(
         shrunk: shrunk(&candidates),
         candidates,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cvae::testing;
+    use crate::geodesic::PullbackMetric;
+    use osms_make::rng;
+
+    fn params(generator: Generator) -> SearchParams {
+        SearchParams {
+            generator,
+            directions: 3,
+            radius: 0.5,
+            ..SearchParams::default()
+        }
+    }
+
+    /// A snippet a little off the manifold: a training window plus a smooth offset.
+    fn target(zetas: &[Vec<f32>], i: usize) -> Vec<f32> {
+        zetas[i]
+            .iter()
+            .enumerate()
+            .map(|(j, v)| (v + 0.05 * ((j % 7) as f32 - 3.0) / 3.0).clamp(-1.0, 1.0))
+            .collect()
+    }
+
+    #[test]
+    fn geodesic_sets_have_the_papers_shape_and_stay_in_z() {
+        let (m, zetas, omegas) = testing::model(true);
+        let p = params(Generator::Geodesic);
+        for i in [0usize, 7, 19] {
+            let zeta_org = target(&zetas, i);
+            let set = candidate_set(
+                &m,
+                &zeta_org,
+                &omegas[i],
+                None,
+                &p,
+                &mut rng::stream(0, "t", "c", i as u64),
+            )
+            .expect("set");
+            assert_eq!(set.candidates.len(), 2 * p.directions + 1);
+            assert!(set.matched && set.scale == 1.0);
+            let proj = set.projection.as_ref().expect("projection");
+            assert_eq!(set.candidates[0].z, proj.z0);
+            assert!((set.candidates[0].deviation - proj.residual).abs() < 1e-9);
+            for c in &set.candidates {
+                assert!(c.z.iter().all(|v| v.abs() <= p.bound), "{:?}", c.z);
+                let zeta = m
+                    .decode(std::slice::from_ref(&c.z), &m.normalise(&omegas[i]))
+                    .remove(0);
+                assert_eq!(zeta, c.zeta, "ζ is G(z, ω̄)");
+                assert!((c.deviation - m.weighted_sq(&c.zeta, &zeta_org).sqrt()).abs() < 1e-9);
+            }
+            // ξ_i is M-unit and a geodesic keeps its speed, so each length is r × shrink (up to
+            // the default 8 RK4 steps' drift on an f32 decoder: 0.3 % measured).
+            for c in &set.candidates[1..] {
+                let length = c.geodesic_length.expect("length");
+                let expected = p.radius * c.shrink;
+                assert!(
+                    (length - expected).abs() < 1e-2 * expected,
+                    "direction {} sign {}: length {length}, r·shrink {expected}",
+                    c.direction,
+                    c.sign
+                );
+            }
+            // Opposite directions leave z⁰ the opposite way.
+            for pair in set.candidates[1..].chunks(2) {
+                let z0 = &proj.z0;
+                let dot: f32 = (0..z0.len())
+                    .map(|k| (pair[0].z[k] - z0[k]) * (pair[1].z[k] - z0[k]))
+                    .sum();
+                assert!(dot < 0.0, "± directions point apart");
+            }
+        }
+    }
+
+    #[test]
+    fn directions_are_orthonormal_under_the_metric() {
+        let (m, _, omegas) = testing::model(true);
+        let p = params(Generator::Geodesic);
+        let omega_n = m.normalise(&omegas[3]);
+        let chart = DecoderChart {
+            model: &m,
+            omega_n: &omega_n,
+        };
+        let metric = PullbackMetric {
+            weights: to_f64(&m.w_a),
+            lambda_reg: p.lambda_reg,
+        };
+        let z0 = [0.3, -0.2, 0.5];
+        let mm = metric.metric(&chart, &z0);
+        let raw = sobol::directions(3, p.sobol_first, 3).expect("sobol");
+        let xi = metric.orthonormalise(&mm, &raw).expect("independent");
+        for (a, xa) in xi.iter().enumerate() {
+            for (b, xb) in xi.iter().enumerate() {
+                let mut ip = 0.0;
+                for r in 0..3 {
+                    for c in 0..3 {
+                        ip += xa[r] * mm[r * 3 + c] * xb[c];
+                    }
+                }
+                let want = if a == b { 1.0 } else { 0.0 };
+                assert!((ip - want).abs() < 1e-9, "ξ_{a}ᵀ M ξ_{b} = {ip}");
+            }
+        }
+        // The paper's K = 4 directions from the default first point are independent in the
+        // latent (8) and action (56) dimensions.
+        for dim in [8usize, 56] {
+            let raw =
+                sobol::directions(dim, SearchParams::default().sobol_first, 4).expect("sobol");
+            let eye: Vec<f64> = (0..dim * dim)
+                .map(|i| if i / dim == i % dim { 1.0 } else { 0.0 })
+                .collect();
+            assert!(
+                metric.orthonormalise(&eye, &raw).is_some(),
+                "{dim} dimensions"
+            );
+        }
+    }
+
+    #[test]
+    fn ablations_match_the_geodesic_deviation() {
+        let (m, zetas, omegas) = testing::model(true);
+        let (mu, _, _) = testing::model(false);
+        for i in [2usize, 11] {
+            let zeta_org = target(&zetas, i);
+            let stream = || rng::stream(0, "t", "c", i as u64);
+            let geo = candidate_set(
+                &m,
+                &zeta_org,
+                &omegas[i],
+                None,
+                &params(Generator::Geodesic),
+                &mut stream(),
+            )
+            .expect("geodesic");
+            let reference = geo.max_deviation();
+            for (g, model) in [
+                (Generator::Euclidean, &m),
+                (Generator::Direct, &m),
+                (Generator::Unconditional, &mu),
+            ] {
+                let set = candidate_set(
+                    model,
+                    &zeta_org,
+                    &omegas[i],
+                    Some(reference),
+                    &params(g),
+                    &mut stream(),
+                )
+                .expect("set");
+                assert_eq!(
+                    set.candidates.len(),
+                    geo.candidates.len(),
+                    "{g:?}: same |η|"
+                );
+                if set.matched {
+                    let rel = (set.max_deviation() - reference).abs() / reference;
+                    assert!(
+                        rel < 1e-3,
+                        "{g:?}: largest deviation {} vs {reference}",
+                        set.max_deviation()
+                    );
+                } else {
+                    assert_eq!(
+                        g,
+                        Generator::Unconditional,
+                        "only another manifold's centre can miss"
+                    );
+                }
+                if g == Generator::Direct {
+                    assert_eq!(
+                        set.candidates[0].zeta, zeta_org,
+                        "the centre is ζ_org itself"
+                    );
+                    assert!(
+                        set.candidates
+                            .iter()
+                            .all(|c| c.zeta.iter().all(|v| v.abs() <= 1.0))
+                    );
+                }
+                if g == Generator::Euclidean {
+                    let z0 = &geo.projection.as_ref().expect("p").z0;
+                    assert_eq!(&set.projection.as_ref().expect("p").z0, z0, "same centre");
+                    assert!(
+                        set.candidates
+                            .iter()
+                            .all(|c| c.geodesic_length.is_none() || c.direction == 0)
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn match_scale_finds_the_target_and_reports_the_impossible() {
+        let f = |s: f64| Ok(2.0 * s);
+        let s = match_scale(3.0, 0.0, 40, f).expect("ok").expect("some");
+        assert!((s - 1.5).abs() < 1e-9, "{s}");
+        assert_eq!(
+            match_scale(3.0, 4.0, 40, f).expect("ok"),
+            None,
+            "the centre is already farther"
+        );
+        assert_eq!(
+            match_scale(1e9, 0.0, 40, f).expect("ok"),
+            None,
+            "out of reach"
+        );
+    }
 }

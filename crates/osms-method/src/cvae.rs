@@ -33,6 +33,10 @@ pub struct ManifoldParams {
     pub lambda_s: f32,
     /// β: weight of KL(q ‖ p).
     pub beta: f32,
+    /// Weight of KL(p(z | ω̄) ‖ N(0, I)). A learned conditional prior leaves the latent scale
+    /// free (q follows p wherever it goes); this anchors it, so the box Z = [−3, 3]^latent of the
+    /// search means what it says.
+    pub prior_anchor: f32,
     pub epochs: u32,
     pub batch: usize,
     pub lr: f32,
@@ -47,7 +51,8 @@ impl Default for ManifoldParams {
             latent: 8,
             hidden: vec![128, 128],
             lambda_s: 0.1,
-            beta: 0.05,
+            beta: 0.0005,
+            prior_anchor: 0.01,
             epochs: 300,
             batch: 64,
             lr: 1e-3,
@@ -545,6 +550,11 @@ fn batch_step(
     let (d_dec_in, dec_grads) = model.decoder.backward(&dec_cache, &d_g);
 
     let beta_n = p.beta / b as f32;
+    let anchor_n = if model.prior.is_some() {
+        p.prior_anchor / b as f32
+    } else {
+        0.0
+    };
     let mut kl = 0.0f64;
     let mut g_mu_q = Matrix::zeros(b, l);
     let mut g_ls_q = Matrix::zeros(b, l);
@@ -564,8 +574,12 @@ fn batch_step(
             kl += f64::from(lp - lq + (var_q + dm * dm) / (2.0 * var_p) - 0.5);
             g_mu_q.set(i, j, beta_n * dm / var_p);
             g_ls_q.set(i, j, beta_n * (var_q / var_p - 1.0));
-            g_mu_p.set(i, j, -beta_n * dm / var_p);
-            g_ls_p.set(i, j, beta_n * (1.0 - (var_q + dm * dm) / var_p));
+            g_mu_p.set(i, j, -beta_n * dm / var_p + anchor_n * mp);
+            g_ls_p.set(
+                i,
+                j,
+                beta_n * (1.0 - (var_q + dm * dm) / var_p) + anchor_n * (var_p - 1.0),
+            );
             // Reparameterisation: z = μ_q + σ_q ε.
             let dz = d_dec_in.get(i, j);
             g_mu_q.set(i, j, g_mu_q.get(i, j) + dz);
@@ -744,5 +758,46 @@ mod tests {
         assert!(e.to_string().contains("window 5"), "{e}");
         let few = train(&windows(&z[..1], &o[..1]), 8, 7, &p, (1, "t"), &|| {});
         assert!(matches!(few, Err(CvaeError::TooFewWindows(1))));
+    }
+}
+
+/// A small manifold trained on smooth synthetic snippets, for the tests of the search.
+#[cfg(test)]
+pub(crate) mod testing {
+    use super::*;
+
+    /// (model, ζs, ω̄s): 200 windows of 8 × 7 from 3 latent factors, the third also in ω̄.
+    pub(crate) fn model(conditional: bool) -> (Cvae, Vec<Vec<f32>>, Vec<Vec<f32>>) {
+        let mut rng = rng::stream(0, "test", "data", 0);
+        let mut zetas = Vec::new();
+        let mut omegas = Vec::new();
+        for _ in 0..200 {
+            let u: Vec<f64> = (0..3).map(|_| rng::uniform(&mut rng, -1.0, 1.0)).collect();
+            let zeta: Vec<f32> = (0..56)
+                .map(|j| {
+                    let (t, c) = ((j / 7) as f64 / 7.0, (j % 7) as f64);
+                    (0.6 * u[0] * (1.0 - t) + 0.4 * u[1] * t * (c * 0.5).cos() + 0.2 * u[2]).tanh()
+                        as f32
+                })
+                .collect();
+            zetas.push(zeta);
+            omegas.push(vec![u[2] as f32]);
+        }
+        let windows: Vec<Window<'_>> = zetas
+            .iter()
+            .zip(&omegas)
+            .map(|(zeta, omega_bar)| Window { zeta, omega_bar })
+            .collect();
+        let p = ManifoldParams {
+            conditional,
+            latent: 3,
+            hidden: vec![32, 32],
+            epochs: 40,
+            batch: 32,
+            lr: 3e-3,
+            ..ManifoldParams::default()
+        };
+        let m = train(&windows, 8, 7, &p, (1, "t"), &|| {}).expect("train");
+        (m, zetas, omegas)
     }
 }

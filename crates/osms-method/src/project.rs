@@ -147,39 +147,9 @@ pub fn project(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cvae::{ManifoldParams, Window, train};
 
-    /// A small trained manifold on smooth synthetic snippets.
     fn model() -> (Cvae, Vec<Vec<f32>>) {
-        let mut rng = rng::stream(0, "test", "data", 0);
-        let mut zetas = Vec::new();
-        let mut omegas = Vec::new();
-        for _ in 0..200 {
-            let u: Vec<f64> = (0..3).map(|_| rng::uniform(&mut rng, -1.0, 1.0)).collect();
-            let zeta: Vec<f32> = (0..56)
-                .map(|j| {
-                    let (t, c) = ((j / 7) as f64 / 7.0, (j % 7) as f64);
-                    (0.6 * u[0] * (1.0 - t) + 0.4 * u[1] * t * (c * 0.5).cos() + 0.2 * u[2]).tanh()
-                        as f32
-                })
-                .collect();
-            zetas.push(zeta);
-            omegas.push(vec![u[2] as f32]);
-        }
-        let windows: Vec<Window<'_>> = zetas
-            .iter()
-            .zip(&omegas)
-            .map(|(zeta, omega_bar)| Window { zeta, omega_bar })
-            .collect();
-        let p = ManifoldParams {
-            latent: 3,
-            hidden: vec![32, 32],
-            epochs: 40,
-            batch: 32,
-            lr: 3e-3,
-            ..ManifoldParams::default()
-        };
-        let m = train(&windows, 8, 7, &p, (1, "t"), &|| {}).expect("train");
+        let (m, _, omegas) = crate::cvae::testing::model(true);
         (m, omegas)
     }
 
