@@ -90,7 +90,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 19, "{reference:?}");
+    assert_eq!(reference.len(), 20, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -119,8 +119,8 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
             "params = { n = 6 }\nshards = 4",
         )
         .replace(
-            "[profiles.tiny.candidates]\nshards = 2",
-            "[profiles.tiny.candidates]\nshards = 3",
+            "[profiles.tiny.candidates_geodesic]\nshards = 2",
+            "[profiles.tiny.candidates_geodesic]\nshards = 3",
         )
         .replace(
             "[profiles.tiny.candidates_unconditional]\nshards = 2",
@@ -400,10 +400,10 @@ fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
     assert_eq!(manifold.w_a.len(), 8 * osms_sim::N_ARM);
     assert_eq!(manifold.windows_train + manifold.windows_heldout, 6);
     assert!(!load::<Cvae>(made, "manifold_uncond@0").params.conditional);
-    let geo: CandidateSets = load_sharded(made, "candidates@0");
+    let geo: CandidateSets = load_sharded(made, "candidates_geodesic@0");
     assert_eq!(geo.params.generator, Generator::Geodesic);
     for (name, generator) in [
-        ("candidates@0", Generator::Geodesic),
+        ("candidates_geodesic@0", Generator::Geodesic),
         ("candidates_euclidean@0", Generator::Euclidean),
         ("candidates_unconditional@0", Generator::Unconditional),
         ("candidates_direct@0", Generator::Direct),
@@ -442,6 +442,10 @@ fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
             }
         }
     }
+    let table: osms_method::stages::CandidateTable = load(made, "candidates@0");
+    let names: Vec<&str> = table.rows.iter().map(|r| r.generator.as_str()).collect();
+    assert_eq!(names, ["geodesic", "euclidean", "unconditional", "direct"]);
+    assert_eq!(table.rows[0], geo.stats());
 }
 
 fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
