@@ -436,6 +436,12 @@ fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
                 );
                 assert!(c.zeta.iter().all(|v| v.abs() <= 1.0), "{name}: ζ in bounds");
             }
+            if generator == Generator::Euclidean {
+                assert_eq!(
+                    set.projection, g.projection,
+                    "{name}: the geodesic sets' z⁰"
+                );
+            }
             if set.matched && generator != Generator::Geodesic {
                 let rel = (set.max_deviation() - g.max_deviation()).abs() / g.max_deviation();
                 assert!(rel < 1e-3, "{name}: matched deviation off by {rel}");

@@ -447,14 +447,15 @@ fn match_scale(
     Ok(Some(hi))
 }
 
-/// Builds η for one window. `reference` is the largest deviation of the geodesic set of the
-/// same rollout (required by every generator but `geodesic`); `rng` seeds the projection's
-/// multi-start samples.
+/// Builds η for one window. `reference` is the geodesic set of the same rollout (required by
+/// every generator but `geodesic`): the ablations match its largest deviation, and
+/// `euclidean` starts from its z⁰, so the two differ only in how they leave it. `rng` seeds
+/// the projection's multi-start samples.
 pub fn candidate_set(
     model: &Cvae,
     zeta_org: &[f32],
     omega_bar: &[f32],
-    reference: Option<f64>,
+    reference: Option<&CandidateSet>,
     p: &SearchParams,
     rng: &mut StreamRng,
 ) -> Result<CandidateSet, SearchError> {
@@ -466,8 +467,9 @@ pub fn candidate_set(
     }
     let omega_n = model.normalise(omega_bar);
     let shrunk = |c: &[Candidate]| c.iter().filter(|c| c.shrink < 1.0).count() as u32;
+    let target = reference.map(CandidateSet::max_deviation);
     if p.generator == Generator::Direct {
-        let (scale, matched) = match reference {
+        let (scale, matched) = match target {
             Some(t) => match match_scale(t, 0.0, p.match_iterations, |s| {
                 Ok(max_dev(&direct_endpoints(model, zeta_org, s, p)?))
             })? {
@@ -496,7 +498,14 @@ pub fn candidate_set(
         });
     }
 
-    let proj = project(model, zeta_org, &omega_n, p.bound, &p.projection, rng);
+    let shared = match (p.generator, reference) {
+        (Generator::Euclidean, Some(r)) => r.projection.clone(),
+        _ => None,
+    };
+    let proj = match shared {
+        Some(proj) => proj,
+        None => project(model, zeta_org, &omega_n, p.bound, &p.projection, rng),
+    };
     let c0 = centre(model, &omega_n, zeta_org, &proj.z0);
     let endpoints = |s: f64| match p.generator {
         Generator::Euclidean => {
@@ -504,7 +513,7 @@ pub fn candidate_set(
         }
         _ => geodesic_endpoints(model, &omega_n, zeta_org, &proj.z0, s * p.radius, p),
     };
-    let (scale, matched) = match (p.generator, reference) {
+    let (scale, matched) = match (p.generator, target) {
         (Generator::Geodesic, _) => (1.0, true),
         (_, Some(t)) => match match_scale(t, c0.deviation, p.match_iterations, |s| {
             Ok(max_dev(&endpoints(s)?))
@@ -671,7 +680,7 @@ mod tests {
                     model,
                     &zeta_org,
                     &omegas[i],
-                    Some(reference),
+                    Some(&geo),
                     &params(g),
                     &mut stream(),
                 )

@@ -315,15 +315,16 @@ impl Summarize for CandidateSets {
     }
 }
 
-/// The geodesic sets' largest deviation per rollout, by (item, attempt), for matching.
-type Reference = Vec<Option<f64>>;
+/// The geodesic sets per rollout, in the windows' order (none for the geodesic generator).
+type Reference = Vec<Option<CandidateSet>>;
 
 /// Candidate sets for every D_R rollout (paper Alg. 1, line "generate η"). Rollout i's
 /// projection draws its multi-start samples from stream ("projection", i).
 pub struct CandidatesStage;
 impl ItemStage for CandidatesStage {
     const KIND: &'static str = "candidates";
-    const CODE_VERSION: u32 = 1;
+    /// 2: `euclidean` starts from the reference sets' z⁰.
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<Cvae>("manifold"),
@@ -413,10 +414,7 @@ impl ItemStage for CandidatesStage {
                     )
                     .into());
                 }
-                r.items
-                    .iter()
-                    .map(|i| i.set.as_ref().map(CandidateSet::max_deviation))
-                    .collect()
+                r.items.into_iter().map(|i| i.set).collect()
             }
         };
         Ok((model, windows, reference))
@@ -440,7 +438,7 @@ impl ItemStage for CandidatesStage {
                     model,
                     &w.zeta_org,
                     &w.omega_bar,
-                    reference[index],
+                    reference[index].as_ref(),
                     ctx.params,
                     rng,
                 )
