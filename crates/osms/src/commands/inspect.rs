@@ -266,6 +266,9 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
                             if s.gather {
                                 text.push_str(" (gather)");
                             }
+                            if s.optional {
+                                text.push_str(" (optional)");
+                            }
                             text
                         })
                         .collect::<Vec<_>>()
