@@ -277,6 +277,7 @@ fn status_names_why_each_stage_would_run() {
         .register_itemised(osms_tests::kinds::DropKind)
         .register(osms_tests::kinds::SignsKind)
         .register(osms_tests::kinds::ShiftKind)
+        .register(osms_tests::kinds::OffsetKind)
         .register(osms_tests::kinds::SumKind)
         .register(osms_tests::kinds::CombineKind)
         .register_itemised(osms_tests::kinds::PanicKind)
@@ -448,7 +449,7 @@ fn unknown_stage_kind_names_the_stage_and_the_known_kinds() {
     let err = plan_error("[stages.gen]\nkind = \"numbres\"\nparams = { n = 3 }\n");
     assert_eq!(
         err,
-        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `fold_rows`, `gather_totals`, `numbers`, `panicky`, `shift`, `signs`, `sum`, `sum_of_a`"
+        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `fold_rows`, `gather_totals`, `numbers`, `offset`, `panicky`, `shift`, `signs`, `sum`, `sum_of_a`"
     );
 }
 
