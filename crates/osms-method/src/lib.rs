@@ -4,6 +4,7 @@
 
 pub mod candidates;
 pub mod cvae;
+pub mod error_model;
 pub mod geodesic;
 pub mod project;
 pub mod sobol;
