@@ -39,6 +39,12 @@ impl Chart for Timed<'_> {
         self.spent.set(self.spent.get() + t.elapsed());
         out
     }
+    fn jacobian_and_curvature(&self, z: &[f64], v: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let t = Instant::now();
+        let out = self.inner.jacobian_and_curvature(z, v);
+        self.spent.set(self.spent.get() + t.elapsed());
+        out
+    }
     fn decode(&self, z: &[f64]) -> Vec<f64> {
         let t = Instant::now();
         let out = self.inner.decode(z);

@@ -124,10 +124,7 @@ pub struct CandidateSet {
 
 impl CandidateSet {
     pub fn max_deviation(&self) -> f64 {
-        self.candidates
-            .iter()
-            .map(|c| c.deviation)
-            .fold(0.0, f64::max)
+        max_dev(&self.candidates)
     }
 
     pub fn mean_deviation(&self) -> f64 {
@@ -148,6 +145,36 @@ impl DecoderChart<'_> {
         x.extend_from_slice(self.omega_n);
         x
     }
+
+    /// A latent direction as an input direction (zero on ω̄, which is fixed).
+    fn direction(&self, v: &[f64]) -> Vec<f32> {
+        let mut dir = vec![0.0f32; v.len() + self.omega_n.len()];
+        for (d, v) in dir.iter_mut().zip(v) {
+            *d = *v as f32;
+        }
+        dir
+    }
+
+    /// One forward-mode pass: G, J_G (from unit tangents on z) and, with `v`, ∂²G[v, v].
+    fn jet(&self, z: &[f64], v: Option<&[f64]>) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let x = self.input(z);
+        let d = z.len();
+        let tangents = Matrix::from_fn(d, x.len(), |k, j| if k == j { 1.0 } else { 0.0 });
+        let dir = v.map(|v| self.direction(v));
+        let jet = self.model.decoder.jet(&x, &tangents, dir.as_deref());
+        let n = jet.y.len();
+        let mut jac = Vec::with_capacity(n * d);
+        for i in 0..n {
+            for k in 0..d {
+                jac.push(f64::from(jet.dy.get(k, i)));
+            }
+        }
+        (
+            to_f64(&jet.y),
+            jac,
+            jet.ddy.as_deref().map(to_f64).unwrap_or_default(),
+        )
+    }
 }
 
 impl Chart for DecoderChart<'_> {
@@ -156,43 +183,27 @@ impl Chart for DecoderChart<'_> {
     }
 
     fn jacobian(&self, z: &[f64]) -> (Vec<f64>, Vec<f64>) {
-        let x = self.input(z);
-        let d = z.len();
-        let tangents = Matrix::from_fn(d, x.len(), |k, j| if k == j { 1.0 } else { 0.0 });
-        let jet = self.model.decoder.jet(&x, &tangents, None);
-        let n = jet.y.len();
-        let mut jac = Vec::with_capacity(n * d);
-        for i in 0..n {
-            for k in 0..d {
-                jac.push(f64::from(jet.dy.get(k, i)));
-            }
-        }
-        (jet.y.iter().map(|v| f64::from(*v)).collect(), jac)
+        let (g, jac, _) = self.jet(z, None);
+        (g, jac)
     }
 
     fn curvature(&self, z: &[f64], v: &[f64]) -> Vec<f64> {
         let x = self.input(z);
-        let mut dir = vec![0.0f32; x.len()];
-        for (d, v) in dir.iter_mut().zip(v) {
-            *d = *v as f32;
-        }
         let jet = self
             .model
             .decoder
-            .jet(&x, &Matrix::zeros(0, x.len()), Some(&dir));
-        jet.ddy
-            .unwrap_or_default()
-            .iter()
-            .map(|v| f64::from(*v))
-            .collect()
+            .jet(&x, &Matrix::zeros(0, x.len()), Some(&self.direction(v)));
+        jet.ddy.as_deref().map(to_f64).unwrap_or_default()
+    }
+
+    fn jacobian_and_curvature(&self, z: &[f64], v: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let (_, jac, curv) = self.jet(z, Some(v));
+        (jac, curv)
     }
 
     fn decode(&self, z: &[f64]) -> Vec<f64> {
         let zs = vec![z.iter().map(|v| *v as f32).collect::<Vec<f32>>()];
-        self.model.decode(&zs, self.omega_n)[0]
-            .iter()
-            .map(|v| f64::from(*v))
-            .collect()
+        to_f64(&self.model.decode(&zs, self.omega_n)[0])
     }
 }
 
@@ -224,41 +235,70 @@ fn identity(d: usize) -> Vec<f64> {
         .collect()
 }
 
-/// The centre ζ₀ = G(z⁰, ω̄) as a candidate.
-fn centre(model: &Cvae, omega_n: &[f32], zeta_org: &[f32], z0: &[f32]) -> Candidate {
-    let zeta = model.decode(&[z0.to_vec()], omega_n).remove(0);
-    Candidate {
-        direction: 0,
-        sign: 0,
-        z: z0.to_vec(),
-        deviation: model.weighted_sq(&zeta, zeta_org).sqrt(),
-        zeta,
-        latent_displacement: 0.0,
-        geodesic_length: Some(0.0),
-        shrink: 1.0,
+/// A latent candidate: G(z, ω̄) with its deviation from ζ_org and displacement from z⁰.
+struct Latent<'a> {
+    model: &'a Cvae,
+    omega_n: &'a [f32],
+    zeta_org: &'a [f32],
+    z0: &'a [f32],
+}
+
+impl Latent<'_> {
+    fn candidate(
+        &self,
+        z: Vec<f32>,
+        (direction, sign): (u8, i8),
+        geodesic_length: Option<f64>,
+        shrink: f64,
+    ) -> Candidate {
+        let zeta = self
+            .model
+            .decode(std::slice::from_ref(&z), self.omega_n)
+            .remove(0);
+        Candidate {
+            direction,
+            sign,
+            latent_displacement: distance(&z, self.z0),
+            geodesic_length,
+            deviation: self.model.weighted_sq(&zeta, self.zeta_org).sqrt(),
+            z,
+            zeta,
+            shrink,
+        }
     }
+
+    /// The centre ζ₀ = G(z⁰, ω̄).
+    fn centre(&self) -> Candidate {
+        self.candidate(self.z0.to_vec(), (0, 0), Some(0.0), 1.0)
+    }
+}
+
+/// K Sobol directions, orthonormal under `m` (d × d).
+fn directions(
+    metric: &PullbackMetric,
+    m: &[f64],
+    d: usize,
+    p: &SearchParams,
+) -> Result<Vec<Vec<f64>>, SearchError> {
+    let raw = sobol::directions(d, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(d))?;
+    metric.orthonormalise(m, &raw).ok_or(SearchError::Dependent)
 }
 
 /// The 2K geodesic endpoints from z⁰ with initial velocities ± radius ξ_i (Eq. 5), each
 /// radius halved (up to `max_shrinks` times) until its geodesic stays inside Z; an endpoint
 /// still outside is clipped into Z.
 fn geodesic_endpoints(
-    model: &Cvae,
-    omega_n: &[f32],
-    zeta_org: &[f32],
-    z0: &[f32],
+    at: &Latent<'_>,
+    xi: &[Vec<f64>],
     radius: f64,
     p: &SearchParams,
-) -> Result<Vec<Candidate>, SearchError> {
-    let chart = DecoderChart { model, omega_n };
-    let metric = metric_of(model, p);
-    let d = model.latent();
-    let z0d = to_f64(z0);
-    let m0 = metric.metric(&chart, &z0d);
-    let raw = sobol::directions(d, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(d))?;
-    let xi = metric
-        .orthonormalise(&m0, &raw)
-        .ok_or(SearchError::Dependent)?;
+) -> Vec<Candidate> {
+    let chart = DecoderChart {
+        model: at.model,
+        omega_n: at.omega_n,
+    };
+    let metric = metric_of(at.model, p);
+    let z0 = to_f64(at.z0);
     let bound = f64::from(p.bound);
     let spec = ShootSpec {
         steps: p.rk4_steps.max(1),
@@ -267,44 +307,28 @@ fn geodesic_endpoints(
     for (i, x) in xi.iter().enumerate() {
         for sign in [1i8, -1] {
             let mut shrink = 1.0;
-            let mut geo = None;
-            for _ in 0..=p.max_shrinks {
+            let mut tries = 0;
+            let g = loop {
                 let v0: Vec<f64> = x
                     .iter()
                     .map(|c| f64::from(sign) * radius * shrink * c)
                     .collect();
-                let g = shoot(&metric, &chart, &z0d, &v0, &spec, Some((-bound, bound)));
-                let inside = g.inside;
-                geo = Some(g);
-                if inside {
-                    break;
+                let g = shoot(&metric, &chart, &z0, &v0, &spec, Some((-bound, bound)));
+                if g.inside || tries == p.max_shrinks {
+                    break g;
                 }
+                tries += 1;
                 shrink *= 0.5;
-            }
-            let Some(g) = geo else { continue };
-            if !g.inside {
-                // Undo the last halving: it was not tried.
-                shrink *= 2.0;
-            }
+            };
             let z: Vec<f32> = g
                 .end
                 .iter()
                 .map(|v| (*v as f32).clamp(-p.bound, p.bound))
                 .collect();
-            let zeta = model.decode(std::slice::from_ref(&z), omega_n).remove(0);
-            out.push(Candidate {
-                direction: i as u8 + 1,
-                sign,
-                latent_displacement: distance(&z, z0),
-                geodesic_length: Some(g.length),
-                deviation: model.weighted_sq(&zeta, zeta_org).sqrt(),
-                z,
-                zeta,
-                shrink,
-            });
+            out.push(at.candidate(z, (i as u8 + 1, sign), Some(g.length), shrink));
         }
     }
-    Ok(out)
+    out
 }
 
 fn distance(a: &[f32], b: &[f32]) -> f64 {
@@ -318,21 +342,14 @@ fn distance(a: &[f32], b: &[f32]) -> f64 {
         .sqrt()
 }
 
-/// Straight latent lines z⁰ ± scale · radius · ξ_i with Euclidean-orthonormal ξ_i, each
-/// shortened so it ends inside Z.
+/// Straight latent lines z⁰ ± step · ξ_i (ξ_i Euclidean-orthonormal), each shortened so it
+/// ends inside Z.
 fn euclidean_endpoints(
-    model: &Cvae,
-    omega_n: &[f32],
-    zeta_org: &[f32],
-    z0: &[f32],
+    at: &Latent<'_>,
+    xi: &[Vec<f64>],
     step: f64,
     p: &SearchParams,
-) -> Result<Vec<Candidate>, SearchError> {
-    let d = model.latent();
-    let raw = sobol::directions(d, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(d))?;
-    let xi = metric_of(model, p)
-        .orthonormalise(&identity(d), &raw)
-        .ok_or(SearchError::Dependent)?;
+) -> Vec<Candidate> {
     let bound = f64::from(p.bound);
     let mut out = Vec::with_capacity(2 * xi.len());
     for (i, x) in xi.iter().enumerate() {
@@ -340,7 +357,7 @@ fn euclidean_endpoints(
             let delta: Vec<f64> = x.iter().map(|c| f64::from(sign) * step * c).collect();
             // The largest fraction of the step that keeps every coordinate inside Z.
             let mut shrink: f64 = 1.0;
-            for (z, dz) in z0.iter().zip(&delta) {
+            for (z, dz) in at.z0.iter().zip(&delta) {
                 let z = f64::from(*z);
                 if z + dz > bound {
                     shrink = shrink.min((bound - z) / dz);
@@ -349,25 +366,16 @@ fn euclidean_endpoints(
                 }
             }
             let shrink = shrink.max(0.0);
-            let z: Vec<f32> = z0
+            let z: Vec<f32> = at
+                .z0
                 .iter()
                 .zip(&delta)
                 .map(|(z, dz)| ((f64::from(*z) + shrink * dz) as f32).clamp(-p.bound, p.bound))
                 .collect();
-            let zeta = model.decode(std::slice::from_ref(&z), omega_n).remove(0);
-            out.push(Candidate {
-                direction: i as u8 + 1,
-                sign,
-                latent_displacement: distance(&z, z0),
-                geodesic_length: None,
-                deviation: model.weighted_sq(&zeta, zeta_org).sqrt(),
-                z,
-                zeta,
-                shrink,
-            });
+            out.push(at.candidate(z, (i as u8 + 1, sign), None, shrink));
         }
     }
-    Ok(out)
+    out
 }
 
 /// ζ_org ± scale · δ_i clipped to [−1, 1], δ_i W_a-orthonormal Sobol directions in action
@@ -375,18 +383,9 @@ fn euclidean_endpoints(
 fn direct_endpoints(
     model: &Cvae,
     zeta_org: &[f32],
+    delta: &[Vec<f64>],
     scale: f64,
-    p: &SearchParams,
-) -> Result<Vec<Candidate>, SearchError> {
-    let n = zeta_org.len();
-    let raw = sobol::directions(n, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(n))?;
-    let w = to_f64(&model.w_a);
-    let m: Vec<f64> = (0..n * n)
-        .map(|i| if i / n == i % n { w[i / n] } else { 0.0 })
-        .collect();
-    let delta = metric_of(model, p)
-        .orthonormalise(&m, &raw)
-        .ok_or(SearchError::Dependent)?;
+) -> Vec<Candidate> {
     let mut out = Vec::with_capacity(2 * delta.len());
     for (i, d) in delta.iter().enumerate() {
         for sign in [1i8, -1] {
@@ -409,7 +408,7 @@ fn direct_endpoints(
             });
         }
     }
-    Ok(out)
+    out
 }
 
 fn max_dev(c: &[Candidate]) -> f64 {
@@ -423,28 +422,28 @@ fn match_scale(
     target: f64,
     floor: f64,
     iterations: u32,
-    mut eval: impl FnMut(f64) -> Result<f64, SearchError>,
-) -> Result<Option<f64>, SearchError> {
+    mut eval: impl FnMut(f64) -> f64,
+) -> Option<f64> {
     if floor > target {
-        return Ok(None);
+        return None;
     }
     let (mut lo, mut hi) = (0.0, 1.0);
-    while eval(hi)?.max(floor) < target {
+    while eval(hi).max(floor) < target {
         lo = hi;
         hi *= 2.0;
         if hi > 64.0 {
-            return Ok(None);
+            return None;
         }
     }
     for _ in 0..iterations {
         let mid = 0.5 * (lo + hi);
-        if eval(mid)?.max(floor) < target {
+        if eval(mid).max(floor) < target {
             lo = mid;
         } else {
             hi = mid;
         }
     }
-    Ok(Some(hi))
+    Some(hi)
 }
 
 /// Builds η for one window. `reference` is the geodesic set of the same rollout (required by
@@ -468,11 +467,18 @@ pub fn candidate_set(
     let omega_n = model.normalise(omega_bar);
     let shrunk = |c: &[Candidate]| c.iter().filter(|c| c.shrink < 1.0).count() as u32;
     let target = reference.map(CandidateSet::max_deviation);
+    let metric = metric_of(model, p);
     if p.generator == Generator::Direct {
+        let n = zeta_org.len();
+        let w = &metric.weights;
+        let m: Vec<f64> = (0..n * n)
+            .map(|i| if i / n == i % n { w[i / n] } else { 0.0 })
+            .collect();
+        let delta = directions(&metric, &m, n, p)?;
         let (scale, matched) = match target {
             Some(t) => match match_scale(t, 0.0, p.match_iterations, |s| {
-                Ok(max_dev(&direct_endpoints(model, zeta_org, s, p)?))
-            })? {
+                max_dev(&direct_endpoints(model, zeta_org, &delta, s))
+            }) {
                 Some(s) => (s, true),
                 None => (p.radius, false),
             },
@@ -488,7 +494,7 @@ pub fn candidate_set(
             deviation: 0.0,
             shrink: 1.0,
         }];
-        candidates.extend(direct_endpoints(model, zeta_org, scale, p)?);
+        candidates.extend(direct_endpoints(model, zeta_org, &delta, scale));
         return Ok(CandidateSet {
             projection: None,
             scale,
@@ -506,25 +512,41 @@ pub fn candidate_set(
         Some(proj) => proj,
         None => project(model, zeta_org, &omega_n, p.bound, &p.projection, rng),
     };
-    let c0 = centre(model, &omega_n, zeta_org, &proj.z0);
-    let endpoints = |s: f64| match p.generator {
-        Generator::Euclidean => {
-            euclidean_endpoints(model, &omega_n, zeta_org, &proj.z0, s * p.radius, p)
+    let at = Latent {
+        model,
+        omega_n: &omega_n,
+        zeta_org,
+        z0: &proj.z0,
+    };
+    let c0 = at.centre();
+    let d = model.latent();
+    // The directions depend on z⁰ only, not on the radius the matching tries.
+    let xi = match p.generator {
+        Generator::Euclidean => directions(&metric, &identity(d), d, p)?,
+        _ => {
+            let chart = DecoderChart {
+                model,
+                omega_n: &omega_n,
+            };
+            directions(&metric, &metric.metric(&chart, &to_f64(&proj.z0)), d, p)?
         }
-        _ => geodesic_endpoints(model, &omega_n, zeta_org, &proj.z0, s * p.radius, p),
+    };
+    let endpoints = |s: f64| match p.generator {
+        Generator::Euclidean => euclidean_endpoints(&at, &xi, s * p.radius, p),
+        _ => geodesic_endpoints(&at, &xi, s * p.radius, p),
     };
     let (scale, matched) = match (p.generator, target) {
         (Generator::Geodesic, _) => (1.0, true),
         (_, Some(t)) => match match_scale(t, c0.deviation, p.match_iterations, |s| {
-            Ok(max_dev(&endpoints(s)?))
-        })? {
+            max_dev(&endpoints(s))
+        }) {
             Some(s) => (s, true),
             None => (1.0, false),
         },
         (_, None) => (1.0, false),
     };
     let mut candidates = vec![c0];
-    candidates.extend(endpoints(scale)?);
+    candidates.extend(endpoints(scale));
     Ok(CandidateSet {
         projection: Some(proj),
         scale,
@@ -730,18 +752,14 @@ mod tests {
 
     #[test]
     fn match_scale_finds_the_target_and_reports_the_impossible() {
-        let f = |s: f64| Ok(2.0 * s);
-        let s = match_scale(3.0, 0.0, 40, f).expect("ok").expect("some");
+        let f = |s: f64| 2.0 * s;
+        let s = match_scale(3.0, 0.0, 40, f).expect("some");
         assert!((s - 1.5).abs() < 1e-9, "{s}");
         assert_eq!(
-            match_scale(3.0, 4.0, 40, f).expect("ok"),
+            match_scale(3.0, 4.0, 40, f),
             None,
             "the centre is already farther"
         );
-        assert_eq!(
-            match_scale(1e9, 0.0, 40, f).expect("ok"),
-            None,
-            "out of reach"
-        );
+        assert_eq!(match_scale(1e9, 0.0, 40, f), None, "out of reach");
     }
 }

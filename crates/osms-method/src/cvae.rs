@@ -161,9 +161,7 @@ impl Cvae {
     pub fn encode(&self, zeta: &[f32], omega_n: &[f32]) -> (Vec<f32>, Vec<f32>) {
         let mut x = zeta.to_vec();
         x.extend_from_slice(omega_n);
-        let out = self
-            .encoder
-            .forward(&Matrix::from_vec(1, x.len(), x.clone()));
+        let out = self.encoder.forward(&Matrix::from_vec(1, x.len(), x));
         let (m, s) = split_gaussian(&out, self.latent());
         (m.row(0).to_vec(), s.row(0).to_vec())
     }
@@ -663,17 +661,6 @@ mod tests {
         let model = train(&windows(&z, &o), 8, 7, &small(), (3, "t"), &|| {}).expect("train");
         let last = model.curve.last().expect("curve");
         let first = &model.curve[0];
-        for c in model.curve.iter().step_by(20) {
-            eprintln!(
-                "epoch {} rec {:.4} smooth {:.4} kl {:.3} heldout {:.4} prior {:.4}",
-                c.epoch,
-                c.reconstruction,
-                c.smoothness,
-                c.kl,
-                c.heldout_reconstruction,
-                c.heldout_prior_reconstruction
-            );
-        }
         assert_eq!(model.windows_heldout, 40);
         assert!(
             last.heldout_reconstruction < 0.05,

@@ -21,6 +21,11 @@ pub trait Chart {
     fn decode(&self, z: &[f64]) -> Vec<f64> {
         self.jacobian(z).0
     }
+    /// J_G(z) and ∂²G(z)[v, v] together, what every step of the geodesic ODE needs (default:
+    /// the two calls; a chart that gets both from one pass overrides it).
+    fn jacobian_and_curvature(&self, z: &[f64], v: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        (self.jacobian(z).1, self.curvature(z, v))
+    }
 }
 
 /// Relative size below which [`PullbackMetric::orthonormalise`] calls a direction dependent:
@@ -170,9 +175,8 @@ impl PullbackMetric {
         let n = self.weights.len();
         assert_eq!(z.len(), d, "acceleration: z has the wrong dimension");
         assert_eq!(v.len(), d, "acceleration: v has the wrong dimension");
-        let (_, jac) = chart.jacobian(z);
+        let (jac, curv) = chart.jacobian_and_curvature(z, v);
         let m = self.metric_from_jacobian(d, &jac);
-        let curv = chart.curvature(z, v);
         assert_eq!(
             curv.len(),
             n,
