@@ -410,6 +410,23 @@ impl<P> Ctx<'_, P> {
             .collect()
     }
 
+    /// Every artifact of the gather slot `slot` with its items, in (fold, seed) order: for
+    /// gathers of itemised stages, whose artifacts are stored as manifests.
+    pub fn gathered_sharded<A: Sharded>(&self, slot: &str) -> Result<Vec<(Member, A)>, StageError> {
+        self.slot(slot)?
+            .iter()
+            .map(|i| {
+                let a: Result<A, String> = if i.manifest {
+                    assemble(&i.bytes, self.objects).map_err(|e| e.to_string())
+                } else {
+                    decode(&i.bytes).map_err(|e| e.to_string())
+                };
+                a.map(|a| (i.member, a))
+                    .map_err(|e| format!("input `{slot}{}`: {e}", i.member.suffix()).into())
+            })
+            .collect()
+    }
+
     /// The generator of stream (`name`, `index`) of this stage.
     pub fn rng(&self, name: &str, index: u64) -> StreamRng {
         let seed = self.seed.unwrap_or_else(|| {

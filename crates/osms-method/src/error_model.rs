@@ -21,9 +21,12 @@
 //!   on the same common set, so a fit loses at most `max_delay` steps per sequence.
 //! - A teacher channel with (numerically) no variance in a phase cannot separate gain from
 //!   bias; the gain is then fixed to 1 so the whole systematic deviation lands in `μ`.
-//! - A phase with no usable samples (never visited at a step `n ≥ max_delay`) falls back to
-//!   the fit that pools all phases, recorded with `samples = 0`; a phase with some but too few
-//!   samples is an error, since it signals broken data rather than an unreached phase.
+//! - A phase with fewer regression samples than `channels + 2` (never visited at a step
+//!   `n ≥ max_delay`, or visited too rarely to estimate a covariance) falls back to the fit
+//!   that pools all phases, marked `pooled` with its own sample count.
+//! - The AR coefficients need at least `channels + 2` consecutive same-phase pairs. A phase
+//!   with fewer has A = 0 and the residual covariance as its innovation covariance: the
+//!   contact phase lasts exactly one control step, so it never has a pair.
 //! - Before `d` intended actions exist in a rollout, `ā_{n−d}` is the rollout's first intended
 //!   action (the student cannot lag behind a command that was never issued).
 
@@ -112,8 +115,13 @@ pub struct PhaseModel {
     pub stationary: Vec<f64>,
     /// max |ar_k|, below 1 by construction.
     pub spectral_radius: f64,
-    /// Regression samples of this phase; 0 when the phase fell back to the pooled fit.
+    /// Regression samples of this phase (its own, also when it fell back to the pooled fit).
     pub samples: usize,
+    /// Consecutive same-phase pairs the AR fit used; 0 means A = 0 (not correlated, or a
+    /// phase whose runs never last two steps, like contact).
+    pub ar_pairs: usize,
+    /// The phase had too few samples of its own and uses the fit over all phases.
+    pub pooled: bool,
 }
 
 /// A fitted action-error model (Eq. 7).
@@ -156,13 +164,6 @@ pub enum FitError {
     },
     #[error("sequence {sequence}, step {step}: an action is not finite")]
     NonFinite { sequence: usize, step: usize },
-    #[error("phase {phase}: {samples} {what}, at least {needed} needed")]
-    TooFewSamples {
-        phase: usize,
-        samples: usize,
-        needed: usize,
-        what: &'static str,
-    },
     #[error("all phases pooled: {samples} {what}, at least {needed} needed")]
     TooFewPooledSamples {
         samples: usize,
@@ -278,52 +279,47 @@ pub fn fit(
             let mut out = Vec::with_capacity(N_PHASES);
             for phase in 0..N_PHASES {
                 let group = Group::Phase(phase as u8);
-                match fit_group(sequences, channels, group, params) {
-                    GroupFit::Model(m) => out.push(m),
-                    GroupFit::Empty => {
-                        let p = match &pooled {
-                            Some(p) => p.clone(),
-                            None => {
-                                let p = match fit_group(sequences, channels, Group::All, params) {
-                                    GroupFit::Model(m) => m,
-                                    GroupFit::Empty => {
-                                        return Err(FitError::TooFewPooledSamples {
-                                            samples: 0,
-                                            needed: needed_samples(channels),
-                                            what: "regression samples",
-                                        });
-                                    }
-                                    GroupFit::TooFew {
-                                        samples,
-                                        needed,
-                                        what,
-                                    } => {
-                                        return Err(FitError::TooFewPooledSamples {
-                                            samples,
-                                            needed,
-                                            what,
-                                        });
-                                    }
-                                };
-                                pooled = Some(p.clone());
-                                p
+                let own = match fit_group(sequences, channels, group, params) {
+                    GroupFit::Model(m) => {
+                        out.push(m);
+                        continue;
+                    }
+                    GroupFit::Empty => 0,
+                    GroupFit::TooFew { samples, .. } => samples,
+                };
+                let p = match &pooled {
+                    Some(p) => p.clone(),
+                    None => {
+                        let p = match fit_group(sequences, channels, Group::All, params) {
+                            GroupFit::Model(m) => m,
+                            GroupFit::Empty => {
+                                return Err(FitError::TooFewPooledSamples {
+                                    samples: 0,
+                                    needed: needed_samples(channels),
+                                    what: "regression samples",
+                                });
+                            }
+                            GroupFit::TooFew {
+                                samples,
+                                needed,
+                                what,
+                            } => {
+                                return Err(FitError::TooFewPooledSamples {
+                                    samples,
+                                    needed,
+                                    what,
+                                });
                             }
                         };
-                        out.push(PhaseModel { samples: 0, ..p });
+                        pooled = Some(p.clone());
+                        p
                     }
-                    GroupFit::TooFew {
-                        samples,
-                        needed,
-                        what,
-                    } => {
-                        return Err(FitError::TooFewSamples {
-                            phase,
-                            samples,
-                            needed,
-                            what,
-                        });
-                    }
-                }
+                };
+                out.push(PhaseModel {
+                    samples: own,
+                    pooled: true,
+                    ..p
+                });
             }
             out
         }
@@ -565,67 +561,66 @@ fn fit_group(
     };
 
     let mut ar = vec![0.0; c];
-    let mut cov = Covariance::new(c);
-    let mut u = vec![0.0; c];
-    match params.variant {
-        ErrorVariant::PhaseCorrelated => {
-            // Only consecutive steps of the same phase within one sequence form a pair, so a
-            // phase's dynamics are not mixed with the jump at a phase change.
-            let mut num = vec![0.0; c];
-            let mut den = vec![0.0; c];
-            let mut pairs = 0usize;
-            for s in sequences {
-                for n in start + 1..s.steps() {
-                    if !(group.contains(s.phase[n]) && group.contains(s.phase[n - 1])) {
-                        continue;
-                    }
-                    pairs += 1;
-                    for k in 0..c {
-                        let prev = residual(s, n - 1, k);
-                        num[k] += residual(s, n, k) * prev;
-                        den[k] += prev * prev;
-                    }
+    let mut ar_pairs = 0usize;
+    if params.variant == ErrorVariant::PhaseCorrelated {
+        // Only consecutive steps of the same phase within one sequence form a pair, so a
+        // phase's dynamics are not mixed with the jump at a phase change.
+        let mut num = vec![0.0; c];
+        let mut den = vec![0.0; c];
+        let mut pairs = 0usize;
+        for s in sequences {
+            for n in start + 1..s.steps() {
+                if !(group.contains(s.phase[n]) && group.contains(s.phase[n - 1])) {
+                    continue;
+                }
+                pairs += 1;
+                for k in 0..c {
+                    let prev = residual(s, n - 1, k);
+                    num[k] += residual(s, n, k) * prev;
+                    den[k] += prev * prev;
                 }
             }
-            if pairs < needed {
-                return GroupFit::TooFew {
-                    samples: pairs,
-                    needed,
-                    what: "consecutive same-phase pairs",
-                };
-            }
+        }
+        // Too few pairs (the contact phase lasts one control step, so it has none) leave no
+        // dynamics to estimate: A = 0 and the innovations are the residuals themselves.
+        if pairs >= needed {
+            ar_pairs = pairs;
             for k in 0..c {
                 let raw = if den[k] > 0.0 { num[k] / den[k] } else { 0.0 };
                 ar[k] = raw.clamp(-params.max_ar, params.max_ar);
             }
-            for s in sequences {
-                for n in start + 1..s.steps() {
-                    if !(group.contains(s.phase[n]) && group.contains(s.phase[n - 1])) {
-                        continue;
-                    }
-                    for (k, uk) in u.iter_mut().enumerate() {
-                        *uk = residual(s, n, k) - ar[k] * residual(s, n - 1, k);
-                    }
-                    cov.push(&u);
-                }
-            }
         }
-        _ => {
-            for s in sequences {
-                for n in start..s.steps() {
-                    if !group.contains(s.phase[n]) {
-                        continue;
-                    }
-                    for (k, uk) in u.iter_mut().enumerate() {
-                        *uk = residual(s, n, k);
-                    }
-                    cov.push(&u);
+    }
+    let mut cov = Covariance::new(c);
+    let mut u = vec![0.0; c];
+    for s in sequences {
+        if ar_pairs > 0 {
+            for n in start + 1..s.steps() {
+                if !(group.contains(s.phase[n]) && group.contains(s.phase[n - 1])) {
+                    continue;
                 }
+                for (k, uk) in u.iter_mut().enumerate() {
+                    *uk = residual(s, n, k) - ar[k] * residual(s, n - 1, k);
+                }
+                cov.push(&u);
+            }
+        } else {
+            for n in start..s.steps() {
+                if !group.contains(s.phase[n]) {
+                    continue;
+                }
+                for (k, uk) in u.iter_mut().enumerate() {
+                    *uk = residual(s, n, k);
+                }
+                cov.push(&u);
             }
         }
     }
     let l = robust_cholesky(&cov.covariance(), c);
-    GroupFit::Model(assemble(delay, gain, bias, ar, l, samples))
+    GroupFit::Model(PhaseModel {
+        ar_pairs,
+        ..assemble(delay, gain, bias, ar, l, samples)
+    })
 }
 
 /// Table III's global i.i.d. Gaussian: one mean and covariance of `a − ā` over every step.
@@ -689,6 +684,8 @@ fn assemble(
         stationary,
         spectral_radius,
         samples,
+        ar_pairs: 0,
+        pooled: false,
     }
 }
 
@@ -1605,6 +1602,7 @@ mod tests {
                 model.phases[phase],
                 PhaseModel {
                     samples: 0,
+                    pooled: true,
                     ..pooled.clone()
                 }
             );
@@ -1649,46 +1647,41 @@ mod tests {
         ));
         println!("{err}");
 
-        // A phase with some but too few samples is an error naming it.
+        // A phase with some but too few samples takes the pooled fit, with its own count.
         let mut phases = data.phase[0].clone();
         phases[100] = 4;
         let mut bad = pairs.clone();
         bad[0].phase = &phases;
-        let err = fit(&bad, C, &params).expect_err("too few");
-        println!("{err}");
-        assert!(matches!(
-            err,
-            FitError::TooFewSamples {
-                phase: 4,
+        let rare = fit(&bad, C, &params).expect("a rare phase falls back");
+        assert!(rare.phases[3].pooled && rare.phases[3].samples == 0);
+        assert_eq!(
+            rare.phases[4],
+            PhaseModel {
                 samples: 1,
-                ..
+                ..rare.phases[3].clone()
             }
-        ));
-        // …and for the correlated model, isolated steps give no consecutive pairs.
+        );
+        // Isolated steps give the correlated model no consecutive pairs: A = 0, and the phase
+        // is fitted exactly as the phase-independent model fits it.
         let mut phases = data.phase[0].clone();
         for n in (50..250).step_by(2) {
             phases[n] = 4;
         }
         let mut bad = pairs.clone();
         bad[0].phase = &phases;
-        let err = fit(&bad, C, &params).expect_err("no pairs");
-        println!("{err}");
-        assert!(matches!(
-            err,
-            FitError::TooFewSamples {
-                phase: 4,
-                samples: 0,
-                ..
-            }
-        ));
+        let isolated = fit(&bad, C, &params).expect("no pairs");
+        let p4 = &isolated.phases[4];
+        assert_eq!((p4.samples, p4.ar_pairs, p4.pooled), (100, 0, false));
+        assert!(p4.ar.iter().all(|&a| a == 0.0) && p4.spectral_radius == 0.0);
         let indep = ErrorFitParams {
             variant: ErrorVariant::PhaseIndependent,
             ..params.clone()
         };
-        assert_eq!(fit(&bad, C, &indep).expect("fit").phases[4].samples, 100);
+        assert_eq!(&fit(&bad, C, &indep).expect("fit").phases[4], p4);
+        assert!(isolated.phases[0].ar_pairs > 0);
 
-        // Too little data: 6 steps leave phase 0 two samples at n ≥ max_delay (an error naming
-        // it); 4 steps leave no phase any sample, so even the pooled fallback has nothing.
+        // Too little data: 6 steps leave two samples at n ≥ max_delay, too few even pooled; 4
+        // steps leave none.
         let head = |steps: usize| PairSequence {
             student: &data.student[0][..steps * C],
             teacher: &data.teacher[0][..steps * C],
@@ -1696,11 +1689,7 @@ mod tests {
         };
         assert!(matches!(
             fit(&[head(6)], C, &params),
-            Err(FitError::TooFewSamples {
-                phase: 0,
-                samples: 2,
-                ..
-            })
+            Err(FitError::TooFewPooledSamples { samples: 2, .. })
         ));
         let err = fit(&[head(4)], C, &params).expect_err("nothing");
         println!("{err}");

@@ -5,6 +5,7 @@
 pub mod candidates;
 pub mod cvae;
 pub mod error_model;
+pub mod error_stages;
 pub mod geodesic;
 pub mod project;
 pub mod sobol;

@@ -607,5 +607,6 @@ pub fn register(registry: &mut osms_make::Registry) {
     registry
         .register(ManifoldStage)
         .register_itemised(CandidatesStage)
-        .register(CandidateTableStage);
+        .register(CandidateTableStage)
+        .register(crate::error_stages::ErrorModelStage);
 }

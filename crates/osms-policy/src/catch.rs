@@ -191,41 +191,94 @@ struct Residual<'a, 'b> {
 
 impl Policy for Residual<'_, '_> {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
-        let prior = if self.spec.from_scratch {
-            [0.0; N_ACTION]
-        } else {
-            self.prior.act(view)
-        };
-        let mut obs = Vec::with_capacity(OBS_LEN);
-        obs.extend(view.privileged.iter().map(|&v| v as f32));
-        obs.extend(prior.iter().map(|&v| v as f32));
-        obs.extend((0..5u8).map(|p| f32::from(u8::from(p == self.phase))));
-        let r = (self.act)(&obs);
-        let scale = f64::from(self.spec.residual_scale);
-        let mut out = prior;
-        let residual_channels = self.spec.residual_channels();
-        for (o, r) in out.iter_mut().zip(&r[..residual_channels]) {
-            *o += scale * f64::from(*r);
-        }
-        if self.spec.follow_through_channel {
-            let u = f64::from(r.get(residual_channels).copied().unwrap_or(0.0));
-            if u != 0.0 {
-                let g = palm_motion_channels(
-                    view,
-                    follow_through_direction(view),
-                    self.spec.palm_motion_orientation_weight,
-                    PALM_MOTION_DAMPING,
-                );
-                for (o, g) in out.iter_mut().zip(g) {
-                    *o += u * g;
-                }
-            }
-        }
-        for o in &mut out {
-            *o = o.clamp(-1.0, 1.0);
-        }
+        let out = residual_action(self.prior, self.spec, self.phase, view, self.act);
         *self.executed = out;
         out
+    }
+}
+
+/// The executed action of the residual policy `act` on the prior (advancing the prior's state).
+fn residual_action(
+    prior: &mut ScriptedCatcher,
+    spec: &CatchTaskSpec,
+    phase: u8,
+    view: &PolicyView<'_>,
+    act: &mut dyn FnMut(&[f32]) -> Vec<f32>,
+) -> Action {
+    let prior = if spec.from_scratch {
+        [0.0; N_ACTION]
+    } else {
+        prior.act(view)
+    };
+    let mut obs = Vec::with_capacity(OBS_LEN);
+    obs.extend(view.privileged.iter().map(|&v| v as f32));
+    obs.extend(prior.iter().map(|&v| v as f32));
+    obs.extend((0..5u8).map(|p| f32::from(u8::from(p == phase))));
+    let r = act(&obs);
+    let scale = f64::from(spec.residual_scale);
+    let mut out = prior;
+    let residual_channels = spec.residual_channels();
+    for (o, r) in out.iter_mut().zip(&r[..residual_channels]) {
+        *o += scale * f64::from(*r);
+    }
+    if spec.follow_through_channel {
+        let u = f64::from(r.get(residual_channels).copied().unwrap_or(0.0));
+        if u != 0.0 {
+            let g = palm_motion_channels(
+                view,
+                follow_through_direction(view),
+                spec.palm_motion_orientation_weight,
+                PALM_MOTION_DAMPING,
+            );
+            for (o, g) in out.iter_mut().zip(g) {
+                *o += u * g;
+            }
+        }
+    }
+    for o in &mut out {
+        *o = o.clamp(-1.0, 1.0);
+    }
+    out
+}
+
+/// The frozen teacher queried at states another policy visits (paper 4.3: the IL students'
+/// actions are paired with the teacher's at the states the students reach). It keeps its own
+/// prior and phase input, which follow the visited states as they would in a teacher rollout;
+/// call [`TeacherQuery::observe_phase`] with each step's recorded phase.
+pub struct TeacherQuery<'a> {
+    agent: &'a Agent,
+    spec: &'a CatchTaskSpec,
+    prior: ScriptedCatcher,
+    phase: u8,
+}
+
+impl<'a> TeacherQuery<'a> {
+    pub fn new(agent: &'a Agent, spec: &'a CatchTaskSpec) -> Self {
+        TeacherQuery {
+            agent,
+            spec,
+            prior: ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone()),
+            phase: Phase::Approach as u8,
+        }
+    }
+
+    /// The teacher's deterministic action at the state `view` shows.
+    pub fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        let agent = self.agent;
+        residual_action(&mut self.prior, self.spec, self.phase, view, &mut |obs| {
+            agent.act_deterministic(obs)
+        })
+    }
+
+    /// The phase the last control step ended in (`Phase as u8`), the teacher's phase input at
+    /// the next step.
+    pub fn observe_phase(&mut self, phase: u8) {
+        self.phase = phase;
+    }
+
+    /// The phase input the next [`TeacherQuery::act`] uses.
+    pub fn phase(&self) -> u8 {
+        self.phase
     }
 }
 

@@ -4,9 +4,12 @@
 
 pub mod catch;
 pub mod dataset;
+pub mod flow;
 pub mod norm;
 pub mod ppo;
 pub mod stages;
+pub mod student;
+pub mod student_stages;
 
 pub use norm::RunningNorm;
 pub use ppo::{Agent, EpisodeStats, IterationStats, PpoConfig, Task, TaskEpisode, train};

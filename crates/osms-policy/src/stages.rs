@@ -19,7 +19,7 @@ use crate::ppo::{Agent, IterationStats, PpoConfig, Task, train};
 
 /// What a kind that rolls out or trains networks depends on beyond its inputs: MuJoCo,
 /// osms-sim's and osms-nn's numerics.
-fn policy_numerics() -> Vec<Numerics> {
+pub(crate) fn policy_numerics() -> Vec<Numerics> {
     let mut n = osms_sim::numerics();
     n.push(Numerics {
         name: "osms-nn",
@@ -208,7 +208,7 @@ pub struct EvalTeacherParams {
 }
 
 /// A teacher's task with the rollouts' domain randomisation replaced when `dr` is given.
-fn with_dr(task: &CatchTaskSpec, dr: &Option<DrSpec>) -> CatchTaskSpec {
+pub(crate) fn with_dr(task: &CatchTaskSpec, dr: &Option<DrSpec>) -> CatchTaskSpec {
     let mut task = task.clone();
     if let Some(dr) = dr {
         task.rollout.dr = dr.clone();
@@ -634,6 +634,7 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register(TeacherTableStage)
         .register_itemised(CollectStage)
         .register(OswWindowsStage);
+    crate::student_stages::register(registry);
 }
 
 #[cfg(test)]

@@ -1,0 +1,594 @@
+//! Deployable flow-matching students (paper section 5, "Policies and search"): the IL students
+//! π̄ behind the action-error model and, later, the final students π_θ.
+//!
+//! - **Observation** o_n: the last `history` deployable frames, oldest first. A frame is the
+//!   robot's proprioception (arm and hand q, q̇), the object's *observed* position (delayed and
+//!   noisy under DR; no velocity, no contacts, nothing privileged) and the previous executed
+//!   action ([`osms_sim::episode::DEPLOYABLE_LEN`] values). Before `history` frames exist, the
+//!   oldest one is repeated, as the rollout's history holds it.
+//! - **Action chunk**: the labels of steps n … n + chunk − 1, all 24 channels. A chunk that
+//!   runs past the rollout's end repeats its last action and masks those steps out of the
+//!   loss, so the network is never asked to predict what happens after termination.
+//! - **Policy**: at every control step draw noise from the policy's own stream, integrate the
+//!   velocity field with `euler_steps` Euler steps, execute the chunk's first action (clamped
+//!   to [−1, 1]) and replan at the next step.
+//!
+//! Observations and actions are standardised per feature with statistics of the training
+//! demonstrations, frozen into the artifact.
+
+use osms_make::rng::{self, StreamRng};
+use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
+use osms_sim::conditions::TaskCondition;
+use osms_sim::episode::DEPLOYABLE_LEN;
+use osms_sim::{
+    Action, Episode, N_ACTION, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec, World,
+};
+use serde::{Deserialize, Serialize};
+
+use crate::RunningNorm;
+use crate::catch::{CatchTaskSpec, TeacherQuery};
+use crate::flow::{FlowBatch, FlowNet, normals};
+use crate::ppo::Agent;
+
+/// A student's architecture and training protocol. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StudentParams {
+    /// Deployable frames in the observation (the current one included).
+    pub history: usize,
+    /// Steps per predicted action chunk.
+    pub chunk: usize,
+    /// Euler steps per sample.
+    pub euler_steps: usize,
+    /// Hidden widths of the velocity network (SiLU).
+    pub hidden: Vec<usize>,
+    /// Width of the flow time's sinusoidal embedding (even).
+    pub time_embedding: usize,
+    /// Gradient steps.
+    pub steps: u32,
+    pub batch: usize,
+    /// Peak learning rate, after a linear warm-up of `warmup` steps; cosine decay to
+    /// `min_lr` at the last step.
+    pub lr: f32,
+    pub min_lr: f32,
+    pub warmup: u32,
+    /// Decoupled weight decay (AdamW).
+    pub weight_decay: f32,
+    /// Global gradient-norm clip.
+    pub max_grad_norm: f32,
+    /// Every `holdout_every`-th demonstration rollout is held out of training and scores the
+    /// learning curve's validation loss (0: none held out).
+    pub holdout_every: usize,
+    /// The learning curve gets a point every `log_every` steps.
+    pub log_every: u32,
+    /// Standardised observations are clipped to ±`obs_clip`.
+    pub obs_clip: f32,
+}
+
+impl Default for StudentParams {
+    fn default() -> Self {
+        StudentParams {
+            history: 4,
+            chunk: 8,
+            euler_steps: 10,
+            hidden: vec![256, 256, 256],
+            time_embedding: 32,
+            steps: 3000,
+            batch: 256,
+            lr: 1e-3,
+            min_lr: 1e-5,
+            warmup: 100,
+            weight_decay: 0.0,
+            max_grad_norm: 1.0,
+            holdout_every: 10,
+            log_every: 50,
+            obs_clip: 5.0,
+        }
+    }
+}
+
+impl StudentParams {
+    /// Refuses params no student can be trained with.
+    pub fn check(&self) -> Result<(), String> {
+        for (v, name) in [
+            (self.history, "history"),
+            (self.chunk, "chunk"),
+            (self.euler_steps, "euler_steps"),
+            (self.batch, "batch"),
+            (self.steps as usize, "steps"),
+            (self.log_every as usize, "log_every"),
+        ] {
+            if v == 0 {
+                return Err(format!("params.{name} must be at least 1"));
+            }
+        }
+        if self.time_embedding == 0 || !self.time_embedding.is_multiple_of(2) {
+            return Err(format!(
+                "params.time_embedding must be even and positive, got {}",
+                self.time_embedding
+            ));
+        }
+        if self.hidden.contains(&0) {
+            return Err("params.hidden: every layer needs at least one unit".into());
+        }
+        if !(self.lr > 0.0 && self.min_lr >= 0.0 && self.min_lr <= self.lr) {
+            return Err(format!(
+                "params: need 0 <= min_lr <= lr and lr > 0, got lr {} and min_lr {}",
+                self.lr, self.min_lr
+            ));
+        }
+        Ok(())
+    }
+
+    /// Width of an observation: `history` deployable frames.
+    pub fn obs_len(&self) -> usize {
+        self.history * DEPLOYABLE_LEN
+    }
+
+    /// Width of an action chunk.
+    pub fn chunk_len(&self) -> usize {
+        self.chunk * N_ACTION
+    }
+}
+
+/// One demonstration rollout as students read it: its deployable frames and its action labels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Demo {
+    pub steps: usize,
+    /// [`DEPLOYABLE_LEN`] per step.
+    pub deployable: Vec<f32>,
+    /// 24 per step: the action the demonstrating policy commanded at that step.
+    pub actions: Vec<f32>,
+}
+
+impl Demo {
+    /// A teacher rollout as a demonstration: its deployable frames and, as labels, its
+    /// commanded actions (`record.intended`: the full 24-channel action the policy sent, before
+    /// the environment's actuation noise and delay, which the student cannot command).
+    pub fn from_record(record: &RolloutRecord) -> Demo {
+        Demo {
+            steps: record.steps,
+            deployable: record.deployable.clone(),
+            actions: record.intended.clone(),
+        }
+    }
+
+    fn check(&self) -> Result<(), String> {
+        if self.deployable.len() != self.steps * DEPLOYABLE_LEN
+            || self.actions.len() != self.steps * N_ACTION
+        {
+            return Err(format!(
+                "a demonstration of {} steps has {} deployable values and {} action values (expected {} and {})",
+                self.steps,
+                self.deployable.len(),
+                self.actions.len(),
+                self.steps * DEPLOYABLE_LEN,
+                self.steps * N_ACTION
+            ));
+        }
+        Ok(())
+    }
+
+    /// o_n: frames n − history + 1 … n, the oldest frame repeated before the rollout's start.
+    pub fn observation(&self, n: usize, history: usize, out: &mut Vec<f32>) {
+        for h in 0..history {
+            let k = (n + h + 1).saturating_sub(history);
+            out.extend_from_slice(&self.deployable[k * DEPLOYABLE_LEN..(k + 1) * DEPLOYABLE_LEN]);
+        }
+    }
+
+    /// The label chunk at step n and its mask: steps past the end repeat the last action with
+    /// mask 0.
+    pub fn chunk(&self, n: usize, chunk: usize, labels: &mut Vec<f32>, mask: &mut Vec<f32>) {
+        for j in 0..chunk {
+            let k = (n + j).min(self.steps - 1);
+            labels.extend_from_slice(&self.actions[k * N_ACTION..(k + 1) * N_ACTION]);
+            let m = if n + j < self.steps { 1.0 } else { 0.0 };
+            mask.extend(std::iter::repeat_n(m, N_ACTION));
+        }
+    }
+}
+
+/// Per-channel standardisation of actions: (a − mean) / std.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActionNorm {
+    pub mean: Vec<f32>,
+    /// Floored at [`ActionNorm::MIN_STD`]: a channel the demonstrations barely move must not
+    /// turn sampling noise into large actions.
+    pub std: Vec<f32>,
+}
+
+impl ActionNorm {
+    pub const MIN_STD: f64 = 0.01;
+
+    fn fit(demos: &[&Demo]) -> ActionNorm {
+        let mut stats = RunningNorm::new(N_ACTION, f32::INFINITY);
+        for d in demos {
+            stats.update(&d.actions);
+        }
+        ActionNorm {
+            mean: stats.mean.iter().map(|&m| m as f32).collect(),
+            std: stats
+                .var
+                .iter()
+                .map(|&v| v.sqrt().max(Self::MIN_STD) as f32)
+                .collect(),
+        }
+    }
+}
+
+/// One point of a student's learning curve.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StudentCurvePoint {
+    /// Gradient steps done.
+    pub step: u32,
+    /// Mean flow-matching loss over the steps since the previous point.
+    pub train_loss: f32,
+    /// The loss on the held-out demonstrations (fixed noise and times), if any are held out.
+    pub validation_loss: Option<f32>,
+    pub lr: f32,
+}
+
+/// A trained flow-matching student.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Student {
+    pub params: StudentParams,
+    pub obs_norm: RunningNorm,
+    pub act_norm: ActionNorm,
+    pub net: FlowNet,
+    pub curve: Vec<StudentCurvePoint>,
+    /// Demonstration rollouts and (step) samples trained on, and rollouts held out.
+    pub train_rollouts: usize,
+    pub train_samples: usize,
+    pub heldout_rollouts: usize,
+}
+
+/// Why a student could not be trained.
+#[derive(Debug, thiserror::Error)]
+pub enum StudentError {
+    #[error("{0}")]
+    Params(String),
+    #[error("demonstration {index}: {why}")]
+    Demo { index: usize, why: String },
+    #[error(
+        "no demonstrations to train on ({given} given, {heldout} held out)\nhint: give the student more rollouts or set params.holdout_every = 0"
+    )]
+    NoDemos { given: usize, heldout: usize },
+}
+
+/// Fixed rows of the validation loss: (demo, step) pairs with their noise and times.
+struct Validation {
+    obs: Matrix,
+    x1: Matrix,
+    mask: Matrix,
+    x0: Matrix,
+    t: Vec<f32>,
+}
+
+/// At most this many held-out samples score each validation point.
+const VALIDATION_ROWS: usize = 1024;
+
+impl Student {
+    /// Trains a student on `demos` with the conditional flow-matching loss. Weights draw from
+    /// (seed, `stage`); minibatch `s` (rows drawn with replacement, noise and times) from
+    /// stream ("batch", s). `progress` is called once per gradient step.
+    pub fn train(
+        demos: &[Demo],
+        params: &StudentParams,
+        (seed, stage): (u64, &str),
+        progress: &dyn Fn(),
+    ) -> Result<Student, StudentError> {
+        let p = params;
+        p.check().map_err(StudentError::Params)?;
+        for (index, d) in demos.iter().enumerate() {
+            d.check().map_err(|why| StudentError::Demo { index, why })?;
+        }
+        let held = |i: usize| p.holdout_every > 1 && i % p.holdout_every == p.holdout_every - 1;
+        let nonempty = |i: &usize| demos[*i].steps > 0;
+        let train_idx: Vec<usize> = (0..demos.len())
+            .filter(|&i| !held(i))
+            .filter(nonempty)
+            .collect();
+        let held_idx: Vec<usize> = (0..demos.len())
+            .filter(|&i| held(i))
+            .filter(nonempty)
+            .collect();
+        if train_idx.is_empty() {
+            return Err(StudentError::NoDemos {
+                given: demos.len(),
+                heldout: held_idx.len(),
+            });
+        }
+        let train: Vec<&Demo> = train_idx.iter().map(|&i| &demos[i]).collect();
+        let samples: Vec<(usize, usize)> = train
+            .iter()
+            .enumerate()
+            .flat_map(|(r, d)| (0..d.steps).map(move |n| (r, n)))
+            .collect();
+
+        let mut obs_norm = RunningNorm::new(p.obs_len(), p.obs_clip);
+        let mut row = Vec::with_capacity(p.obs_len());
+        let mut block = Vec::new();
+        for &(r, n) in &samples {
+            row.clear();
+            train[r].observation(n, p.history, &mut row);
+            block.extend_from_slice(&row);
+            if block.len() >= 4096 * p.obs_len() {
+                obs_norm.update(&block);
+                block.clear();
+            }
+        }
+        obs_norm.update(&block);
+        let mut student = Student {
+            params: p.clone(),
+            obs_norm,
+            act_norm: ActionNorm::fit(&train),
+            net: FlowNet::new(
+                p.chunk_len(),
+                p.obs_len(),
+                &p.hidden,
+                p.time_embedding,
+                seed,
+                &format!("{stage}/velocity"),
+            ),
+            curve: Vec::new(),
+            train_rollouts: train.len(),
+            train_samples: samples.len(),
+            heldout_rollouts: held_idx.len(),
+        };
+        let validation = (!held_idx.is_empty()).then(|| {
+            let held: Vec<&Demo> = held_idx.iter().map(|&i| &demos[i]).collect();
+            student.validation_set(&held, (seed, stage))
+        });
+
+        let mut opt = Adam::new(
+            AdamConfig {
+                weight_decay: p.weight_decay,
+                max_grad_norm: Some(p.max_grad_norm),
+                ..AdamConfig::default()
+            },
+            Schedule::Constant { lr: p.lr },
+        );
+        let (mut loss_sum, mut loss_count) = (0.0f64, 0u32);
+        for s in 0..p.steps {
+            let lr = student.learning_rate(s);
+            opt.schedule = Schedule::Constant { lr };
+            let mut r = rng::stream(seed, stage, "batch", u64::from(s));
+            let picks: Vec<(usize, usize)> = (0..p.batch)
+                .map(|_| samples[rng::below(&mut r, samples.len() as u64) as usize])
+                .collect();
+            let rows: Vec<(&Demo, usize)> = picks.iter().map(|&(d, n)| (train[d], n)).collect();
+            let (obs, x1, mask) = student.batch(&rows);
+            let x0 = Matrix::from_vec(
+                p.batch,
+                p.chunk_len(),
+                normals(&mut r, p.batch * p.chunk_len()),
+            );
+            let t: Vec<f32> = (0..p.batch)
+                .map(|_| rng::uniform01(&mut r) as f32)
+                .collect();
+            let (loss, grads) = student.net.loss_and_gradients(&FlowBatch {
+                x1: &x1,
+                cond: &obs,
+                x0: &x0,
+                t: &t,
+                mask: Some(&mask),
+            });
+            opt.update(&mut student.net.mlp.params_mut(), &flatten_grads(&grads));
+            loss_sum += f64::from(loss);
+            loss_count += 1;
+            if (s + 1) % p.log_every == 0 || s + 1 == p.steps {
+                let validation_loss = validation.as_ref().map(|v| {
+                    student
+                        .net
+                        .loss_and_gradients(&FlowBatch {
+                            x1: &v.x1,
+                            cond: &v.obs,
+                            x0: &v.x0,
+                            t: &v.t,
+                            mask: Some(&v.mask),
+                        })
+                        .0
+                });
+                student.curve.push(StudentCurvePoint {
+                    step: s + 1,
+                    train_loss: (loss_sum / f64::from(loss_count)) as f32,
+                    validation_loss,
+                    lr,
+                });
+                (loss_sum, loss_count) = (0.0, 0);
+            }
+            progress();
+        }
+        Ok(student)
+    }
+
+    /// Linear warm-up, then cosine decay to `min_lr` at the last step.
+    fn learning_rate(&self, step: u32) -> f32 {
+        let p = &self.params;
+        if step < p.warmup {
+            return p.lr * (step + 1) as f32 / p.warmup as f32;
+        }
+        Schedule::Cosine {
+            lr: p.lr,
+            min_lr: p.min_lr,
+            steps: p.steps.saturating_sub(p.warmup).max(1),
+        }
+        .lr(step - p.warmup)
+    }
+
+    /// Standardised observations, standardised label chunks and their masks for `rows`.
+    fn batch(&self, rows: &[(&Demo, usize)]) -> (Matrix, Matrix, Matrix) {
+        let p = &self.params;
+        let (mut obs, mut labels, mut mask) = (
+            Vec::with_capacity(rows.len() * p.obs_len()),
+            Vec::with_capacity(rows.len() * p.chunk_len()),
+            Vec::with_capacity(rows.len() * p.chunk_len()),
+        );
+        let mut raw = Vec::with_capacity(p.obs_len());
+        for &(d, n) in rows {
+            raw.clear();
+            d.observation(n, p.history, &mut raw);
+            obs.extend(self.obs_norm.apply(&raw));
+            let start = labels.len();
+            d.chunk(n, p.chunk, &mut labels, &mut mask);
+            for (i, a) in labels[start..].iter_mut().enumerate() {
+                let k = i % N_ACTION;
+                *a = (*a - self.act_norm.mean[k]) / self.act_norm.std[k];
+            }
+        }
+        (
+            Matrix::from_vec(rows.len(), p.obs_len(), obs),
+            Matrix::from_vec(rows.len(), p.chunk_len(), labels),
+            Matrix::from_vec(rows.len(), p.chunk_len(), mask),
+        )
+    }
+
+    /// Up to [`VALIDATION_ROWS`] held-out samples, evenly spaced, with noise and times from
+    /// stream ("validation", 0).
+    fn validation_set(&self, held: &[&Demo], (seed, stage): (u64, &str)) -> Validation {
+        let all: Vec<(&Demo, usize)> = held
+            .iter()
+            .flat_map(|d| (0..d.steps).map(move |n| (*d, n)))
+            .collect();
+        let stride = all.len().div_ceil(VALIDATION_ROWS).max(1);
+        let rows: Vec<(&Demo, usize)> = all.into_iter().step_by(stride).collect();
+        let (obs, x1, mask) = self.batch(&rows);
+        let mut r = rng::stream(seed, stage, "validation", 0);
+        let len = self.params.chunk_len();
+        let x0 = Matrix::from_vec(rows.len(), len, normals(&mut r, rows.len() * len));
+        let t = (0..rows.len())
+            .map(|_| rng::uniform01(&mut r) as f32)
+            .collect();
+        Validation {
+            obs,
+            x1,
+            mask,
+            x0,
+            t,
+        }
+    }
+
+    /// The first action of a sampled chunk for a raw observation (the policy's output),
+    /// drawing the initial noise from `rng`.
+    pub fn act(&self, obs: &[f32], rng: &mut StreamRng) -> Action {
+        let cond = self.obs_norm.apply(obs);
+        let noise = normals(rng, self.params.chunk_len());
+        let x = self.net.sample(&cond, noise, self.params.euler_steps);
+        std::array::from_fn(|k| {
+            f64::from(x[k] * self.act_norm.std[k] + self.act_norm.mean[k]).clamp(-1.0, 1.0)
+        })
+    }
+
+    /// The observation of a running rollout: its history of deployable frames, the oldest
+    /// repeated to `history` frames.
+    pub fn observation(&self, view: &PolicyView<'_>) -> Vec<f32> {
+        let h = self.params.history;
+        let frames = view.history;
+        let mut out = Vec::with_capacity(self.params.obs_len());
+        for i in 0..h {
+            let k = (frames.len() + i).saturating_sub(h);
+            out.extend(frames[k].iter().map(|&v| v as f32));
+        }
+        out
+    }
+}
+
+/// A student as the simulator's policy: noise for each step's sample from `rng` (the policy's
+/// own stream, apart from the rollout's DR stream).
+pub struct StudentPolicy<'s> {
+    pub student: &'s Student,
+    pub rng: StreamRng,
+}
+
+impl Policy for StudentPolicy<'_> {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        let obs = self.student.observation(view);
+        self.student.act(&obs, &mut self.rng)
+    }
+}
+
+impl Student {
+    /// `base` with the history the student reads: the rollout must keep as many deployable
+    /// frames as the student was trained on.
+    pub fn rollout_spec(&self, base: &RolloutSpec) -> RolloutSpec {
+        let mut spec = base.clone();
+        spec.history_steps = self.params.history;
+        spec
+    }
+}
+
+/// The student's rollout on condition ω: domain randomisation from `dr`, the policy's noise
+/// from `policy`. `spec` comes from [`Student::rollout_spec`].
+pub fn rollout(
+    world: &World,
+    spec: &RolloutSpec,
+    student: &Student,
+    condition: TaskCondition,
+    dr: StreamRng,
+    policy: StreamRng,
+) -> RolloutRecord {
+    let mut policy = StudentPolicy {
+        student,
+        rng: policy,
+    };
+    Episode::new(world, spec, condition, dr).run(&mut policy, &mut NoHooks)
+}
+
+/// A student rollout with the frozen teacher queried at every visited state.
+pub struct PairedRollout {
+    pub record: RolloutRecord,
+    /// The teacher's action at each step's state, 24 per step.
+    pub teacher: Vec<f32>,
+    /// The phase known online when each step's action is chosen: the phase the previous step
+    /// ended in (approach at step 0), as the teacher's phase input and the action-error model
+    /// see it.
+    pub phase: Vec<u8>,
+}
+
+/// The student's rollout on ω, as [`rollout`], recording what the teacher would have done at
+/// every state the student reaches (paper 4.3). The teacher never acts.
+pub fn paired_rollout(
+    world: &World,
+    spec: &RolloutSpec,
+    student: &Student,
+    teacher: (&Agent, &CatchTaskSpec),
+    condition: TaskCondition,
+    dr: StreamRng,
+    policy: StreamRng,
+) -> PairedRollout {
+    struct Paired<'s, 't> {
+        student: StudentPolicy<'s>,
+        teacher: TeacherQuery<'t>,
+        actions: Vec<f32>,
+        phases: Vec<u8>,
+    }
+    impl Policy for Paired<'_, '_> {
+        fn act(&mut self, view: &PolicyView<'_>) -> Action {
+            let t = self.teacher.act(view);
+            self.actions.extend(t.iter().map(|&a| a as f32));
+            self.phases.push(self.teacher.phase());
+            self.student.act(view)
+        }
+    }
+    let mut paired = Paired {
+        student: StudentPolicy {
+            student,
+            rng: policy,
+        },
+        teacher: TeacherQuery::new(teacher.0, teacher.1),
+        actions: Vec::new(),
+        phases: Vec::new(),
+    };
+    let mut episode = Episode::new(world, spec, condition, dr);
+    while episode.step(&mut paired, &mut NoHooks) {
+        if let Some(&p) = episode.record().phase.last() {
+            paired.teacher.observe_phase(p);
+        }
+    }
+    PairedRollout {
+        record: episode.finish(),
+        teacher: paired.actions,
+        phase: paired.phases,
+    }
+}
