@@ -90,7 +90,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 20, "{reference:?}");
+    assert_eq!(reference.len(), 26, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -98,6 +98,9 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     candidate_sets_cover_d_r_and_are_matched(&first);
     the_tiny_teacher_beats_the_scripted_prior(&first);
     a_damaged_dataset_shard_is_detected_and_rebuilt(&first);
+    cross_fitting_never_scores_a_student_on_its_training_conditions(&first);
+    teacher_queries_reproduce_the_teacher(&first);
+    student_rollouts_are_deterministic_and_see_their_training_features(&first);
     let two = make(&text, 2, Some(&first));
     assert_eq!(two.hashes, reference, "1 vs 2 threads");
     assert_eq!(
@@ -125,6 +128,14 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
         .replace(
             "[profiles.tiny.candidates_unconditional]\nshards = 2",
             "[profiles.tiny.candidates_unconditional]\nshards = 5",
+        )
+        .replace(
+            "[profiles.tiny.error_pairs]\nshards = 1",
+            "[profiles.tiny.error_pairs]\nshards = 3",
+        )
+        .replace(
+            "[profiles.tiny.eval_student_il]\nshards = 2",
+            "[profiles.tiny.eval_student_il]\nshards = 5",
         );
     assert_eq!(
         (
@@ -132,7 +143,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
             reshard.matches("shards = 3").count(),
             reshard.matches("params = { n = 6 }\nshards = 4").count()
         ),
-        (2, 2, 2),
+        (3, 3, 2),
         "the overlays were edited"
     );
     assert_eq!(
@@ -490,4 +501,175 @@ fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
         made.store.verify().expect("verify").problems.is_empty(),
         "shard, rollout and D_M repaired"
     );
+}
+
+/// Each cross-fitted student π̄_f trains on exactly the D_E items outside fold f, and its pairs
+/// come from exactly the items of fold f: no student is scored on a condition it saw, and
+/// every D_E condition is scored once.
+fn cross_fitting_never_scores_a_student_on_its_training_conditions(made: &Made) {
+    use osms_policy::dataset::Dataset;
+    use osms_policy::student_stages::{ErrorPairs, StudentArtifact};
+    use osms_sim::N_ACTION;
+
+    let d_e: Dataset = load_sharded(made, "d_e@0");
+    let items: Vec<u32> = d_e.rollouts().map(|r| r.item).collect();
+    let mut scored = Vec::new();
+    for f in 0..2u32 {
+        let student: StudentArtifact = load(made, &format!("student_il#{f}@0"));
+        let pairs: ErrorPairs = load_sharded(made, &format!("error_pairs#{f}@0"));
+        assert_eq!(student.fold, Some((f, 2)));
+        assert_eq!(pairs.fold, Some((f, 2)));
+        let trained: Vec<u32> = items.iter().copied().filter(|i| i % 2 != f).collect();
+        assert_eq!(
+            student.items, trained,
+            "student {f} trains on the other fold"
+        );
+        let held: Vec<u32> = pairs.rollouts.iter().map(|r| r.item).collect();
+        assert!(!held.is_empty(), "fold {f} has conditions");
+        for i in &held {
+            assert!(
+                !student.items.contains(i),
+                "fold {f}: student scored on item {i}"
+            );
+        }
+        for r in &pairs.rollouts {
+            let n = r.steps();
+            assert!(n > 0 && r.student.len() == n * N_ACTION && r.teacher.len() == n * N_ACTION);
+            assert_eq!(r.phase[0], osms_sim::Phase::Approach as u8);
+            // The pair ran on the D_E item's condition.
+            let source = d_e.rollouts().find(|d| d.item == r.item).expect("item");
+            assert_eq!(
+                r.eval.lateral_offset_m,
+                source.record.condition.lateral_offset_m
+            );
+            assert_eq!(r.eval.variant, source.record.condition.variant);
+        }
+        scored.extend(held);
+    }
+    scored.sort_unstable();
+    assert_eq!(scored, items, "every D_E condition is scored exactly once");
+}
+
+/// The teacher as a query (its own prior and phase input following the visited states) is the
+/// teacher: acting with its answers reproduces the teacher's own rollout bit for bit.
+fn teacher_queries_reproduce_the_teacher(made: &Made) {
+    use osms_policy::catch::{TeacherQuery, rollout};
+    use osms_policy::dataset::Dataset;
+    use osms_policy::stages::Teacher;
+    use osms_sim::stages::WorldArtifact;
+
+    struct Query<'a>(TeacherQuery<'a>);
+    impl osms_sim::Policy for Query<'_> {
+        fn act(&mut self, view: &osms_sim::PolicyView<'_>) -> osms_sim::Action {
+            self.0.act(view)
+        }
+    }
+    let world = load::<WorldArtifact>(made, "world").world().expect("world");
+    let mut teacher: Teacher = load(made, "teacher@0");
+    teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
+    let d_e: Dataset = load_sharded(made, "d_e@0");
+    for r in d_e.rollouts().take(3) {
+        let stream = osms_make::rng::stream(0, "test", "query", u64::from(r.item));
+        let own = rollout(
+            &world,
+            &teacher.task,
+            &teacher.agent,
+            r.record.condition.clone(),
+            stream.clone(),
+        );
+        let mut policy = Query(TeacherQuery::new(&teacher.agent, &teacher.task));
+        let mut episode = osms_sim::Episode::new(
+            &world,
+            &teacher.task.rollout,
+            r.record.condition.clone(),
+            stream,
+        );
+        while episode.step(&mut policy, &mut osms_sim::NoHooks) {
+            if let Some(&p) = episode.record().phase.last() {
+                policy.0.observe_phase(p);
+            }
+        }
+        assert_eq!(episode.finish(), own, "item {}", r.item);
+    }
+}
+
+/// A student rollout is a function of its streams (twice the same record; another policy
+/// stream, another record), and the observation the policy sees online is the one training
+/// builds from the record.
+fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Made) {
+    use osms_policy::dataset::Dataset;
+    use osms_policy::stages::Teacher;
+    use osms_policy::student::{Demo, Student, StudentPolicy, paired_rollout, rollout};
+    use osms_policy::student_stages::StudentArtifact;
+    use osms_sim::stages::WorldArtifact;
+
+    struct Watch<'s> {
+        inner: StudentPolicy<'s>,
+        seen: Vec<Vec<f32>>,
+    }
+    impl osms_sim::Policy for Watch<'_> {
+        fn act(&mut self, view: &osms_sim::PolicyView<'_>) -> osms_sim::Action {
+            self.seen.push(self.inner.student.observation(view));
+            self.inner.act(view)
+        }
+    }
+    let world = load::<WorldArtifact>(made, "world").world().expect("world");
+    let student: Student = load::<StudentArtifact>(made, "student_il#0@0").student;
+    let mut teacher: Teacher = load(made, "teacher@0");
+    teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
+    let spec = student.rollout_spec(&teacher.task.rollout);
+    let d_e: Dataset = load_sharded(made, "d_e@0");
+    let condition = d_e
+        .rollouts()
+        .next()
+        .expect("a rollout")
+        .record
+        .condition
+        .clone();
+    let dr = || osms_make::rng::stream(0, "test", "dr", 0);
+    let policy = |i: u64| osms_make::rng::stream(0, "test", "policy", i);
+    let once = rollout(&world, &spec, &student, condition.clone(), dr(), policy(0));
+    let twice = rollout(&world, &spec, &student, condition.clone(), dr(), policy(0));
+    assert_eq!(once, twice, "same streams, same record");
+    let other = rollout(&world, &spec, &student, condition.clone(), dr(), policy(1));
+    assert_ne!(once.intended, other.intended, "the policy's noise matters");
+    // Querying the teacher does not change what the student does.
+    let paired = paired_rollout(
+        &world,
+        &spec,
+        &student,
+        (&teacher.agent, &teacher.task),
+        condition.clone(),
+        dr(),
+        policy(0),
+    );
+    assert_eq!(paired.record, once);
+    assert_eq!(paired.phase.len(), once.steps);
+    for n in 1..once.steps {
+        assert_eq!(
+            paired.phase[n],
+            once.phase[n - 1],
+            "online phase at step {n}"
+        );
+    }
+
+    let mut watch = Watch {
+        inner: StudentPolicy {
+            student: &student,
+            rng: policy(0),
+        },
+        seen: Vec::new(),
+    };
+    let record = osms_sim::Episode::new(&world, &spec, condition, dr())
+        .run(&mut watch, &mut osms_sim::NoHooks);
+    assert_eq!(record, once);
+    let demo = Demo::from_record(&record);
+    for (n, seen) in watch.seen.iter().enumerate() {
+        let mut built = Vec::new();
+        demo.observation(n, student.params.history, &mut built);
+        assert_eq!(
+            &built, seen,
+            "step {n}: training and deployment observations differ"
+        );
+    }
 }

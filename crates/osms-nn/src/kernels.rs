@@ -90,7 +90,7 @@ fn pack_a(a: Operand<'_>, i0: usize, group: usize, h: usize, panel: &mut [f32]) 
 fn step<const H: usize, const NR: usize>(acc: &mut [[f32; NR]; H], a: &[f32; H], b: &[f32; NR]) {
     for (acc_row, &av) in acc.iter_mut().zip(a) {
         for (acc, &bv) in acc_row.iter_mut().zip(b) {
-            *acc += av * bv;
+            *acc = av.mul_add(bv, *acc);
         }
     }
 }
@@ -181,7 +181,7 @@ fn rows_axpy(a: &[f32], b: &[f32], c: &mut [f32], n: usize) {
     for (a_row, c_row) in a.chunks_exact(k).zip(c.chunks_exact_mut(n)) {
         for (&av, b_row) in a_row.iter().zip(b.chunks_exact(n)) {
             for (c, &bv) in c_row.iter_mut().zip(b_row) {
-                *c += av * bv;
+                *c = av.mul_add(bv, *c);
             }
         }
     }
@@ -298,7 +298,7 @@ pub fn matmul_reference(a: &Matrix, b: &Matrix) -> Matrix {
         for j in 0..b.cols {
             let mut s = 0.0f32;
             for k in 0..a.cols {
-                s += a.get(i, k) * b.get(k, j);
+                s = a.get(i, k).mul_add(b.get(k, j), s);
             }
             c.set(i, j, s);
         }
@@ -309,13 +309,33 @@ pub fn matmul_reference(a: &Matrix, b: &Matrix) -> Matrix {
 /// Σ of `x` in fixed chunks of 256, chunk sums added in index order (f64 accumulation inside a
 /// chunk keeps long sums accurate; the order keeps them reproducible).
 pub fn sum(x: &[f32]) -> f32 {
+    sum_map(x, |v| v)
+}
+
+/// Σ x_i² with [`sum`]'s order, without a temporary.
+pub fn sum_squares(x: &[f32]) -> f32 {
+    sum_map(x, |v| v * v)
+}
+
+/// Σ f(x_i) in f64: chunks of 256 in order, each summed in 8 interleaved partial sums
+/// (element i into partial i mod 8) that are then added in a fixed tree. The partial sums keep
+/// the additions independent, so the loop is not bound by the latency of one long chain; the
+/// order is fixed, so the bits are.
+#[inline(always)]
+fn sum_map(x: &[f32], f: impl Fn(f32) -> f32) -> f32 {
     let mut total = 0.0f64;
     for chunk in x.chunks(256) {
-        let mut s = 0.0f64;
-        for &v in chunk {
-            s += f64::from(v);
+        let mut p = [0.0f64; 8];
+        let mut lanes = chunk.chunks_exact(8);
+        for group in &mut lanes {
+            for (p, &v) in p.iter_mut().zip(group) {
+                *p += f64::from(f(v));
+            }
         }
-        total += s;
+        for (p, &v) in p.iter_mut().zip(lanes.remainder()) {
+            *p += f64::from(f(v));
+        }
+        total += ((p[0] + p[1]) + (p[2] + p[3])) + ((p[4] + p[5]) + (p[6] + p[7]));
     }
     total as f32
 }

@@ -20,10 +20,13 @@ impl Level {
         *LEVEL.get_or_init(|| {
             #[cfg(target_arch = "x86_64")]
             {
-                if std::arch::is_x86_feature_detected!("avx512f") {
+                // The fused multiply-add runs in hardware only with FMA; without it the
+                // baseline's `mul_add` is a (correctly rounded, slow) library call.
+                let fma = std::arch::is_x86_feature_detected!("fma");
+                if fma && std::arch::is_x86_feature_detected!("avx512f") {
                     return Level::Avx512;
                 }
-                if std::arch::is_x86_feature_detected!("avx2") {
+                if fma && std::arch::is_x86_feature_detected!("avx2") {
                     return Level::Avx2;
                 }
             }
@@ -67,14 +70,14 @@ macro_rules! per_level {
         }
 
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2")]
+        #[target_feature(enable = "avx2,fma")]
         fn $avx2 $args {
             const $lvl: Level = Level::Avx2;
             $body
         }
 
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx512f")]
+        #[target_feature(enable = "avx512f,fma")]
         fn $avx512 $args {
             const $lvl: Level = Level::Avx512;
             $body
@@ -86,13 +89,13 @@ macro_rules! per_level {
         }
 
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2")]
+        #[target_feature(enable = "avx2,fma")]
         fn $avx2 $args {
             $body
         }
 
         #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx512f")]
+        #[target_feature(enable = "avx512f,fma")]
         fn $avx512 $args {
             $body
         }
@@ -109,14 +112,14 @@ macro_rules! dispatch {
             $crate::level::Level::Avx512
                 if $crate::level::Level::detected() == $crate::level::Level::Avx512 =>
             {
-                // SAFETY: the CPU reported AVX-512F at run time; the body is safe code.
+                // SAFETY: the CPU reported AVX-512F and FMA at run time; the body is safe code.
                 unsafe { $avx512($($arg),*) }
             }
             #[cfg(target_arch = "x86_64")]
             $crate::level::Level::Avx2
                 if $crate::level::Level::detected() as u8 >= $crate::level::Level::Avx2 as u8 =>
             {
-                // SAFETY: the CPU reported AVX2 at run time; the body is safe code.
+                // SAFETY: the CPU reported AVX2 and FMA at run time; the body is safe code.
                 unsafe { $avx2($($arg),*) }
             }
             _ => $baseline($($arg),*),

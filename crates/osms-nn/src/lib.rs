@@ -23,8 +23,8 @@ pub use optim::{Adam, AdamConfig, Schedule, global_norm};
 
 /// The numerics version of osms-nn: bump it whenever a kernel, layer, loss or optimiser change
 /// may change the bits of a trained network. Kinds that train or run networks put it in their
-/// keys.
-pub const NUMERICS_VERSION: u32 = 1;
+/// keys. 2: products accumulate with fused multiply-add; reductions use 8 partial sums.
+pub const NUMERICS_VERSION: u32 = 2;
 
 impl osms_store::Artifact for Mlp {
     const TYPE_TAG: &'static str = "nn.mlp";

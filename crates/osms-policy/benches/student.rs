@@ -1,0 +1,183 @@
+//! The flow-matching student's costs, one thread, with PyTorch on the same shapes in the same
+//! run when `OSMS_BENCH_TORCH_PYTHON` is set (`scripts/bench-nn` sets it):
+//!
+//! - one training step of the default student (batch 256; input = 8 deployable frames, a
+//!   32-wide time embedding and an 8 × 24 noisy chunk = 824; hidden 3 × 256 SiLU; output 192;
+//!   conditional flow-matching loss with the chunk mask; Adam);
+//! - one batch-1 action (10 Euler steps of the velocity network);
+//! - env steps/s of a student rollout against the teacher's on the same conditions.
+//!
+//! Asserts nothing about time.
+
+use std::collections::BTreeMap;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use osms_make::rng;
+use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
+use osms_policy::catch::{CatchTask, CatchTaskSpec, rollout};
+use osms_policy::flow::{FlowBatch, normals};
+use osms_policy::student::{self, Demo, Student, StudentParams};
+use osms_policy::{Agent, PpoConfig, Task};
+use osms_sim::{World, WorldSpec};
+
+const EPISODES: u64 = 16;
+
+fn best(runs: usize, mut f: impl FnMut()) -> Duration {
+    (0..runs)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed()
+        })
+        .min()
+        .unwrap_or_default()
+}
+
+/// PyTorch's figures from `torch_student.py`, or why there are none.
+fn torch() -> Result<BTreeMap<String, String>, String> {
+    let python = std::env::var("OSMS_BENCH_TORCH_PYTHON")
+        .map_err(|_| "not measured: run scripts/bench-nn to compare with PyTorch".to_string())?;
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/torch_student.py");
+    let out = Command::new(&python)
+        .arg(script)
+        .output()
+        .map_err(|e| format!("could not run {python}: {e}"))?;
+    if !out.status.success() {
+        return Err(format!(
+            "{script} failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        ));
+    }
+    Ok(String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.split_once(' '))
+        .map(|(k, v)| (k.to_string(), v.trim().to_string()))
+        .collect())
+}
+
+fn main() {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let world = World::new(WorldSpec::default()).expect("world");
+    let spec = CatchTaskSpec::default();
+    let task = CatchTask::new(&world, spec.clone(), 0, "bench", "train").expect("task");
+    let agent = Agent::new(
+        task.obs_len(),
+        task.act_len(),
+        &PpoConfig::default(),
+        (0, "bench"),
+    );
+    let dr = |i: u64| rng::stream(0, "bench", "dr", i);
+    let teacher_records: Vec<_> = (0..EPISODES)
+        .map(|i| rollout(&world, &spec, &agent, task.condition(i).expect("ω"), dr(i)))
+        .collect();
+
+    // A student trained for a few steps on those rollouts: its cost per step does not depend
+    // on how well it acts.
+    let demos: Vec<Demo> = teacher_records.iter().map(Demo::from_record).collect();
+    let params = StudentParams {
+        steps: 5,
+        holdout_every: 0,
+        ..StudentParams::default()
+    };
+    let student = Student::train(&demos, &params, (0, "bench"), &|| {}).expect("student");
+    let (t_step, t_act, teacher_rate, student_rate) = pool.install(|| {
+        let mut net = student.net.clone();
+        let mut opt = Adam::new(AdamConfig::default(), Schedule::Constant { lr: 1e-4 });
+        let (b, x_len, c_len) = (256, params.chunk_len(), params.obs_len());
+        let mut r = rng::stream(0, "bench", "batch", 0);
+        let x1 = Matrix::from_vec(b, x_len, normals(&mut r, b * x_len));
+        let x0 = Matrix::from_vec(b, x_len, normals(&mut r, b * x_len));
+        let cond = Matrix::from_vec(b, c_len, normals(&mut r, b * c_len));
+        let mask = Matrix::from_fn(b, x_len, |_, _| 1.0);
+        let t: Vec<f32> = (0..b).map(|_| rng::uniform01(&mut r) as f32).collect();
+        let mut step = || {
+            let (_, grads) = net.loss_and_gradients(&FlowBatch {
+                x1: &x1,
+                cond: &cond,
+                x0: &x0,
+                t: &t,
+                mask: Some(&mask),
+            });
+            opt.update(&mut net.mlp.params_mut(), &flatten_grads(&grads));
+        };
+        step();
+        let t_step = best(20, &mut step);
+        let obs = normals(&mut r, c_len);
+        let mut noise = rng::stream(0, "bench", "noise", 0);
+        let t_act = best(200, || {
+            std::hint::black_box(student.act(&obs, &mut noise));
+        });
+
+        let rate = |f: &dyn Fn() -> usize| {
+            let mut steps = 0;
+            let d = best(3, || steps = f());
+            steps as f64 / d.as_secs_f64()
+        };
+        let teacher_rate = rate(&|| {
+            (0..EPISODES)
+                .map(|i| rollout(&world, &spec, &agent, task.condition(i).expect("ω"), dr(i)).steps)
+                .sum()
+        });
+        let sspec = student.rollout_spec(&spec.rollout);
+        let student_rate = rate(&|| {
+            (0..EPISODES)
+                .map(|i| {
+                    student::rollout(
+                        &world,
+                        &sspec,
+                        &student,
+                        task.condition(i).expect("ω"),
+                        dr(i),
+                        rng::stream(0, "bench", "policy", i),
+                    )
+                    .steps
+                })
+                .sum()
+        });
+        (t_step, t_act, teacher_rate, student_rate)
+    });
+
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    println!(
+        "flow-matching student, one thread, {:?} kernels",
+        osms_nn::kernels::Level::detected()
+    );
+    println!(
+        "  training step (batch 256, 824-256-256-256-192 SiLU, CFM loss, Adam)  {:7.2} ms",
+        ms(t_step)
+    );
+    println!(
+        "  batch-1 action (10 Euler steps)                                      {:7.1} us",
+        t_act.as_secs_f64() * 1e6
+    );
+    println!(
+        "  rollouts, {EPISODES} episodes: teacher {teacher_rate:6.0} env steps/s, student {student_rate:6.0} env steps/s, ratio student/teacher {:.3}",
+        student_rate / teacher_rate
+    );
+    match torch() {
+        Err(why) => println!("PyTorch: {why}"),
+        Ok(figures) => {
+            let get = |k: &str| figures.get(k).and_then(|v| v.parse::<f64>().ok());
+            let version = figures.get("torch_version").map_or("?", String::as_str);
+            println!(
+                "PyTorch {version}, one thread, same shapes, same run (ratio = osms time / PyTorch time)"
+            );
+            if let Some(t) = get("train_step_ms") {
+                println!(
+                    "  training step      {t:7.2} ms   ratio {:.2}",
+                    ms(t_step) / t
+                );
+            }
+            if let Some(t) = get("act_us") {
+                println!(
+                    "  batch-1 action     {t:7.1} us   ratio {:.2}",
+                    t_act.as_secs_f64() * 1e6 / t
+                );
+            }
+        }
+    }
+}
