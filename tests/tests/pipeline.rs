@@ -631,8 +631,14 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     let once = rollout(&world, &spec, &student, condition.clone(), dr(), policy(0));
     let twice = rollout(&world, &spec, &student, condition.clone(), dr(), policy(0));
     assert_eq!(once, twice, "same streams, same record");
-    let other = rollout(&world, &spec, &student, condition.clone(), dr(), policy(1));
-    assert_ne!(once.intended, other.intended, "the policy's noise matters");
+    // Sampling from the learned distribution (noise scale 1) makes the policy stream matter.
+    let mut sampling = student.clone();
+    sampling.params.noise_scale = 1.0;
+    let first = rollout(&world, &spec, &sampling, condition.clone(), dr(), policy(0));
+    let again = rollout(&world, &spec, &sampling, condition.clone(), dr(), policy(0));
+    let other = rollout(&world, &spec, &sampling, condition.clone(), dr(), policy(1));
+    assert_eq!(first, again, "same streams, same record");
+    assert_ne!(first.intended, other.intended, "the policy's noise matters");
     // Querying the teacher does not change what the student does.
     let paired = paired_rollout(
         &world,
