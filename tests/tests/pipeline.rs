@@ -101,6 +101,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     cross_fitting_never_scores_a_student_on_its_training_conditions(&first);
     teacher_queries_reproduce_the_teacher(&first);
     student_rollouts_are_deterministic_and_see_their_training_features(&first);
+    interventions_replay_hand_back_and_share_random_numbers(&first);
     let two = make(&text, 2, Some(&first));
     assert_eq!(two.hashes, reference, "1 vs 2 threads");
     assert_eq!(
@@ -678,4 +679,128 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
             "step {n}: training and deployment observations differ"
         );
     }
+}
+
+/// The event-aligned intervention (paper 4.2): replaying ζ_org in its window reproduces the D_R
+/// rollout; a window reaching past the first contact hands the arm back the step after it (the
+/// snippet's later rows never run); with the error model, two runs of one candidate on the same
+/// stream are identical, and two candidates share the rollout up to the window's start.
+fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
+    use osms_method::error_model::Perturber;
+    use osms_method::error_stages::ErrorModelArtifact;
+    use osms_method::intervene::{Errors, Snippet, execute};
+    use osms_policy::dataset::Dataset;
+    use osms_policy::stages::Teacher;
+    use osms_sim::stages::WorldArtifact;
+    use osms_sim::{N_ACTION, N_ARM, Phase};
+
+    let world = load::<WorldArtifact>(made, "world").world().expect("world");
+    let mut teacher: Teacher = load(made, "teacher@0");
+    teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
+    teacher.task.rollout.record_privileged = true;
+    let model = load::<ErrorModelArtifact>(made, "error_model@0").model;
+    let d_r: Dataset = load_sharded(made, "d_r@0");
+    let (mut replayed, mut handed_back) = (0, 0);
+    for r in d_r.rollouts().filter(|r| r.osw.complete) {
+        let dr = || {
+            osms_make::rng::stream(
+                0,
+                "d_r",
+                "attempt",
+                u64::from(r.item) * 100 + u64::from(r.attempt),
+            )
+        };
+        let run = |snippet: Option<Snippet<'_>>, errors: Option<Errors<'_>>| {
+            execute(
+                &world,
+                &teacher.task,
+                &teacher.agent,
+                r.record.condition.clone(),
+                dr(),
+                snippet,
+                errors,
+            )
+        };
+        let (start, k_e) = (r.osw.start, r.osw.event_step);
+        let original = Snippet {
+            start,
+            zeta: &r.osw.zeta_org,
+        };
+        let replay = run(Some(original), None);
+        assert_eq!(replay.record, r.record, "item {}: ζ_org replay", r.item);
+        assert_eq!(
+            replay.commanded, r.record.intended,
+            "no errors, no perturbation"
+        );
+        if r.record.steps > k_e {
+            assert_eq!(replay.handed_back_at, Some(k_e));
+        }
+        replayed += 1;
+
+        // The original's arm rows up to and including the contact step, then rows the teacher
+        // never sent: they must not run.
+        if r.record.phase.get(k_e) == Some(&(Phase::Contact as u8)) && k_e >= 2 {
+            let mut zeta = Vec::new();
+            for k in k_e - 2..=k_e {
+                zeta.extend_from_slice(&r.record.intended[k * N_ACTION..k * N_ACTION + N_ARM]);
+            }
+            zeta.extend(std::iter::repeat_n(0.9f32, 3 * N_ARM));
+            let past = run(
+                Some(Snippet {
+                    start: k_e - 2,
+                    zeta: &zeta,
+                }),
+                None,
+            );
+            assert_eq!(past.handed_back_at, Some(k_e + 1), "item {}", r.item);
+            assert_eq!(
+                past.record, r.record,
+                "item {}: the teacher took over",
+                r.item
+            );
+            handed_back += 1;
+        }
+
+        // Common random numbers: the same candidate twice, and another candidate, on stream q.
+        let errors = || Errors {
+            perturber: Perturber::new(&model),
+            rng: osms_make::rng::stream(0, "test", "errors", u64::from(r.item)),
+        };
+        let a = run(Some(original), Some(errors()));
+        assert_eq!(
+            a,
+            run(Some(original), Some(errors())),
+            "same candidate, same stream"
+        );
+        assert!(a.commanded.iter().all(|c| c.abs() <= 1.0));
+        assert_ne!(a.commanded, a.record.intended, "the error model perturbs");
+        let shifted: Vec<f32> = r
+            .osw
+            .zeta_org
+            .iter()
+            .map(|z| (z * 0.5).clamp(-1.0, 1.0))
+            .collect();
+        let b = run(
+            Some(Snippet {
+                start,
+                zeta: &shifted,
+            }),
+            Some(errors()),
+        );
+        let prefix = start * N_ACTION;
+        assert_eq!(
+            a.commanded[..prefix],
+            b.commanded[..prefix],
+            "shared prefix"
+        );
+        assert_eq!(a.record.executed[..prefix], b.record.executed[..prefix]);
+        assert_eq!(
+            a.record.deployable[..start * osms_sim::episode::DEPLOYABLE_LEN],
+            b.record.deployable[..start * osms_sim::episode::DEPLOYABLE_LEN]
+        );
+    }
+    assert!(
+        replayed > 0 && handed_back > 0,
+        "{replayed} replays, {handed_back} hand-backs"
+    );
 }

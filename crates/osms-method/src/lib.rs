@@ -7,6 +7,7 @@ pub mod cvae;
 pub mod error_model;
 pub mod error_stages;
 pub mod geodesic;
+pub mod intervene;
 pub mod project;
 pub mod sobol;
 pub mod stages;
