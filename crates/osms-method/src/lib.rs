@@ -9,5 +9,6 @@ pub mod error_stages;
 pub mod geodesic;
 pub mod intervene;
 pub mod project;
+pub mod select;
 pub mod sobol;
 pub mod stages;
