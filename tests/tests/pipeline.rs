@@ -64,6 +64,30 @@ fn make(text: &str, jobs: usize, teachers_from: Option<&Made>) -> Made {
     }
 }
 
+/// Builds `text` on the tiny profile in `made`'s store (what is there is reused): the hashes and
+/// how many instances were computed.
+fn remake(made: &Made, text: &str) -> (BTreeMap<String, Hash>, usize) {
+    let path = made._dir.path().join("variant.toml");
+    std::fs::write(&path, text).expect("write");
+    let plan = Plan::new(
+        &Pipeline::load(&path, Some("tiny")).expect("load"),
+        &osms::registry(),
+    )
+    .expect("plan");
+    let opts = MakeOptions {
+        targets: vec![],
+        seeds: vec![0],
+        jobs: 2,
+        dry_run: false,
+    };
+    let report = osms_make::make(&plan, &made.store, &opts, &Silent).expect("make");
+    assert!(report.failed().is_empty(), "{:?}", report.failed());
+    (
+        hashes(&report),
+        report.count(|o| matches!(o, osms_make::Outcome::Built { .. })),
+    )
+}
+
 fn load<A: osms_store::Artifact>(made: &Made, instance: &str) -> A {
     osms_store::decode(&object(made, instance)).expect("decode")
 }
@@ -90,7 +114,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 26, "{reference:?}");
+    assert_eq!(reference.len(), 28, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -102,6 +126,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     teacher_queries_reproduce_the_teacher(&first);
     student_rollouts_are_deterministic_and_see_their_training_features(&first);
     interventions_replay_hand_back_and_share_random_numbers(&first);
+    validation_is_exact_when_fast_and_dstar_repeats_it(&first);
     let two = make(&text, 2, Some(&first));
     assert_eq!(two.hashes, reference, "1 vs 2 threads");
     assert_eq!(
@@ -137,6 +162,14 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
         .replace(
             "[profiles.tiny.eval_student_il]\nshards = 2",
             "[profiles.tiny.eval_student_il]\nshards = 5",
+        )
+        .replace(
+            "[profiles.tiny.validate]\nshards = 2",
+            "[profiles.tiny.validate]\nshards = 3",
+        )
+        .replace(
+            "[profiles.tiny.dstar]\nshards = 2",
+            "[profiles.tiny.dstar]\nshards = 5",
         );
     assert_eq!(
         (
@@ -144,7 +177,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
             reshard.matches("shards = 3").count(),
             reshard.matches("params = { n = 6 }\nshards = 4").count()
         ),
-        (3, 3, 2),
+        (4, 4, 2),
         "the overlays were edited"
     );
     assert_eq!(
@@ -700,20 +733,23 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
     teacher.task.rollout.record_privileged = true;
     let model = load::<ErrorModelArtifact>(made, "error_model@0").model;
     let d_r: Dataset = load_sharded(made, "d_r@0");
+    assert_eq!(d_r.task, teacher.task, "D_R keeps the task it ran");
     let (mut replayed, mut handed_back) = (0, 0);
     for r in d_r.rollouts().filter(|r| r.osw.complete) {
-        let dr = || {
-            osms_make::rng::stream(
-                0,
-                "d_r",
-                "attempt",
-                u64::from(r.item) * 100 + u64::from(r.attempt),
-            )
-        };
+        assert_eq!(
+            r.dr_stream,
+            osms_make::rng::StreamId {
+                seed: 0,
+                stage: "d_r".into(),
+                name: "attempt".into(),
+                index: u64::from(r.item) * 100 + u64::from(r.attempt),
+            }
+        );
+        let dr = || r.dr_stream.rng();
         let run = |snippet: Option<Snippet<'_>>, errors: Option<Errors<'_>>| {
             execute(
                 &world,
-                &teacher.task,
+                &d_r.task,
                 &teacher.agent,
                 r.record.condition.clone(),
                 dr(),
@@ -803,4 +839,167 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
         replayed > 0 && handed_back > 0,
         "{replayed} replays, {handed_back} hand-backs"
     );
+}
+
+/// Validation's fast path (shared prefixes, early stops, Alg. 1's order) gives the exhaustive
+/// evaluation's bytes, for the geodesic sets and for the `direct` sets (near ζ_org, so on tiny
+/// they reach the perturbed rollouts the geodesic ones do not); D_* repeats the validation's
+/// rollouts and keeps successes only; a duplicated candidate gets identical outcomes (common
+/// random numbers).
+fn validation_is_exact_when_fast_and_dstar_repeats_it(made: &Made) {
+    use osms_method::error_stages::ErrorModelArtifact;
+    use osms_method::stages::CandidateSets;
+    use osms_method::validate::{Case, Robustness, ValidateParams, validate};
+    use osms_method::validate_stages::Validation;
+    use osms_policy::dataset::Dataset;
+    use osms_policy::demos::{DemoSet, Execution, Origin};
+    use osms_policy::stages::Teacher;
+    use osms_sim::episode::DEPLOYABLE_LEN;
+    use osms_sim::stages::WorldArtifact;
+    use osms_sim::{N_ACTION, N_ARM};
+
+    let extra = r#"
+[stages.validate_direct]
+kind = "validate"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model" }
+shards = 2
+params = { q = 6 }
+
+[stages.dstar_direct]
+kind = "dstar"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
+shards = 3
+"#;
+    let text = format!("{}{extra}", shipped());
+    let (fast, _) = remake(made, &text);
+    let exhaustive = text
+        .replace(
+            "params = { q = 6 }",
+            "params = { q = 6, exhaustive = true }",
+        )
+        .replace(
+            "[profiles.tiny.validate]\nshards = 2",
+            "[profiles.tiny.validate]\nshards = 2\nparams = { exhaustive = true }",
+        );
+    assert_eq!(exhaustive.matches("exhaustive = true").count(), 2);
+    let (slow, built) = remake(made, &exhaustive);
+    assert_eq!(built, 2, "both validations ran again, exhaustively");
+    for s in [
+        "validate@0",
+        "dstar@0",
+        "validate_direct@0",
+        "dstar_direct@0",
+    ] {
+        assert_eq!(fast[s], slow[s], "{s}: fast and exhaustive bytes");
+    }
+
+    let world = load::<WorldArtifact>(made, "world").world().expect("world");
+    let teacher: Teacher = load(made, "teacher@0");
+    let d_r: Dataset = load_sharded(made, "d_r@0");
+    let model = load::<ErrorModelArtifact>(made, "error_model@0").model;
+    let direct: CandidateSets = load_sharded(made, "candidates_direct@0");
+    let v: Validation = osms_make::assemble(
+        &made.store.get(&fast["validate_direct@0"]).expect("object"),
+        &osms_make::StoreObjects(&made.store),
+    )
+    .expect("validation");
+    let dstar: DemoSet = osms_make::assemble(
+        &made.store.get(&fast["dstar_direct@0"]).expect("object"),
+        &osms_make::StoreObjects(&made.store),
+    )
+    .expect("D_*");
+    let stats = v.stats();
+    assert!(
+        stats.perturbed > 0 && stats.unperturbed_successes > stats.perturbed,
+        "the tiny direct sets exercise every path: {stats:?}"
+    );
+
+    // D_*: successes only, as validated; labels are the commanded actions.
+    assert_eq!(dstar.groups.len(), v.items.len());
+    for ((g, item), r) in dstar.groups.iter().zip(&v.items).zip(d_r.rollouts()) {
+        assert_eq!((g.item, g.attempt), (item.item, item.attempt));
+        for e in &g.demos {
+            assert_eq!(e.demo.deployable.len(), e.demo.steps * DEPLOYABLE_LEN);
+            assert_eq!(e.demo.actions.len(), e.demo.steps * N_ACTION);
+            assert!(e.demo.actions.iter().all(|a| a.abs() <= 1.0));
+        }
+        match g.origin {
+            Origin::Dropped => assert!(g.demos.is_empty() && !item.original.success),
+            Origin::Kept => {
+                assert!(item.original.success);
+                assert_eq!(g.demos.len(), 1);
+                assert_eq!(g.demos[0].execution, Execution::Original);
+                assert_eq!(g.demos[0].demo.deployable, r.record.deployable);
+                assert_eq!(g.demos[0].demo.actions, r.record.intended);
+            }
+            Origin::Refined | Origin::Repaired => {
+                let k = item.decision.selected().expect("selected");
+                let Robustness::Full { successes } = item.candidates[k].robustness else {
+                    panic!("a selected candidate has its full SR");
+                };
+                assert_eq!(g.demos.len(), 1 + successes as usize);
+                assert_eq!(g.demos[0].execution, Execution::Unperturbed);
+                // Inside the window the arm ran ζ*, until contact handed it back.
+                let zeta = &direct.items[g.item as usize]
+                    .set
+                    .as_ref()
+                    .expect("η")
+                    .candidates[k]
+                    .zeta;
+                let start = r.osw.start;
+                assert_eq!(
+                    g.demos[0].demo.actions[start * N_ACTION..start * N_ACTION + N_ARM],
+                    zeta[..N_ARM]
+                );
+                for e in &g.demos[1..] {
+                    assert!(matches!(e.execution, Execution::Perturbed { .. }));
+                    assert_ne!(e.demo.actions, g.demos[0].demo.actions, "perturbed labels");
+                }
+            }
+        }
+    }
+
+    // Common random numbers: η with one candidate twice gets the same report twice.
+    let mut task = d_r.task.clone();
+    task.rollout.record_privileged = false;
+    let (index, item) = v
+        .items
+        .iter()
+        .enumerate()
+        .find(|(_, i)| {
+            i.candidates
+                .iter()
+                .any(|c| c.robustness != Robustness::NotRun)
+        })
+        .expect("a candidate with perturbed rollouts");
+    let k = item
+        .candidates
+        .iter()
+        .position(|c| c.robustness != Robustness::NotRun)
+        .expect("k");
+    let set = &direct.items[index].set.as_ref().expect("η").candidates;
+    let twice = vec![set[k].clone(), set[k].clone()];
+    let streams = v.streams.clone();
+    let errors = move |q| streams.rng(item.item, q);
+    let rollout = d_r.rollouts().nth(index).expect("rollout");
+    for exhaustive in [false, true] {
+        let (report, _) = validate(
+            &Case {
+                world: &world,
+                task: &task,
+                agent: &teacher.agent,
+                rollout,
+                candidates: &twice,
+                model: &model,
+                errors: &errors,
+            },
+            &ValidateParams {
+                exhaustive,
+                ..v.params.clone()
+            },
+        )
+        .expect("validate");
+        assert_eq!(report.candidates[0], report.candidates[1]);
+        assert_eq!(report.candidates[0], item.candidates[k]);
+    }
 }

@@ -429,13 +429,23 @@ impl<P> Ctx<'_, P> {
 
     /// The generator of stream (`name`, `index`) of this stage.
     pub fn rng(&self, name: &str, index: u64) -> StreamRng {
+        self.stream_id(name, index).rng()
+    }
+
+    /// The name of stream (`name`, `index`) of this stage, to store with what it draws.
+    pub fn stream_id(&self, name: &str, index: u64) -> rng::StreamId {
         let seed = self.seed.unwrap_or_else(|| {
             panic!(
                 "stage `{}` draws no random numbers (its kind's USES_RNG or draws_randomness) but asked for a stream",
                 self.stage
             )
         });
-        rng::stream(seed, self.stage, name, index)
+        rng::StreamId {
+            seed,
+            stage: self.stage.to_string(),
+            name: name.to_string(),
+            index,
+        }
     }
 
     /// The run seed, for code that derives its own streams with [`rng::stream`] from

@@ -7,6 +7,7 @@
 
 use rand_chacha::ChaCha20Rng;
 use rand_core::{Rng, SeedableRng};
+use serde::{Deserialize, Serialize};
 
 pub use rand_chacha::ChaCha20Rng as StreamRng;
 
@@ -20,6 +21,23 @@ pub fn stream(seed: u64, stage: &str, name: &str, index: u64) -> ChaCha20Rng {
     }
     material.extend_from_slice(&index.to_le_bytes());
     ChaCha20Rng::from_seed(blake3::derive_key("osms rng v1", &material))
+}
+
+/// The name of a stream, kept with what it drew so the draws can be repeated elsewhere (a
+/// rollout's domain randomisation replayed by a later stage).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StreamId {
+    pub seed: u64,
+    pub stage: String,
+    pub name: String,
+    pub index: u64,
+}
+
+impl StreamId {
+    /// The stream's generator at its start.
+    pub fn rng(&self) -> StreamRng {
+        stream(self.seed, &self.stage, &self.name, self.index)
+    }
 }
 
 /// Uniform on [0, 1) with 53 random bits.

@@ -764,7 +764,9 @@ fn robust_cholesky(a: &[f64], c: usize) -> Vec<f64> {
 /// Eq. 7 applied step by step within one rollout.
 ///
 /// Every step of a perturbed model draws exactly `channels` standard normals, so rollouts that
-/// share a stream share their noise step for step (common random numbers).
+/// share a stream share their noise step for step (common random numbers). A clone continues
+/// exactly where the original is, so a perturbed rollout can branch.
+#[derive(Clone)]
 pub struct Perturber<'m> {
     model: &'m ErrorModel,
     /// Cholesky factors of each phase's stationary covariance, for the first draw of e.

@@ -12,7 +12,7 @@
 
 use osms_make::rng::StreamRng;
 use osms_policy::Agent;
-use osms_policy::catch::{CatchEpisode, CatchTaskSpec};
+use osms_policy::catch::{CatchEpisode, CatchSnapshot, CatchTaskSpec};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::{Action, Hooks, N_ACTION, N_ARM, Phase, RolloutRecord, World};
 
@@ -36,6 +36,7 @@ impl Snippet<'_> {
 
 /// Modelled student action errors and the stream of their innovations (common random numbers:
 /// every candidate of a condition gets the same stream for the same q).
+#[derive(Clone)]
 pub struct Errors<'m> {
     pub perturber: Perturber<'m>,
     pub rng: StreamRng,
@@ -54,6 +55,7 @@ pub struct Executed {
     pub handed_back_at: Option<usize>,
 }
 
+#[derive(Clone)]
 struct Executor<'a, 'm> {
     snippet: Option<Snippet<'a>>,
     /// Whether the snippet drives the arm this step.
@@ -87,6 +89,149 @@ impl Hooks for Executor<'_, '_> {
     }
 }
 
+/// A rollout under intervention that runs step by step and branches: run the shared prefix
+/// once, [`Intervention::snapshot`] it at the window's start, then for each candidate
+/// [`Intervention::restore`] and [`Intervention::set_snippet`]. Every branch is bit for bit the
+/// rollout [`execute`] runs from step 0 with the same inputs.
+pub struct Intervention<'w, 'a, 'm> {
+    episode: CatchEpisode<'w>,
+    hooks: Executor<'a, 'm>,
+    handed_back_at: Option<usize>,
+}
+
+/// An intervention's whole state at the start of a control step.
+#[derive(Clone)]
+pub struct InterventionSnapshot<'a, 'm> {
+    episode: CatchSnapshot,
+    hooks: Executor<'a, 'm>,
+    handed_back_at: Option<usize>,
+}
+
+impl<'w, 'a, 'm> Intervention<'w, 'a, 'm> {
+    /// The teacher's rollout on ω (its DR draws from `dr`), `errors` on every step; no snippet
+    /// until one is set.
+    pub fn new(
+        world: &'w World,
+        task: &'w CatchTaskSpec,
+        condition: TaskCondition,
+        dr: StreamRng,
+        errors: Option<Errors<'m>>,
+    ) -> Self {
+        Intervention {
+            episode: CatchEpisode::new(world, task, condition, dr),
+            hooks: Executor {
+                snippet: None,
+                active: false,
+                errors,
+                phase: Phase::Approach as u8,
+                commanded: Vec::new(),
+            },
+            handed_back_at: None,
+        }
+    }
+
+    /// The snippet to run in its window. Set it before the window starts.
+    ///
+    /// # Panics
+    /// If the window has already started.
+    pub fn set_snippet(&mut self, snippet: Option<Snippet<'a>>) {
+        if let Some(s) = &snippet {
+            assert!(
+                self.step_index() <= s.start,
+                "a snippet for step {} set at step {}",
+                s.start,
+                self.step_index()
+            );
+        }
+        self.hooks.snippet = snippet;
+    }
+
+    /// The next control step's index.
+    pub fn step_index(&self) -> usize {
+        self.episode.episode().step_index()
+    }
+
+    pub fn is_done(&self) -> bool {
+        self.episode.episode().is_done()
+    }
+
+    /// The record so far.
+    pub fn record(&self) -> &RolloutRecord {
+        self.episode.episode().record()
+    }
+
+    /// Whether the rollout will fail however it continues.
+    pub fn failure_decided(&self) -> bool {
+        self.episode.episode().failure_decided()
+    }
+
+    /// One control step; returns true once the episode is over.
+    pub fn step(&mut self, agent: &Agent) -> bool {
+        let inner = self.episode.episode();
+        let k = inner.step_index();
+        let snippet = self.hooks.snippet;
+        if let Some(s) = &snippet
+            && self.handed_back_at.is_none()
+            && k >= s.start
+            && (k >= s.end() || inner.first_contact().is_some())
+        {
+            self.handed_back_at = Some(k);
+        }
+        self.hooks.active = snippet.is_some_and(|s| k >= s.start) && self.handed_back_at.is_none();
+        self.hooks.phase = inner
+            .record()
+            .phase
+            .last()
+            .copied()
+            .unwrap_or(Phase::Approach as u8);
+        let mut act = |obs: &[f32]| agent.act_deterministic(obs);
+        self.episode.step_with_hooks(&mut act, &mut self.hooks).1
+    }
+
+    /// Steps until the next step is `step` or the episode is over.
+    pub fn run_until(&mut self, agent: &Agent, step: usize) {
+        while self.step_index() < step && !self.step(agent) {}
+    }
+
+    pub fn snapshot(&self) -> InterventionSnapshot<'a, 'm> {
+        InterventionSnapshot {
+            episode: self.episode.snapshot(),
+            hooks: self.hooks.clone(),
+            handed_back_at: self.handed_back_at,
+        }
+    }
+
+    /// Returns to `snapshot`, taken from this intervention (even after it has ended).
+    pub fn restore(&mut self, snapshot: &InterventionSnapshot<'a, 'm>) {
+        self.episode.restore(&snapshot.episode);
+        self.hooks.clone_from(&snapshot.hooks);
+        self.handed_back_at = snapshot.handed_back_at;
+    }
+
+    /// Runs to the end.
+    pub fn run(&mut self, agent: &Agent) {
+        while !self.step(agent) {}
+    }
+
+    /// The outcome as it stands (final once the episode is over).
+    pub fn outcome(&self) -> (osms_sim::Outcome, osms_sim::Metrics) {
+        self.episode.episode().outcome()
+    }
+
+    /// The rollout, run to its end.
+    pub fn finish(mut self, agent: &Agent) -> Executed {
+        self.run(agent);
+        let mut act = |obs: &[f32]| agent.act_deterministic(obs);
+        let record = self.episode.run(&mut act);
+        debug_assert_eq!(self.hooks.commanded.len(), record.steps * N_ACTION);
+        Executed {
+            record,
+            commanded: self.hooks.commanded,
+            handed_back_at: self.handed_back_at,
+        }
+    }
+}
+
 /// The teacher's rollout on ω (its DR draws from `dr`) with `snippet` in its window and `errors`
 /// on every step (paper 4.2 with Eq. 7). Without either it is the teacher's own rollout.
 ///
@@ -101,42 +246,7 @@ pub fn execute(
     snippet: Option<Snippet<'_>>,
     errors: Option<Errors<'_>>,
 ) -> Executed {
-    let mut hooks = Executor {
-        snippet,
-        active: false,
-        errors,
-        phase: Phase::Approach as u8,
-        commanded: Vec::new(),
-    };
-    let mut handed_back_at = None;
-    let mut act = |obs: &[f32]| agent.act_deterministic(obs);
-    let mut episode = CatchEpisode::new(world, task, condition, dr);
-    loop {
-        let inner = episode.episode();
-        let k = inner.step_index();
-        if let Some(s) = &snippet
-            && handed_back_at.is_none()
-            && k >= s.start
-            && (k >= s.end() || inner.first_contact().is_some())
-        {
-            handed_back_at = Some(k);
-        }
-        hooks.active = snippet.is_some_and(|s| k >= s.start) && handed_back_at.is_none();
-        hooks.phase = inner
-            .record()
-            .phase
-            .last()
-            .copied()
-            .unwrap_or(Phase::Approach as u8);
-        if episode.step_with_hooks(&mut act, &mut hooks).1 {
-            break;
-        }
-    }
-    let record = episode.run(&mut act);
-    debug_assert_eq!(hooks.commanded.len(), record.steps * N_ACTION);
-    Executed {
-        record,
-        commanded: hooks.commanded,
-        handed_back_at,
-    }
+    let mut run = Intervention::new(world, task, condition, dr, errors);
+    run.set_snippet(snippet);
+    run.finish(agent)
 }

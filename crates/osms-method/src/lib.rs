@@ -12,3 +12,5 @@ pub mod project;
 pub mod select;
 pub mod sobol;
 pub mod stages;
+pub mod validate;
+pub mod validate_stages;

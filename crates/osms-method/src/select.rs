@@ -34,7 +34,8 @@ pub struct OriginalOutcome {
 }
 
 /// What becomes of a D_R rollout.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Decision {
     /// A successful original replaced by candidate `index`.
     Refine { index: usize },
@@ -44,6 +45,25 @@ pub enum Decision {
     KeepOriginal,
     /// No eligible candidate; the failed original is dropped.
     Drop,
+}
+
+impl Decision {
+    /// The selected candidate, if any.
+    pub fn selected(self) -> Option<usize> {
+        match self {
+            Decision::Refine { index } | Decision::Repair { index } => Some(index),
+            Decision::KeepOriginal | Decision::Drop => None,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Decision::Refine { .. } => "refine",
+            Decision::Repair { .. } => "repair",
+            Decision::KeepOriginal => "keep original",
+            Decision::Drop => "drop",
+        }
+    }
 }
 
 /// Whether candidate `c` may replace `original` (δ_SR for repairs).

@@ -609,4 +609,5 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register_itemised(CandidatesStage)
         .register(CandidateTableStage)
         .register(crate::error_stages::ErrorModelStage);
+    crate::validate_stages::register(registry);
 }

@@ -4,10 +4,13 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
+use osms_make::rng::StreamId;
 use osms_sim::Phase;
 use osms_sim::control::DrDraw;
 use osms_sim::{N_ACTION, N_ARM, RolloutRecord, conditions::TaskCondition, spec::ObjectVariant};
 use serde::{Deserialize, Serialize};
+
+use crate::catch::CatchTaskSpec;
 
 /// The three teacher datasets of paper section 4, each from its own condition stream.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -152,6 +155,9 @@ pub struct DemoRollout {
     /// Which draw of the dataset's condition stream ω came from: (item, attempt).
     pub item: u32,
     pub attempt: u32,
+    /// The stream the rollout's domain randomisation drew from (its DR draws, then actuation
+    /// and observation noise): with `Dataset::task` and ω it repeats the rollout exactly.
+    pub dr_stream: StreamId,
     /// The per-step record: ω, intended (teacher) and executed actions, deployable and
     /// privileged frames, palm and object states, forces, phases, metrics and outcome.
     pub record: RolloutRecord,
@@ -173,14 +179,18 @@ pub struct DatasetItem {
 pub struct Dataset {
     pub successes_only: bool,
     pub osw: OswSpec,
+    /// The teacher's task as the rollouts ran it: its rollout spec with the dataset's domain
+    /// randomisation, so later stages branch from these rollouts under the same setting.
+    pub task: CatchTaskSpec,
     pub items: Vec<DatasetItem>,
 }
 
 impl osms_store::Artifact for Dataset {
     const TYPE_TAG: &'static str = "policy.dataset";
     /// 3: stored as a manifest of its shards (the rollouts are stored once); 4: records keep
-    /// the arm's servo targets and ω̄ ends with them.
-    const SCHEMA_VERSION: u16 = 4;
+    /// the arm's servo targets and ω̄ ends with them; 5: each rollout names its DR stream and
+    /// the dataset keeps the task spec it ran.
+    const SCHEMA_VERSION: u16 = 5;
 }
 
 impl osms_make::Sharded for Dataset {

@@ -4,6 +4,7 @@
 
 pub mod catch;
 pub mod dataset;
+pub mod demos;
 pub mod flow;
 pub mod norm;
 pub mod ppo;

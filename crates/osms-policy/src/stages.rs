@@ -19,7 +19,7 @@ use crate::ppo::{Agent, IterationStats, PpoConfig, Task, train};
 
 /// What a kind that rolls out or trains networks depends on beyond its inputs: MuJoCo,
 /// osms-sim's and osms-nn's numerics.
-pub(crate) fn policy_numerics() -> Vec<Numerics> {
+pub fn policy_numerics() -> Vec<Numerics> {
     let mut n = osms_sim::numerics();
     n.push(Numerics {
         name: "osms-nn",
@@ -448,8 +448,8 @@ fn default_max_attempts() -> u32 {
 pub struct CollectStage;
 impl ItemStage for CollectStage {
     const KIND: &'static str = "collect";
-    /// 3: ω̄ carries the arm's servo targets.
-    const CODE_VERSION: u32 = 3;
+    /// 3: ω̄ carries the arm's servo targets; 4: the DR stream and the task spec are kept.
+    const CODE_VERSION: u32 = 4;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<WorldArtifact>("world"),
@@ -506,11 +506,17 @@ impl ItemStage for CollectStage {
         let mut discarded_failures: BTreeMap<String, u32> = BTreeMap::new();
         for attempt in 0..p.max_attempts {
             let condition = sample(&teacher.task.conditions, world.home_palm_pos, rng)?;
-            let dr = ctx.rng(
+            let dr_stream = ctx.stream_id(
                 "attempt",
                 index as u64 * u64::from(p.max_attempts) + u64::from(attempt),
             );
-            let record = rollout(world, &teacher.task, &teacher.agent, condition, dr);
+            let record = rollout(
+                world,
+                &teacher.task,
+                &teacher.agent,
+                condition,
+                dr_stream.rng(),
+            );
             if p.successes_only && !record.outcome.success() {
                 for f in &record.outcome.failures {
                     *discarded_failures.entry(f.name().to_string()).or_default() += 1;
@@ -522,6 +528,7 @@ impl ItemStage for CollectStage {
                 rollout: DemoRollout {
                     item: index as u32,
                     attempt,
+                    dr_stream,
                     record,
                     osw,
                 },
@@ -538,12 +545,13 @@ impl ItemStage for CollectStage {
     fn merge(
         &self,
         ctx: &Ctx<'_, CollectParams>,
-        _: Self::Prepared,
+        (_, teacher): Self::Prepared,
         items: Vec<DatasetItem>,
     ) -> Result<Dataset, StageError> {
         Ok(Dataset {
             successes_only: ctx.params.successes_only,
             osw: ctx.params.osw.clone(),
+            task: teacher.task,
             items,
         })
     }

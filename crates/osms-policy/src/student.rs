@@ -142,7 +142,7 @@ impl StudentParams {
 }
 
 /// One demonstration rollout as students read it: its deployable frames and its action labels.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Demo {
     pub steps: usize,
     /// [`DEPLOYABLE_LEN`] per step.

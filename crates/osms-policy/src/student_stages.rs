@@ -17,6 +17,7 @@ use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;
+use crate::demos::DemoSet;
 use crate::stages::{Teacher, policy_numerics, with_dr};
 use crate::student::{Demo, Student, StudentParams, paired_rollout, rollout};
 
@@ -130,8 +131,11 @@ impl Stage for StudentStage {
     const KIND: &'static str = "student";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
-    const INPUTS: &'static [Slot] = &[Slot::one::<Dataset>("data")];
-    const DOC: &'static str = "a flow-matching student on a dataset (cross-fitted with folds)";
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<Dataset>("data").optional(),
+        Slot::one::<DemoSet>("demos").optional(),
+    ];
+    const DOC: &'static str = "a flow-matching student on a rollout dataset (`data`) or a constructed demonstration set (`demos`); cross-fitted with folds";
     type Params = StudentParams;
     type Output = StudentArtifact;
 
@@ -144,13 +148,31 @@ impl Stage for StudentStage {
         let fold = ctx.fold();
         let mut demos = Vec::new();
         let mut items = Vec::new();
-        for item in ctx.items::<Dataset>("data")? {
-            let r = item?.rollout;
-            if fold.is_some_and(|f| in_fold(r.item, f)) {
-                continue;
+        let slot = match (ctx.has_input("data"), ctx.has_input("demos")) {
+            (true, false) => "data",
+            (false, true) => "demos",
+            _ => {
+                return Err("a student trains on exactly one of `data` (a rollout dataset) and `demos` (a demonstration set)\nhint: wire one of them in the stage's inputs".into());
             }
-            items.push(r.item);
-            demos.push(Demo::from_record(&r.record));
+        };
+        if slot == "data" {
+            for item in ctx.items::<Dataset>("data")? {
+                let r = item?.rollout;
+                if fold.is_some_and(|f| in_fold(r.item, f)) {
+                    continue;
+                }
+                items.push(r.item);
+                demos.push(Demo::from_record(&r.record));
+            }
+        } else {
+            for group in ctx.items::<DemoSet>("demos")? {
+                let g = group?;
+                if g.demos.is_empty() || fold.is_some_and(|f| in_fold(g.item, f)) {
+                    continue;
+                }
+                items.push(g.item);
+                demos.extend(g.demos.into_iter().map(|e| e.demo));
+            }
         }
         let progress = ctx.progress();
         progress.set_total(u64::from(ctx.params.steps));

@@ -321,6 +321,12 @@ impl<'w> Episode<'w> {
         self.step
     }
 
+    /// Whether the rollout will fail however it continues (see
+    /// [`Evaluator::failure_decided`]).
+    pub fn failure_decided(&self) -> bool {
+        self.evaluator.failure_decided()
+    }
+
     pub fn data(&self) -> &MjData<Box<MjModel>> {
         &self.data
     }

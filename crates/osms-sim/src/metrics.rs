@@ -316,6 +316,23 @@ impl Evaluator {
         self.done = true;
     }
 
+    /// Whether the rollout has already failed, whatever happens next: a failure that ended it,
+    /// or an impact criterion that can no longer be met (v_rel(t_c) is fixed at t_c, f_max
+    /// only grows, and ℓ_max stops growing when Δt_eval closes). [`Evaluator::finish`] then
+    /// reports a failure; validation stops such rollouts early.
+    pub fn failure_decided(&self) -> bool {
+        if !self.failures.is_empty() {
+            return true;
+        }
+        let Some(c) = &self.first_contact else {
+            return false;
+        };
+        c.contact_speed_mps > self.spec.max_contact_speed_mps
+            || self.max_force > self.spec.max_force_n
+            || (self.phase == Phase::Grasping
+                && self.follow_through < self.spec.min_follow_through_m)
+    }
+
     /// Ends the episode with a failure that is not about contacts (instability, invalid action).
     pub fn abort(&mut self, f: Failure) {
         self.fail(f);
