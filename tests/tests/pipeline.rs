@@ -114,7 +114,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 28, "{reference:?}");
+    assert_eq!(reference.len(), 32, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -869,6 +869,16 @@ params = { q = 6 }
 kind = "dstar"
 inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
 shards = 3
+
+[stages.naive_direct]
+kind = "naive"
+inputs = { world = "world", teacher = "teacher", data = "d_r", target = "dstar_direct" }
+shards = 2
+
+[stages.normal_direct]
+kind = "normal"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct", manifold = "manifold", target = "dstar_direct" }
+shards = 3
 "#;
     let text = format!("{}{extra}", shipped());
     let (fast, _) = remake(made, &text);
@@ -892,6 +902,7 @@ shards = 3
     ] {
         assert_eq!(fast[s], slow[s], "{s}: fast and exhaustive bytes");
     }
+    baselines_reach_dstar_from_streams_of_their_own(made, &fast);
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
     let teacher: Teacher = load(made, "teacher@0");
@@ -1001,5 +1012,75 @@ shards = 3
         .expect("validate");
         assert_eq!(report.candidates[0], report.candidates[1]);
         assert_eq!(report.candidates[0], item.candidates[k]);
+    }
+}
+
+/// Naive reaches D_*'s count exactly, Normal at least (its extension runs with a margin and
+/// keeps the first groups that reach it); their extensions draw conditions no other set has.
+fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMap<String, Hash>) {
+    use osms_policy::dataset::Dataset;
+    use osms_policy::demos::{DemoSet, Execution, Origin};
+    use osms_sim::stages::Conditions;
+
+    let set = |name: &str| -> DemoSet {
+        osms_make::assemble(
+            &made.store.get(&hashes[name]).expect("object"),
+            &osms_make::StoreObjects(&made.store),
+        )
+        .expect("demo set")
+    };
+    let (dstar, naive, normal) = (
+        set("dstar_direct@0"),
+        set("naive_direct@0"),
+        set("normal_direct@0"),
+    );
+    let target = dstar.len();
+    assert_eq!(naive.target, Some(target));
+    assert_eq!(naive.len(), target, "naive reaches D_*'s count");
+    assert!(
+        naive.stats().extension_conditions > 0,
+        "the tiny D_* outgrows D_R's successes"
+    );
+    for g in naive.groups.iter().filter(|g| g.extension) {
+        assert_eq!((g.origin, g.demos.len()), (Origin::Kept, 1));
+        assert_eq!(g.demos[0].execution, Execution::Original);
+    }
+    assert!(normal.len() >= target.min(normal.stats().conditions));
+    let normal_extension = normal.groups.iter().filter(|g| g.extension).count();
+    if normal.len() > target {
+        // The last extension group crossed the target; none after it was kept.
+        assert!(normal_extension > 0);
+    }
+    for g in &normal.groups {
+        assert!(
+            g.demos.len() <= 1,
+            "unperturbed-only: one rollout per condition"
+        );
+        assert_eq!(g.demos.is_empty(), g.origin == Origin::Dropped);
+    }
+
+    let mut seen: Vec<(String, String)> = Vec::new();
+    let heldout: Conditions = load_sharded(made, "heldout");
+    seen.extend(
+        heldout
+            .items
+            .iter()
+            .map(|c| ("heldout".into(), format!("{c:?}"))),
+    );
+    for name in ["d_m@0", "d_e@0", "d_r@0"] {
+        let d: Dataset = load_sharded(made, name);
+        seen.extend(
+            d.rollouts()
+                .map(|r| (name.into(), format!("{:?}", r.record.condition))),
+        );
+    }
+    for (name, s) in [("naive", &naive), ("normal", &normal)] {
+        for g in s.groups.iter().filter(|g| g.extension) {
+            let c = format!("{:?}", g.condition);
+            if let Some((other, _)) = seen.iter().find(|(_, s)| *s == c) {
+                panic!("{name} extension item {} shares ω with {other}", g.item);
+            }
+            seen.push((name.into(), c));
+        }
     }
 }

@@ -58,6 +58,8 @@ pub struct Executed {
 #[derive(Clone)]
 struct Executor<'a, 'm> {
     snippet: Option<Snippet<'a>>,
+    /// Whether contact ends the snippet (paper 4.2) or it runs its whole window.
+    hand_back_at_contact: bool,
     /// Whether the snippet drives the arm this step.
     active: bool,
     errors: Option<Errors<'m>>,
@@ -121,6 +123,7 @@ impl<'w, 'a, 'm> Intervention<'w, 'a, 'm> {
             episode: CatchEpisode::new(world, task, condition, dr),
             hooks: Executor {
                 snippet: None,
+                hand_back_at_contact: true,
                 active: false,
                 errors,
                 phase: Phase::Approach as u8,
@@ -144,6 +147,12 @@ impl<'w, 'a, 'm> Intervention<'w, 'a, 'm> {
             );
         }
         self.hooks.snippet = snippet;
+    }
+
+    /// Runs the snippet through its whole window even after contact: an intervention on any
+    /// window (the IOS profile), not the event-aligned one of paper 4.2.
+    pub fn through_contact(&mut self) {
+        self.hooks.hand_back_at_contact = false;
     }
 
     /// The next control step's index.
@@ -173,7 +182,8 @@ impl<'w, 'a, 'm> Intervention<'w, 'a, 'm> {
         if let Some(s) = &snippet
             && self.handed_back_at.is_none()
             && k >= s.start
-            && (k >= s.end() || inner.first_contact().is_some())
+            && (k >= s.end()
+                || (self.hooks.hand_back_at_contact && inner.first_contact().is_some()))
         {
             self.handed_back_at = Some(k);
         }

@@ -314,6 +314,24 @@ fn decide(
     select(&org, &outcomes, p.delta_sr)
 }
 
+/// Unperturbed-only validation (the Normal baseline, paper 6): among the candidates that
+/// succeed unperturbed (and, refining, beat J_org) the lowest J, then the shorter distance,
+/// then the lower index.
+pub fn select_unperturbed(j_org: Option<f64>, reports: &[CandidateReport]) -> Option<usize> {
+    reports
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| needs_sr(c.unperturbed, j_org))
+        .min_by(|(ia, a), (ib, b)| {
+            let (ja, jb) = (a.unperturbed.j(), b.unperturbed.j());
+            ja.unwrap_or(f64::INFINITY)
+                .total_cmp(&jb.unwrap_or(f64::INFINITY))
+                .then_with(|| a.distance.total_cmp(&b.distance))
+                .then_with(|| ia.cmp(ib))
+        })
+        .map(|(i, _)| i)
+}
+
 /// Whether a candidate needs perturbed rollouts: it succeeds unperturbed and, refining, beats
 /// J_org.
 fn needs_sr(u: Unperturbed, j_org: Option<f64>) -> bool {
@@ -503,17 +521,16 @@ fn branch<'c>(
     run_out(run, case.agent, cost)
 }
 
-/// The shared prefixes, early stopping and Alg. 1's order.
-fn fast<'c>(
-    case: &Case<'c>,
+/// Every candidate's unperturbed outcome (what unperturbed-only validation reads), branched
+/// from the original rollout at the window's start; failures stop once decided. Fails if the
+/// teacher's replay of the prefix is not the recorded rollout.
+pub fn unperturbed_reports(
+    case: &Case<'_>,
     p: &ValidateParams,
-    item: &mut ValidationItem,
     cost: &mut Cost,
-) -> Result<(), String> {
+) -> Result<Vec<CandidateReport>, String> {
     let r = case.rollout;
     let start = r.osw.start;
-
-    // Unperturbed: the prefix is the original rollout's; the original's outcome is recorded.
     let base = prefix(case, None, cost);
     let recorded = base.record();
     let k = start.min(r.record.steps);
@@ -529,19 +546,34 @@ fn fast<'c>(
     }
     let snapshot = base.snapshot();
     let mut base = (base, snapshot);
+    Ok(case
+        .candidates
+        .iter()
+        .map(|c| {
+            let (success, f_max) = branch(case, &mut base, &c.zeta, cost);
+            CandidateReport {
+                unperturbed: unperturbed(success, f_max, c.deviation, p),
+                deviation: c.deviation,
+                distance: distance(c),
+                robustness: Robustness::NotRun,
+            }
+        })
+        .collect())
+}
+
+/// The shared prefixes, early stopping and Alg. 1's order.
+fn fast<'c>(
+    case: &Case<'c>,
+    p: &ValidateParams,
+    item: &mut ValidationItem,
+    cost: &mut Cost,
+) -> Result<(), String> {
+    let r = case.rollout;
     let j_org = item
         .original
         .success
         .then(|| quality(item.original.max_force_n, 0.0, p.lambda_f, p.lambda_d));
-    for c in case.candidates {
-        let (success, f_max) = branch(case, &mut base, &c.zeta, cost);
-        item.candidates.push(CandidateReport {
-            unperturbed: unperturbed(success, f_max, c.deviation, p),
-            deviation: c.deviation,
-            distance: distance(c),
-            robustness: Robustness::NotRun,
-        });
-    }
+    item.candidates = unperturbed_reports(case, p, cost)?;
     if !item
         .candidates
         .iter()

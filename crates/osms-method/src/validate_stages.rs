@@ -239,17 +239,17 @@ impl Summarize for Validation {
 /// What validation and D_* read: the world, the teacher, the D_R rollouts with their task,
 /// their candidate sets and the error model.
 pub struct Inputs {
-    world: World,
-    agent: Agent,
-    task: CatchTaskSpec,
-    rollouts: Vec<DemoRollout>,
-    sets: Vec<Vec<Candidate>>,
-    generator: String,
-    model: ErrorModel,
+    pub(crate) world: World,
+    pub(crate) agent: Agent,
+    pub(crate) task: CatchTaskSpec,
+    pub(crate) rollouts: Vec<DemoRollout>,
+    pub(crate) sets: Vec<Vec<Candidate>>,
+    pub(crate) generator: String,
+    pub(crate) model: ErrorModel,
 }
 
 impl Inputs {
-    fn load<P>(ctx: &Ctx<'_, P>, params: &ValidateParams) -> Result<Inputs, StageError> {
+    pub(crate) fn load<P>(ctx: &Ctx<'_, P>, params: &ValidateParams) -> Result<Inputs, StageError> {
         params.check()?;
         let teacher: Teacher = ctx.input("teacher")?;
         let data: Dataset = ctx.sharded("data")?;
@@ -306,7 +306,11 @@ impl Inputs {
         })
     }
 
-    fn case<'a>(&'a self, index: usize, errors: &'a dyn Fn(usize) -> StreamRng) -> Case<'a> {
+    pub(crate) fn case<'a>(
+        &'a self,
+        index: usize,
+        errors: &'a dyn Fn(usize) -> StreamRng,
+    ) -> Case<'a> {
         Case {
             world: &self.world,
             task: &self.task,
@@ -406,7 +410,11 @@ pub fn validate_with_cost(
     validate(&inputs.case(index, &errors), ctx.params)
 }
 
-fn entry(execution: Execution, record: &osms_sim::RolloutRecord, actions: Vec<f32>) -> DemoEntry {
+pub(crate) fn entry(
+    execution: Execution,
+    record: &osms_sim::RolloutRecord,
+    actions: Vec<f32>,
+) -> DemoEntry {
     DemoEntry {
         execution,
         max_force_n: record.metrics.max_force_n,
@@ -486,6 +494,7 @@ impl ItemStage for DstarStage {
             extension: false,
             item: r.item,
             attempt: r.attempt,
+            condition: r.record.condition.clone(),
             original_success: v.original.success,
             origin: Origin::Dropped,
             demos: Vec::new(),
@@ -562,6 +571,7 @@ impl ItemStage for DstarStage {
     ) -> Result<DemoSet, StageError> {
         Ok(DemoSet {
             construction: "ours".into(),
+            target: None,
             groups,
         })
     }
@@ -576,5 +586,9 @@ pub struct DstarParams {}
 pub fn register(registry: &mut osms_make::Registry) {
     registry
         .register_itemised(ValidateStage)
-        .register_itemised(DstarStage);
+        .register_itemised(DstarStage)
+        .register_itemised(crate::baselines::NaiveStage)
+        .register_itemised(crate::baselines::NormalStage)
+        .register(crate::baselines::ConstructionTableStage)
+        .register_itemised(crate::ios::IosProfileStage);
 }

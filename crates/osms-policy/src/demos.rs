@@ -4,6 +4,7 @@
 
 use std::fmt::Write;
 
+use osms_sim::conditions::TaskCondition;
 use serde::{Deserialize, Serialize};
 
 use crate::student::Demo;
@@ -63,6 +64,8 @@ pub struct DemoGroup {
     pub extension: bool,
     pub item: u32,
     pub attempt: u32,
+    /// ω (its draw is the group's provenance: extensions never share one with another set).
+    pub condition: TaskCondition,
     /// Whether the teacher's original rollout succeeded.
     pub original_success: bool,
     pub origin: Origin,
@@ -74,6 +77,8 @@ pub struct DemoGroup {
 pub struct DemoSet {
     /// `ours`, `naive` or `normal` (and ablation variants).
     pub construction: String,
+    /// The demonstration count an extension aimed at (D_*'s, for the baselines).
+    pub target: Option<usize>,
     pub groups: Vec<DemoGroup>,
 }
 
@@ -117,6 +122,7 @@ pub struct ConstructionStats {
     pub demonstrations: usize,
     pub extension_conditions: usize,
     pub extension_demonstrations: usize,
+    pub target: Option<usize>,
     pub steps: usize,
 }
 
@@ -174,6 +180,7 @@ impl DemoSet {
             demonstrations: self.len(),
             extension_conditions: extension.len(),
             extension_demonstrations: extension.iter().map(|g| g.demos.len()).sum(),
+            target: self.target,
             steps: self.demos().map(|d| d.steps).sum(),
         }
     }
