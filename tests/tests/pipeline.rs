@@ -65,8 +65,8 @@ fn make(text: &str, jobs: usize, teachers_from: Option<&Made>) -> Made {
 }
 
 /// Builds `text` on the tiny profile in `made`'s store (what is there is reused): the hashes and
-/// how many instances were computed.
-fn remake(made: &Made, text: &str) -> (BTreeMap<String, Hash>, usize) {
+/// the instances computed.
+fn remake(made: &Made, text: &str) -> (BTreeMap<String, Hash>, Vec<String>) {
     let path = made._dir.path().join("variant.toml");
     std::fs::write(&path, text).expect("write");
     let plan = Plan::new(
@@ -82,10 +82,13 @@ fn remake(made: &Made, text: &str) -> (BTreeMap<String, Hash>, usize) {
     };
     let report = osms_make::make(&plan, &made.store, &opts, &Silent).expect("make");
     assert!(report.failed().is_empty(), "{:?}", report.failed());
-    (
-        hashes(&report),
-        report.count(|o| matches!(o, osms_make::Outcome::Built { .. })),
-    )
+    let built = report
+        .instances
+        .iter()
+        .filter(|r| matches!(r.outcome, osms_make::Outcome::Built { .. }))
+        .map(|r| r.instance.clone())
+        .collect();
+    (hashes(&report), built)
 }
 
 fn load<A: osms_store::Artifact>(made: &Made, instance: &str) -> A {
@@ -870,14 +873,25 @@ kind = "dstar"
 inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
 shards = 3
 
+[stages.validate_unperturbed]
+kind = "validate"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model" }
+shards = 2
+params = { q = 6, error_model = "unperturbed" }
+
+[stages.dstar_unperturbed]
+kind = "dstar"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_unperturbed" }
+shards = 2
+
 [stages.naive_direct]
 kind = "naive"
-inputs = { world = "world", teacher = "teacher", data = "d_r", target = "dstar_direct" }
+inputs = { world = "world", teacher = "teacher", data = "d_r", target = "dstar_unperturbed" }
 shards = 2
 
 [stages.normal_direct]
 kind = "normal"
-inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct", manifold = "manifold", target = "dstar_direct" }
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct", manifold = "manifold", target = "dstar_unperturbed" }
 shards = 3
 "#;
     let text = format!("{}{extra}", shipped());
@@ -888,17 +902,31 @@ shards = 3
             "params = { q = 6, exhaustive = true }",
         )
         .replace(
+            "params = { q = 6, error_model = \"unperturbed\" }",
+            "params = { q = 6, error_model = \"unperturbed\", exhaustive = true }",
+        )
+        .replace(
             "[profiles.tiny.validate]\nshards = 2",
             "[profiles.tiny.validate]\nshards = 2\nparams = { exhaustive = true }",
         );
-    assert_eq!(exhaustive.matches("exhaustive = true").count(), 2);
+    assert_eq!(
+        exhaustive.matches("exhaustive = true").count(),
+        text.matches("exhaustive = true").count() + 3,
+        "the three validations were switched"
+    );
     let (slow, built) = remake(made, &exhaustive);
-    assert_eq!(built, 2, "both validations ran again, exhaustively");
+    assert_eq!(
+        built,
+        ["validate@0", "validate_direct@0", "validate_unperturbed@0"],
+        "the validations ran again, exhaustively, and nothing after them"
+    );
     for s in [
         "validate@0",
         "dstar@0",
         "validate_direct@0",
         "dstar_direct@0",
+        "validate_unperturbed@0",
+        "dstar_unperturbed@0",
     ] {
         assert_eq!(fast[s], slow[s], "{s}: fast and exhaustive bytes");
     }
@@ -1030,7 +1058,7 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
         .expect("demo set")
     };
     let (dstar, naive, normal) = (
-        set("dstar_direct@0"),
+        set("dstar_unperturbed@0"),
         set("naive_direct@0"),
         set("normal_direct@0"),
     );
@@ -1041,15 +1069,28 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
         naive.stats().extension_conditions > 0,
         "the tiny D_* outgrows D_R's successes"
     );
-    for g in naive.groups.iter().filter(|g| g.extension) {
+    for g in naive.used_groups().iter().filter(|g| g.extension) {
         assert_eq!((g.origin, g.demos.len()), (Origin::Kept, 1));
         assert_eq!(g.demos[0].execution, Execution::Original);
     }
-    assert!(normal.len() >= target.min(normal.stats().conditions));
-    let normal_extension = normal.groups.iter().filter(|g| g.extension).count();
-    if normal.len() > target {
-        // The last extension group crossed the target; none after it was kept.
-        assert!(normal_extension > 0);
+    assert_eq!(normal.target, Some(target));
+    assert!(
+        normal.stats().extension_conditions > 0,
+        "normal extends too"
+    );
+    // The extension keeps its groups up to the first that reaches the target, no further.
+    let used = normal.used_groups();
+    if let Some(last) = used.iter().rposition(|g| g.extension) {
+        assert!(
+            normal.len() - used[last].demos.len() < target,
+            "no extension group is used after the one that reaches the target"
+        );
+    }
+    if used.len() < normal.groups.len() {
+        assert!(
+            normal.len() >= target,
+            "groups were left out only past the target"
+        );
     }
     for g in &normal.groups {
         assert!(

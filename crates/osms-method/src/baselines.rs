@@ -83,26 +83,18 @@ fn deficit(
     Ok((Some(n), n.saturating_sub(base)))
 }
 
-/// Keeps the first extension groups that reach `target` demonstrations.
-fn trim(groups: Vec<DemoGroup>, target: Option<usize>) -> Vec<DemoGroup> {
-    let Some(target) = target else {
-        return groups;
-    };
+/// How many leading groups reach `target` demonstrations: every D_R group, then extension
+/// groups up to the first one that reaches it.
+fn used(groups: &[DemoGroup], target: Option<usize>) -> Option<usize> {
+    let target = target?;
     let mut count = 0;
-    groups
-        .into_iter()
-        .filter(|g| {
-            if !g.extension {
-                count += g.demos.len();
-                return true;
-            }
-            if count >= target {
-                return false;
-            }
-            count += g.demos.len();
-            true
-        })
-        .collect()
+    for (i, g) in groups.iter().enumerate() {
+        if g.extension && count >= target {
+            return Some(i);
+        }
+        count += g.demos.len();
+    }
+    Some(groups.len())
 }
 
 /// The Naive set: D_R's successes, then successful teacher rollouts on the stage's own
@@ -219,6 +211,7 @@ impl ItemStage for NaiveStage {
         Ok(DemoSet {
             construction: "naive".into(),
             target,
+            used: used(&groups, target),
             groups,
         })
     }
@@ -487,7 +480,8 @@ impl ItemStage for NormalStage {
         Ok(DemoSet {
             construction: "normal".into(),
             target: n.target,
-            groups: trim(groups, n.target),
+            used: used(&groups, n.target),
+            groups,
         })
     }
 }
@@ -640,5 +634,57 @@ impl osms_make::Stage for ConstructionTableStage {
             });
         }
         Ok(ConstructionTable { rows })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use osms_policy::student::Demo;
+
+    fn group(extension: bool, demos: usize) -> DemoGroup {
+        DemoGroup {
+            extension,
+            item: 0,
+            attempt: 0,
+            condition: osms_sim::conditions::sample(
+                &osms_sim::ConditionSpec::default(),
+                [0.0, 0.0, 1.0],
+                &mut osms_make::rng::stream(0, "test", "omega", 0),
+            )
+            .expect("ω"),
+            original_success: true,
+            origin: Origin::Kept,
+            demos: (0..demos)
+                .map(|_| osms_policy::demos::DemoEntry {
+                    execution: Execution::Original,
+                    max_force_n: 0.0,
+                    demo: Demo {
+                        steps: 0,
+                        deployable: Vec::new(),
+                        actions: Vec::new(),
+                    },
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn an_extension_stops_at_the_group_that_reaches_the_target() {
+        let groups = [
+            group(false, 1),
+            group(false, 0),
+            group(true, 1),
+            group(true, 0),
+            group(true, 1),
+            group(true, 1),
+        ];
+        // D_R gives 1; the extension reaches 3 with its third group (index 4).
+        assert_eq!(used(&groups, Some(3)), Some(5));
+        assert_eq!(used(&groups, Some(1)), Some(2));
+        // D_R groups are never cut, even past the target.
+        assert_eq!(used(&groups[..2], Some(0)), Some(2));
+        assert_eq!(used(&groups, Some(9)), Some(6));
+        assert_eq!(used(&groups, None), None);
     }
 }

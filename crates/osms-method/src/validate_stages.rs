@@ -572,6 +572,7 @@ impl ItemStage for DstarStage {
         Ok(DemoSet {
             construction: "ours".into(),
             target: None,
+            used: None,
             groups,
         })
     }

@@ -79,6 +79,9 @@ pub struct DemoSet {
     pub construction: String,
     /// The demonstration count an extension aimed at (D_*'s, for the baselines).
     pub target: Option<usize>,
+    /// How many leading groups form the set (`None`: all). An extension that ran more
+    /// conditions than it needed keeps the rest, unused, so its items stay the shards' items.
+    pub used: Option<usize>,
     pub groups: Vec<DemoGroup>,
 }
 
@@ -123,19 +126,30 @@ pub struct ConstructionStats {
     pub extension_conditions: usize,
     pub extension_demonstrations: usize,
     pub target: Option<usize>,
+    /// Extension conditions run beyond the target and left out.
+    pub unused_conditions: usize,
     pub steps: usize,
 }
 
 impl DemoSet {
+    /// The groups that form the set.
+    pub fn used_groups(&self) -> &[DemoGroup] {
+        let n = self
+            .used
+            .unwrap_or(self.groups.len())
+            .min(self.groups.len());
+        &self.groups[..n]
+    }
+
     /// Every demonstration, in order.
     pub fn demos(&self) -> impl Iterator<Item = &Demo> {
-        self.groups
+        self.used_groups()
             .iter()
             .flat_map(|g| g.demos.iter().map(|e| &e.demo))
     }
 
     pub fn len(&self) -> usize {
-        self.groups.iter().map(|g| g.demos.len()).sum()
+        self.used_groups().iter().map(|g| g.demos.len()).sum()
     }
 
     pub fn is_empty(&self) -> bool {
@@ -143,7 +157,7 @@ impl DemoSet {
     }
 
     pub fn stats(&self) -> ConstructionStats {
-        let target: Vec<&DemoGroup> = self.groups.iter().filter(|g| !g.extension).collect();
+        let target: Vec<&DemoGroup> = self.used_groups().iter().filter(|g| !g.extension).collect();
         let count = |o: Origin| target.iter().filter(|g| g.origin == o).count();
         let successes = target.iter().filter(|g| g.original_success).count();
         let failures = target.len() - successes;
@@ -163,7 +177,8 @@ impl DemoSet {
             })
             .collect();
         let ratio = |a: usize, b: usize| if b == 0 { 0.0 } else { a as f64 / b as f64 };
-        let extension: Vec<&DemoGroup> = self.groups.iter().filter(|g| g.extension).collect();
+        let extension: Vec<&DemoGroup> =
+            self.used_groups().iter().filter(|g| g.extension).collect();
         ConstructionStats {
             construction: self.construction.clone(),
             conditions: target.len(),
@@ -181,6 +196,7 @@ impl DemoSet {
             extension_conditions: extension.len(),
             extension_demonstrations: extension.iter().map(|g| g.demos.len()).sum(),
             target: self.target,
+            unused_conditions: self.groups.len() - self.used_groups().len(),
             steps: self.demos().map(|d| d.steps).sum(),
         }
     }

@@ -165,7 +165,8 @@ impl Stage for StudentStage {
                 demos.push(Demo::from_record(&r.record));
             }
         } else {
-            for group in ctx.items::<DemoSet>("demos")? {
+            let used = ctx.head::<DemoSet>("demos")?.used.unwrap_or(usize::MAX);
+            for group in ctx.items::<DemoSet>("demos")?.take(used) {
                 let g = group?;
                 if g.demos.is_empty() || fold.is_some_and(|f| in_fold(g.item, f)) {
                     continue;
