@@ -889,9 +889,9 @@ kind = "naive"
 inputs = { world = "world", teacher = "teacher", data = "d_r", target = "dstar_unperturbed" }
 shards = 2
 
-[stages.normal_direct]
+[stages.normal_extended]
 kind = "normal"
-inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct", manifold = "manifold", target = "dstar_unperturbed" }
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_geodesic", error_model = "error_model", validation = "validate", manifold = "manifold", target = "dstar_unperturbed" }
 shards = 3
 "#;
     let text = format!("{}{extra}", shipped());
@@ -1060,7 +1060,7 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
     let (dstar, naive, normal) = (
         set("dstar_unperturbed@0"),
         set("naive_direct@0"),
-        set("normal_direct@0"),
+        set("normal_extended@0"),
     );
     let target = dstar.len();
     assert_eq!(naive.target, Some(target));

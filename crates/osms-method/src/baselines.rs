@@ -351,6 +351,26 @@ impl ItemStage for NormalStage {
             return Err("input `validation` was run on other rollouts than `data`".into());
         }
         let candidates: CandidateSets = ctx.head("candidates")?;
+        // The extension searches the way the geodesic stage does; the ablation generators are
+        // matched to a geodesic reference the extension's conditions do not have.
+        if candidates.params.generator != crate::candidates::Generator::Geodesic {
+            return Err(format!(
+                "input `candidates` holds `{}` sets; the Normal baseline takes the geodesic ones (its extension repeats their search)",
+                candidates.params.generator.name()
+            )
+            .into());
+        }
+        if validation.generator != inputs.generator
+            || validation
+                .items
+                .iter()
+                .zip(&inputs.sets)
+                .any(|(v, set)| v.validated && v.candidates.len() != set.len())
+        {
+            return Err(
+                "input `validation` was run on other candidate sets than `candidates`".into(),
+            );
+        }
         let manifold: Cvae = ctx.input("manifold")?;
         if let Some(r) = inputs.rollouts.iter().find(|r| r.osw.complete)
             && r.osw.zeta_org.len() != manifold.h_os * osms_sim::N_ARM
@@ -477,12 +497,22 @@ impl ItemStage for NormalStage {
         n: NormalInputs,
         groups: Vec<DemoGroup>,
     ) -> Result<DemoSet, StageError> {
-        Ok(DemoSet {
+        let set = DemoSet {
             construction: "normal".into(),
             target: n.target,
             used: used(&groups, n.target),
             groups,
-        })
+        };
+        if let Some(t) = set.target
+            && set.len() < t
+        {
+            tracing::warn!(
+                "normal: the extension's {} conditions gave {} of D_*'s {t} demonstrations; raise params.margin to close the gap",
+                n.extension,
+                set.len()
+            );
+        }
+        Ok(set)
     }
 }
 

@@ -466,6 +466,11 @@ impl ItemStage for DstarStage {
         }
         if variant_name(inputs.model.variant) != validation.error_model
             || inputs.generator != validation.generator
+            || validation
+                .items
+                .iter()
+                .zip(&inputs.sets)
+                .any(|(v, set)| v.validated && v.candidates.len() != set.len())
         {
             return Err(format!(
                 "input `validation` ran under the {} error model on {} candidates, but `error_model` and `candidates` give {} and {}",
