@@ -341,15 +341,7 @@ impl ItemStage for NormalStage {
             .into());
         }
         let inputs = Inputs::load(ctx, &validation.params)?;
-        if validation.items.len() != inputs.rollouts.len()
-            || validation
-                .items
-                .iter()
-                .zip(&inputs.rollouts)
-                .any(|(v, r)| (v.item, v.attempt) != (r.item, r.attempt))
-        {
-            return Err("input `validation` was run on other rollouts than `data`".into());
-        }
+        inputs.check_validation(&validation)?;
         let candidates: CandidateSets = ctx.head("candidates")?;
         // The extension searches the way the geodesic stage does; the ablation generators are
         // matched to a geodesic reference the extension's conditions do not have.
@@ -359,17 +351,6 @@ impl ItemStage for NormalStage {
                 candidates.params.generator.name()
             )
             .into());
-        }
-        if validation.generator != inputs.generator
-            || validation
-                .items
-                .iter()
-                .zip(&inputs.sets)
-                .any(|(v, set)| v.validated && v.candidates.len() != set.len())
-        {
-            return Err(
-                "input `validation` was run on other candidate sets than `candidates`".into(),
-            );
         }
         let manifold: Cvae = ctx.input("manifold")?;
         if let Some(r) = inputs.rollouts.iter().find(|r| r.osw.complete)

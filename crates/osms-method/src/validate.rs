@@ -291,6 +291,24 @@ fn tally(q: usize, needed: u32, mut success: impl FnMut(usize) -> bool) -> Robus
     }
 }
 
+/// The successes of Q a candidate needs: for a successful original SR_org's, from Q replays of
+/// ζ_org (`replay(q)` says whether replay q succeeded; recorded in `original`), otherwise
+/// δ_SR's.
+fn threshold(
+    original: &mut OriginalReport,
+    p: &ValidateParams,
+    replay: impl FnMut(usize) -> bool,
+) -> u32 {
+    if !original.success {
+        return p.repair_successes();
+    }
+    original.robustness = tally(p.q, 0, replay);
+    match original.robustness {
+        Robustness::Full { successes } => successes,
+        _ => unreachable!("a tally that needs nothing runs all Q"),
+    }
+}
+
 /// The decision from the unperturbed outcomes and the robustness reports.
 fn decide(
     original: &OriginalReport,
@@ -451,16 +469,7 @@ fn exhaustive(
     if !any {
         return Ok(());
     }
-    let needed = if item.original.success {
-        let robustness = tally(p.q, 0, |q| org_perturbed[q]);
-        item.original.robustness = robustness;
-        match robustness {
-            Robustness::Full { successes } => successes,
-            _ => unreachable!("a tally that needs nothing runs all Q"),
-        }
-    } else {
-        p.repair_successes()
-    };
+    let needed = threshold(&mut item.original, p, |q| org_perturbed[q]);
     for (c, outcomes) in item.candidates.iter_mut().zip(&perturbed) {
         if needs_sr(c.unperturbed, j_org) {
             c.robustness = tally(p.q, needed, |q| outcomes[q]);
@@ -590,18 +599,9 @@ fn fast<'c>(
             (run, snapshot)
         })
         .collect();
-    let needed = if item.original.success {
-        let robustness = tally(p.q, 0, |q| {
-            branch(case, &mut branches[q], &r.osw.zeta_org, cost).0
-        });
-        item.original.robustness = robustness;
-        match robustness {
-            Robustness::Full { successes } => successes,
-            _ => unreachable!("a tally that needs nothing runs all Q"),
-        }
-    } else {
-        p.repair_successes()
-    };
+    let needed = threshold(&mut item.original, p, |q| {
+        branch(case, &mut branches[q], &r.osw.zeta_org, cost).0
+    });
     for (c, report) in case.candidates.iter().zip(item.candidates.iter_mut()) {
         if needs_sr(report.unperturbed, j_org) {
             report.robustness = tally(p.q, needed, |q| {

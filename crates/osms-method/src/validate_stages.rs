@@ -306,6 +306,31 @@ impl Inputs {
         })
     }
 
+    /// Refuses a validation of other rollouts or other candidate sets than these.
+    pub(crate) fn check_validation(&self, v: &Validation) -> Result<(), StageError> {
+        if v.items.len() != self.rollouts.len()
+            || v.items
+                .iter()
+                .zip(&self.rollouts)
+                .any(|(v, r)| (v.item, v.attempt) != (r.item, r.attempt))
+        {
+            return Err("input `validation` was run on other rollouts than `data`".into());
+        }
+        if v.generator != self.generator
+            || v.items
+                .iter()
+                .zip(&self.sets)
+                .any(|(v, set)| v.validated && v.candidates.len() != set.len())
+        {
+            return Err(format!(
+                "input `validation` was run on other candidate sets ({}) than `candidates` ({})",
+                v.generator, self.generator
+            )
+            .into());
+        }
+        Ok(())
+    }
+
     pub(crate) fn case<'a>(
         &'a self,
         index: usize,
@@ -455,29 +480,12 @@ impl ItemStage for DstarStage {
     fn prepare(&self, ctx: &Ctx<'_, DstarParams>) -> Result<Self::Prepared, StageError> {
         let validation: Validation = ctx.sharded("validation")?;
         let inputs = Inputs::load(ctx, &validation.params)?;
-        if validation.items.len() != inputs.rollouts.len()
-            || validation
-                .items
-                .iter()
-                .zip(&inputs.rollouts)
-                .any(|(v, r)| (v.item, v.attempt) != (r.item, r.attempt))
-        {
-            return Err("input `validation` was run on other rollouts than `data`".into());
-        }
-        if variant_name(inputs.model.variant) != validation.error_model
-            || inputs.generator != validation.generator
-            || validation
-                .items
-                .iter()
-                .zip(&inputs.sets)
-                .any(|(v, set)| v.validated && v.candidates.len() != set.len())
-        {
+        inputs.check_validation(&validation)?;
+        if variant_name(inputs.model.variant) != validation.error_model {
             return Err(format!(
-                "input `validation` ran under the {} error model on {} candidates, but `error_model` and `candidates` give {} and {}",
+                "input `validation` ran under the {} error model, but `error_model` gives {}",
                 validation.error_model,
-                validation.generator,
-                variant_name(inputs.model.variant),
-                inputs.generator
+                variant_name(inputs.model.variant)
             )
             .into());
         }
