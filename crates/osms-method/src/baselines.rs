@@ -57,7 +57,11 @@ impl Default for BaselineParams {
 }
 
 impl BaselineParams {
-    fn check(&self) -> Result<(), String> {
+    /// `has_target`: whether the `target` input is wired.
+    fn check(&self, has_target: bool) -> Result<(), String> {
+        if self.extend && !has_target {
+            return Err("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into());
+        }
         if self.max_attempts == 0 {
             return Err("params.max_attempts must be at least 1".into());
         }
@@ -120,10 +124,7 @@ impl ItemStage for NaiveStage {
         policy_numerics()
     }
     fn prepare(&self, ctx: &Ctx<'_, BaselineParams>) -> Result<Self::Prepared, StageError> {
-        ctx.params.check()?;
-        if ctx.params.extend && !ctx.has_input("target") {
-            return Err("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into());
-        }
+        ctx.params.check(ctx.has_input("target"))?;
         let data: Dataset = ctx.sharded("data")?;
         let base = data
             .rollouts()
@@ -240,14 +241,7 @@ fn normal_group(
     extension: bool,
 ) -> Result<DemoGroup, String> {
     let success = rollout.record.outcome.success();
-    let j_org = success.then(|| {
-        crate::select::quality(
-            rollout.record.metrics.max_force_n,
-            0.0,
-            p.lambda_f,
-            p.lambda_d,
-        )
-    });
+    let j_org = p.j_org(success, rollout.record.metrics.max_force_n);
     let mut group = DemoGroup {
         extension,
         item: rollout.item,
@@ -328,10 +322,7 @@ impl ItemStage for NormalStage {
         policy_numerics()
     }
     fn prepare(&self, ctx: &Ctx<'_, BaselineParams>) -> Result<NormalInputs, StageError> {
-        ctx.params.check()?;
-        if ctx.params.extend && !ctx.has_input("target") {
-            return Err("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into());
-        }
+        ctx.params.check(ctx.has_input("target"))?;
         let validation: Validation = ctx.sharded("validation")?;
         if validation.params.construction != Construction::Both {
             return Err(format!(
@@ -366,14 +357,9 @@ impl ItemStage for NormalStage {
         // The D_R part's yield predicts how many extension conditions reach the target.
         let mut base = 0usize;
         for (v, r) in validation.items.iter().zip(&inputs.rollouts) {
-            let j_org = r.record.outcome.success().then(|| {
-                crate::select::quality(
-                    r.record.metrics.max_force_n,
-                    0.0,
-                    validation.params.lambda_f,
-                    validation.params.lambda_d,
-                )
-            });
+            let j_org = validation
+                .params
+                .j_org(r.record.outcome.success(), r.record.metrics.max_force_n);
             if r.record.outcome.success() || select_unperturbed(j_org, &v.candidates).is_some() {
                 base += 1;
             }

@@ -109,6 +109,11 @@ impl ValidateParams {
         Ok(())
     }
 
+    /// J_org of Eq. 9 for an original (it deviates by nothing); `None` for a failure.
+    pub fn j_org(&self, success: bool, max_force_n: f64) -> Option<f64> {
+        success.then(|| quality(max_force_n, 0.0, self.lambda_f, self.lambda_d))
+    }
+
     /// The fewest successes of Q that give SR ≥ δ_SR (Q + 1 if none do).
     pub fn repair_successes(&self) -> u32 {
         (0..=self.q as u32)
@@ -397,10 +402,7 @@ pub fn validate(case: &Case<'_>, p: &ValidateParams) -> Result<(ValidationItem, 
             fast(case, p, &mut item, &mut cost)?;
         }
     }
-    item.original.j = item
-        .original
-        .success
-        .then(|| quality(item.original.max_force_n, 0.0, p.lambda_f, p.lambda_d));
+    item.original.j = p.j_org(item.original.success, item.original.max_force_n);
     item.decision = decide(&item.original, &item.candidates, p);
     Ok((item, cost))
 }
@@ -431,10 +433,7 @@ fn exhaustive(
     let replay = run(&r.osw.zeta_org, None, cost);
     item.original.success = replay.outcome.success();
     item.original.max_force_n = replay.metrics.max_force_n;
-    let j_org = item
-        .original
-        .success
-        .then(|| quality(replay.metrics.max_force_n, 0.0, p.lambda_f, p.lambda_d));
+    let j_org = p.j_org(item.original.success, item.original.max_force_n);
     let org_perturbed: Vec<bool> = (0..p.q)
         .map(|q| {
             run(&r.osw.zeta_org, Some(case.perturbed(q)), cost)
@@ -578,10 +577,7 @@ fn fast<'c>(
     cost: &mut Cost,
 ) -> Result<(), String> {
     let r = case.rollout;
-    let j_org = item
-        .original
-        .success
-        .then(|| quality(item.original.max_force_n, 0.0, p.lambda_f, p.lambda_d));
+    let j_org = p.j_org(item.original.success, item.original.max_force_n);
     item.candidates = unperturbed_reports(case, p, cost)?;
     if !item
         .candidates
