@@ -4,7 +4,8 @@
 //! ```toml
 //! [pipeline]
 //! default_profile = "small"   # used when --profile is not given
-//! seed = 0                    # used when --seed/--seeds are not given
+//! seeds = [0, 1, 2]           # run seeds when --seed/--seeds are not given (or `seed = 0`)
+//! targets = ["summary"]       # what `osms make` builds when given no targets [default: all]
 //!
 //! [stages.rollouts]
 //! kind = "collect"            # a kind registered in code
@@ -49,8 +50,10 @@ struct RawPipeline {
 struct RawMeta {
     #[serde(default = "default_profile")]
     default_profile: String,
+    seed: Option<u64>,
+    seeds: Option<Vec<u64>>,
     #[serde(default)]
-    seed: u64,
+    targets: Vec<String>,
 }
 
 fn default_profile() -> String {
@@ -61,7 +64,9 @@ impl Default for RawMeta {
     fn default() -> Self {
         RawMeta {
             default_profile: default_profile(),
-            seed: 0,
+            seed: None,
+            seeds: None,
+            targets: Vec::new(),
         }
     }
 }
@@ -109,7 +114,10 @@ pub struct Pipeline {
     pub path: PathBuf,
     pub profile: String,
     pub profiles: Vec<String>,
-    pub default_seed: u64,
+    /// The run seeds of a make given no `--seed`/`--seeds`: sorted, distinct, at least one.
+    pub default_seeds: Vec<u64>,
+    /// What a make given no targets builds (empty: every stage).
+    pub default_targets: Vec<String>,
     pub stages: BTreeMap<String, StageSpec>,
     source: String,
     doc: toml_edit::Document<String>,
@@ -140,6 +148,32 @@ impl Pipeline {
             Error::invalid(located(e.span()), e.message().trim_end().to_string(), hint)
         })?;
 
+        let meta_location = |key: &str| key_location(path, &source, &doc, &["pipeline", key]);
+        let default_seeds = match (raw.pipeline.seed, &raw.pipeline.seeds) {
+            (Some(_), Some(_)) => {
+                return Err(Error::invalid(
+                    meta_location("seeds"),
+                    "[pipeline] sets both `seed` and `seeds`".to_string(),
+                    Some(
+                        "keep one: `seeds = [0, 1, 2]` for a sweep, `seed = 0` for one run".into(),
+                    ),
+                ));
+            }
+            (_, Some(seeds)) if seeds.is_empty() => {
+                return Err(Error::invalid(
+                    meta_location("seeds"),
+                    "[pipeline] `seeds` is empty".to_string(),
+                    Some("name at least one run seed, e.g. `seeds = [0, 1, 2]`".into()),
+                ));
+            }
+            (_, Some(seeds)) => {
+                let mut s = seeds.clone();
+                s.sort_unstable();
+                s.dedup();
+                s
+            }
+            (seed, None) => vec![seed.unwrap_or(0)],
+        };
         let mut profiles: Vec<String> = raw.profiles.keys().cloned().collect();
         if !profiles.contains(&raw.pipeline.default_profile) {
             profiles.push(raw.pipeline.default_profile.clone());
@@ -206,7 +240,8 @@ impl Pipeline {
             path: path.to_path_buf(),
             profile,
             profiles,
-            default_seed: raw.pipeline.seed,
+            default_seeds,
+            default_targets: raw.pipeline.targets,
             stages,
             source,
             doc,
@@ -344,11 +379,32 @@ shards = 3
         assert_eq!(gen_.params["n"].as_integer(), Some(10));
         assert_eq!(gen_.params["scale"]["a"].as_float(), Some(1.0));
         assert_eq!(gen_.params["scale"]["b"].as_float(), Some(5.0));
-        assert_eq!(p.default_seed, 3);
+        assert_eq!(p.default_seeds, [3]);
+        assert!(p.default_targets.is_empty());
         let small = parse(TEXT, None).expect("parse");
         assert_eq!(small.profile, "small");
         assert_eq!(small.stages["gen"].params["n"].as_integer(), Some(100));
         assert_eq!(small.profiles, ["paper", "small", "tiny"]);
+    }
+
+    #[test]
+    fn run_seeds_and_default_targets() {
+        let p = parse(
+            "[pipeline]\nseeds = [2, 0, 1, 0]\ntargets = [\"a\"]\n[stages.a]\nkind = \"x\"\n",
+            None,
+        )
+        .expect("parse");
+        assert_eq!(p.default_seeds, [0, 1, 2]);
+        assert_eq!(p.default_targets, ["a"]);
+        assert_eq!(parse("", None).expect("parse").default_seeds, [0]);
+        let err = parse("[pipeline]\nseed = 1\nseeds = [1]\n", None).expect_err("both");
+        assert!(
+            err.to_string()
+                .starts_with("pipeline.toml:3:1: [pipeline] sets both `seed` and `seeds`"),
+            "{err}"
+        );
+        let err = parse("[pipeline]\nseeds = []\n", None).expect_err("empty");
+        assert!(err.to_string().contains("`seeds` is empty"), "{err}");
     }
 
     #[test]

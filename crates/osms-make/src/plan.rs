@@ -64,7 +64,10 @@ pub struct PlannedInput {
 pub struct Plan {
     pub stages: Vec<PlannedStage>,
     pub profile: String,
-    pub default_seed: u64,
+    /// The run seeds when none are given.
+    pub default_seeds: Vec<u64>,
+    /// The targets of a make given none (empty: every stage).
+    pub default_targets: Vec<String>,
     index: BTreeMap<String, usize>,
 }
 
@@ -365,10 +368,24 @@ impl Plan {
                 definition,
             });
         }
+        for target in &pipeline.default_targets {
+            let name = target.split(['#', '@']).next().unwrap_or_default();
+            if !index.contains_key(name) {
+                return Err(Error::invalid(
+                    pipeline.locate(&["pipeline", "targets"]),
+                    format!("[pipeline] targets: `{target}` is not a declared stage"),
+                    Some(format!(
+                        "declared stages are {}",
+                        crate::error::list(index.keys())
+                    )),
+                ));
+            }
+        }
         Ok(Plan {
             stages,
             profile: pipeline.profile.clone(),
-            default_seed: pipeline.default_seed,
+            default_seeds: pipeline.default_seeds.clone(),
+            default_targets: pipeline.default_targets.clone(),
             index,
         })
     }

@@ -134,8 +134,9 @@ impl Stage for StudentStage {
     const INPUTS: &'static [Slot] = &[
         Slot::one::<Dataset>("data").optional(),
         Slot::one::<DemoSet>("demos").optional(),
+        Slot::one::<DemoSet>("size_match").optional(),
     ];
-    const DOC: &'static str = "a flow-matching student on a rollout dataset (`data`) or a constructed demonstration set (`demos`); cross-fitted with folds";
+    const DOC: &'static str = "a flow-matching student on a rollout dataset (`data`) or a constructed demonstration set (`demos`, optionally cut to the size of `size_match`); cross-fitted with folds";
     type Params = StudentParams;
     type Output = StudentArtifact;
 
@@ -155,6 +156,9 @@ impl Stage for StudentStage {
                 return Err("a student trains on exactly one of `data` (a rollout dataset) and `demos` (a demonstration set)\nhint: wire one of them in the stage's inputs".into());
             }
         };
+        if slot == "data" && ctx.has_input("size_match") {
+            return Err("`size_match` cuts a demonstration set; it needs `demos`, not `data`\nhint: remove `size_match` or train on `demos`".into());
+        }
         if slot == "data" {
             for item in ctx.items::<Dataset>("data")? {
                 let r = item?.rollout;
@@ -166,7 +170,17 @@ impl Stage for StudentStage {
             }
         } else {
             let used = ctx.head::<DemoSet>("demos")?.used.unwrap_or(usize::MAX);
+            // Matched dataset size (paper 6.4): the leading groups that reach the other set's
+            // number of demonstrations.
+            let cap = if ctx.has_input("size_match") {
+                ctx.sharded::<DemoSet>("size_match")?.len()
+            } else {
+                usize::MAX
+            };
             for group in ctx.items::<DemoSet>("demos")?.take(used) {
+                if demos.len() >= cap {
+                    break;
+                }
                 let g = group?;
                 if g.demos.is_empty() || fold.is_some_and(|f| in_fold(g.item, f)) {
                     continue;
@@ -290,7 +304,8 @@ pub struct ErrorPairs {
 
 impl Artifact for ErrorPairs {
     const TYPE_TAG: &'static str = "policy.error_pairs";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: the rollouts' evaluation rows keep their impact trace.
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl osms_make::Sharded for ErrorPairs {

@@ -183,6 +183,8 @@ pub struct EvalRow {
     pub steps: u32,
     pub metrics: Metrics,
     pub outcome: Outcome,
+    /// The signals around t_c, if the hand touched the object.
+    pub trace: Option<ImpactTrace>,
 }
 
 impl EvalRow {
@@ -192,9 +194,70 @@ impl EvalRow {
             variant: record.condition.variant,
             lateral_offset_m: record.condition.lateral_offset_m,
             steps: record.steps as u32,
+            trace: ImpactTrace::of(&record),
             metrics: record.metrics,
             outcome: record.outcome,
         }
+    }
+}
+
+/// Per-control-step signals of a rollout around its contact step k_c (the step holding t_c),
+/// for impact profiles aligned at t_c: sample j is control step k_c + `from` + j.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ImpactTrace {
+    pub from: i32,
+    /// Largest summed admissible normal force within the step (N).
+    pub normal_force_n: Vec<f32>,
+    /// Object–palm relative speed at the step's start (m/s).
+    pub relative_speed_mps: Vec<f32>,
+    /// Object velocity along its pre-contact incoming direction at the step's start (m/s):
+    /// how much of the incoming motion is left.
+    pub incoming_velocity_mps: Vec<f32>,
+}
+
+impl ImpactTrace {
+    /// Control steps kept before and after the contact step.
+    pub const BEFORE: usize = 10;
+    pub const AFTER: usize = 25;
+
+    /// The trace of a record, `None` without an admissible contact.
+    pub fn of(record: &RolloutRecord) -> Option<Self> {
+        let contact = crate::metrics::Phase::Contact as u8;
+        let k_c = record.phase.iter().position(|&p| p == contact)?;
+        let v3 = |v: &[f32], k: usize| [v[3 * k], v[3 * k + 1], v[3 * k + 2]];
+        // The object's velocity at the start of the contact step is still the incoming one.
+        let v_in = v3(&record.object_vel, k_c);
+        let n = v_in.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-9);
+        let dir = v_in.map(|x| x / n);
+        let start = k_c.saturating_sub(Self::BEFORE);
+        let end = (k_c + Self::AFTER + 1).min(record.steps);
+        let mut t = ImpactTrace {
+            from: start as i32 - k_c as i32,
+            normal_force_n: Vec::with_capacity(end - start),
+            relative_speed_mps: Vec::with_capacity(end - start),
+            incoming_velocity_mps: Vec::with_capacity(end - start),
+        };
+        for k in start..end {
+            let o = v3(&record.object_vel, k);
+            let p = v3(&record.palm_vel, k);
+            let rel = [o[0] - p[0], o[1] - p[1], o[2] - p[2]];
+            t.normal_force_n.push(record.normal_force[k]);
+            t.relative_speed_mps
+                .push(rel.iter().map(|x| x * x).sum::<f32>().sqrt());
+            t.incoming_velocity_mps
+                .push(o[0] * dir[0] + o[1] * dir[1] + o[2] * dir[2]);
+        }
+        Some(t)
+    }
+
+    /// The sample at `offset` control steps from the contact step, if kept.
+    pub fn at(&self, offset: i32) -> Option<(f32, f32, f32)> {
+        let j = usize::try_from(offset - self.from).ok()?;
+        Some((
+            *self.normal_force_n.get(j)?,
+            *self.relative_speed_mps.get(j)?,
+            *self.incoming_velocity_mps.get(j)?,
+        ))
     }
 }
 
@@ -206,8 +269,8 @@ pub struct Evaluation {
 
 impl Artifact for Evaluation {
     const TYPE_TAG: &'static str = "sim.evaluation";
-    /// 2: stored as a manifest of its shards.
-    const SCHEMA_VERSION: u16 = 2;
+    /// 2: stored as a manifest of its shards; 3: rows keep their impact trace.
+    const SCHEMA_VERSION: u16 = 3;
 }
 
 impl Sharded for Evaluation {

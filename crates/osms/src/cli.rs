@@ -41,7 +41,7 @@ pub struct Selection {
     /// Profile overlaying the params [default: the pipeline's default_profile]
     #[arg(long, short = 'p')]
     pub profile: Option<String>,
-    /// Run seed [default: the pipeline's seed]
+    /// Run seed [default: the pipeline's run seeds]
     #[arg(long, conflicts_with = "seeds")]
     pub seed: Option<u64>,
     /// A seed sweep: the seed-dependent stages once per seed, the rest shared
@@ -51,7 +51,7 @@ pub struct Selection {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Build the targets (all stages if none), reusing everything already in the store
+    /// Build the targets (the pipeline's `targets` if none), reusing everything already in the store
     Make(MakeArgs),
     /// Show which stages are cached, stale (and why) or missing
     Status(StatusArgs),
@@ -104,7 +104,8 @@ pub struct JsonArg {
 
 #[derive(Debug, Args)]
 pub struct MakeArgs {
-    /// Stages to build (with everything they need)
+    /// Stages to build (with everything they need) [default: the pipeline's `targets`, else
+    /// every stage]
     pub targets: Vec<String>,
     #[command(flatten)]
     pub selection: Selection,
@@ -168,7 +169,7 @@ pub struct GcArgs {
     /// Keep only what these profiles reach [default: every declared profile]
     #[arg(long = "profile", short = 'p')]
     pub profiles: Vec<String>,
-    /// Keep only these seeds [default: the pipeline's seed and every seed built before]
+    /// Keep only these seeds [default: the pipeline's run seeds and every seed built before]
     #[arg(long, value_delimiter = ',')]
     pub seeds: Option<Vec<u64>>,
     /// Report what would be removed, remove nothing

@@ -50,7 +50,7 @@ impl Context {
         Ok(Plan::new(&pipeline, &self.registry)?)
     }
 
-    /// Seeds of a selection: `--seeds`, else `--seed`, else the pipeline's seed.
+    /// Seeds of a selection: `--seeds`, else `--seed`, else the pipeline's run seeds.
     pub fn seeds(selection: &Selection, plan: &Plan) -> Vec<u64> {
         match (&selection.seeds, selection.seed) {
             (Some(seeds), _) if !seeds.is_empty() => {
@@ -60,7 +60,7 @@ impl Context {
                 s
             }
             (_, Some(seed)) => vec![seed],
-            _ => vec![plan.default_seed],
+            _ => plan.default_seeds.clone(),
         }
     }
 }

@@ -17,13 +17,13 @@ use osms_make::Registry;
 
 pub use context::Context;
 
-/// The stage kinds osms ships. The pipeline's later stages (teacher, method, students, report)
-/// register here as their crates land.
+/// The stage kinds osms ships.
 pub fn registry() -> Registry {
     let mut registry = Registry::new();
     osms_sim::stages::register(&mut registry);
     osms_policy::stages::register(&mut registry);
     osms_method::stages::register(&mut registry);
+    osms_report::register(&mut registry);
     registry
 }
 

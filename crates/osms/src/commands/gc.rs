@@ -29,7 +29,7 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
         Some(s) => s.clone(),
         None => {
             // Every seed some instance was built with, so gc never removes a sweep's results.
-            let mut seeds: BTreeSet<u64> = [default.default_seed].into();
+            let mut seeds: BTreeSet<u64> = default.default_seeds.iter().copied().collect();
             for name in store.list_state("heads")? {
                 if let Some(seed) = name
                     .strip_suffix(".json")

@@ -292,6 +292,34 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     let Some(kind) = ctx.registry.get(&record.kind) else {
         bail!("kind `{}` is not known to this osms", record.kind);
     };
+    let dir = match &args.out {
+        Some(d) => d.clone(),
+        None => {
+            let instance = record.instance();
+            ctx.pipeline_path
+                .parent()
+                .unwrap_or_else(|| std::path::Path::new("."))
+                .join("reports")
+                .join(&profile)
+                .join(instance)
+        }
+    };
+    // A report written by stage name carries its provenance, as `osms make` writes it.
+    let by_name = args.target.split(['@', '#']).next() == Some(record.stage.as_str());
+    if record.kind == super::report::REPORT_KIND && by_name {
+        let plan = ctx.plan(args.selection.profile.as_deref())?;
+        let seeds = Context::seeds(&args.selection, &plan);
+        let written = super::report::write(ctx, &plan, &store, &record.stage, &seeds, &dir)?;
+        let written: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+        if args.json {
+            print_json(&written)?;
+        } else {
+            for w in &written {
+                println!("{w}");
+            }
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     let bytes = store.get(&record.content_hash)?;
     let files = if record.shard.is_some() {
         Vec::new()
@@ -307,18 +335,6 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
             args.target
         );
     }
-    let dir = match &args.out {
-        Some(d) => d.clone(),
-        None => {
-            let instance = record.instance();
-            ctx.pipeline_path
-                .parent()
-                .unwrap_or_else(|| std::path::Path::new("."))
-                .join("reports")
-                .join(&profile)
-                .join(instance)
-        }
-    };
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut written = Vec::new();
     for (name, content) in files {

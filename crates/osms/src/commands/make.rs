@@ -6,7 +6,7 @@ use osms_make::{MakeOptions, Outcome, Plan};
 
 use crate::EXIT_FAILURE;
 use crate::cli::MakeArgs;
-use crate::commands::print_json;
+use crate::commands::{print_json, report};
 use crate::context::Context;
 use crate::progress::MakeObserver;
 
@@ -23,8 +23,13 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             .map(|n| n.get())
             .unwrap_or(1)
     });
+    let targets = if args.targets.is_empty() {
+        plan.default_targets.clone()
+    } else {
+        args.targets.clone()
+    };
     let opts = MakeOptions {
-        targets: args.targets.clone(),
+        targets,
         seeds: seeds.clone(),
         jobs,
         dry_run: args.dry_run,
@@ -81,6 +86,9 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         }
     }
     if failed.is_empty() {
+        if !args.dry_run {
+            write_reports(ctx, &plan, &store, &report, &seeds)?;
+        }
         Ok(ExitCode::SUCCESS)
     } else {
         eprintln!(
@@ -90,6 +98,43 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         );
         Ok(ExitCode::from(EXIT_FAILURE))
     }
+}
+
+/// Writes every report stage this make built or found to its directory (`report/` for the
+/// stage named `report`).
+fn write_reports(
+    ctx: &Context,
+    plan: &Plan,
+    store: &osms_store::Store,
+    made: &osms_make::MakeReport,
+    seeds: &[u64],
+) -> Result<()> {
+    for stage in plan
+        .stages
+        .iter()
+        .filter(|s| s.info.name == report::REPORT_KIND)
+    {
+        let done = made.instances.iter().any(|i| {
+            i.instance == stage.name
+                && matches!(
+                    i.outcome,
+                    Outcome::Built { .. } | Outcome::Cached | Outcome::CutOff
+                )
+        });
+        if !done {
+            continue;
+        }
+        let dir = report::default_dir(ctx, &stage.name);
+        let written = report::write(ctx, plan, store, &stage.name, seeds, &dir)?;
+        if !ctx.quiet {
+            eprintln!(
+                "osms make: wrote {} ({} files)",
+                dir.join("index.md").display(),
+                written.len()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Why `plan` must not be built with the MuJoCo that is loaded, if it must not: a stage steps

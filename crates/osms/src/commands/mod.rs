@@ -4,6 +4,7 @@ mod doctor;
 mod gc;
 mod inspect;
 mod make;
+mod report;
 mod status;
 mod verify;
 mod world;

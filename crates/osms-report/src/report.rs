@@ -1,0 +1,188 @@
+//! The `report` stage: every table and figure of a run in one artifact, and `index.md`
+//! that shows them. What depends on the machine (stage keys, wall times, platform class) is
+//! added by `osms make report` and `osms export report` when they write the directory, so the
+//! artifact itself is the same bytes on every machine.
+
+use std::fmt::Write;
+
+use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
+use osms_method::baselines::ConstructionTable;
+use osms_method::stages::CandidateTable;
+use osms_policy::stages::{NoParams, TeacherTable};
+use osms_store::Artifact;
+use serde::{Deserialize, Serialize};
+
+use crate::claims::{self, Claim};
+use crate::figure::Figure;
+use crate::table::Table;
+
+/// A table of another stage kind, kept as its own Markdown and export files.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Attached {
+    pub title: String,
+    pub markdown: String,
+    pub files: Vec<(String, Vec<u8>)>,
+}
+
+impl Attached {
+    fn of(title: &str, a: &impl Summarize) -> Attached {
+        Attached {
+            title: title.into(),
+            markdown: a.text().unwrap_or_default(),
+            files: a.files(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Report {
+    pub table1: Attached,
+    pub construction: Attached,
+    pub candidates: Attached,
+    pub tables: Vec<Table>,
+    pub figures: Vec<Figure>,
+    pub claims: Vec<Claim>,
+}
+
+impl Artifact for Report {
+    const TYPE_TAG: &'static str = "report.report";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+impl Report {
+    /// `index.md` without the provenance section.
+    pub fn index(&self) -> String {
+        let mut s = String::from(
+            "# osms report\n\nTables and figures of *Outcome-Sensitive Motion Search for \
+             Impact-Aware Dexterous Catching* as this run reproduced them, each with the \
+             paper's values beside ours. `docs/report.md` explains how to read them.\n\n",
+        );
+        let _ = writeln!(s, "## {}\n\n{}", self.table1.title, self.table1.markdown);
+        for t in &self.tables {
+            let _ = writeln!(
+                s,
+                "## {}\n\n{}\nFiles: [{id}.csv]({id}.csv), [{id}.json]({id}.json)\n",
+                t.title,
+                t.markdown(),
+                id = t.id
+            );
+        }
+        for a in [&self.construction, &self.candidates] {
+            let _ = writeln!(s, "## {}\n\n{}", a.title, a.markdown);
+        }
+        let _ = writeln!(
+            s,
+            "## Claims check\n\nEach qualitative claim of the paper and whether this run's \
+             tables bear it out (means decide; the evidence gives the seed spread).\n\n{}",
+            claims::markdown(&self.claims)
+        );
+        for f in &self.figures {
+            let _ = writeln!(
+                s,
+                "## {}\n\n![{}]({id}.png)\n\n{}\n\nFiles: [{id}.svg]({id}.svg), [{id}.csv]({id}.csv)\n",
+                f.title,
+                f.title,
+                f.caption,
+                id = f.id
+            );
+        }
+        s
+    }
+
+    /// Every file of the report directory but the provenance: `index.md`, the tables'
+    /// Markdown, CSV and JSON, the figures' SVG, PNG and CSV, `claims.json`.
+    pub fn render(&self) -> Result<Vec<(String, Vec<u8>)>, String> {
+        let mut files = vec![("index.md".to_string(), self.index().into_bytes())];
+        for a in [&self.table1, &self.construction, &self.candidates] {
+            files.extend(a.files.iter().cloned());
+        }
+        for t in &self.tables {
+            files.extend(t.files());
+        }
+        for f in &self.figures {
+            files.extend(f.files()?);
+        }
+        let claims = serde_json::to_string_pretty(&self.claims).map_err(|e| e.to_string())?;
+        files.push(("claims.json".into(), (claims + "\n").into_bytes()));
+        Ok(files)
+    }
+}
+
+impl Summarize for Report {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::json!({
+            "tables": self.tables.iter().map(|t| &t.id).collect::<Vec<_>>(),
+            "figures": self.figures.iter().map(|f| &f.id).collect::<Vec<_>>(),
+            "claims": self.claims.iter().map(|c| serde_json::json!({"claim": c.claim, "verdict": c.verdict})).collect::<Vec<_>>(),
+        })
+    }
+    fn text(&self) -> Option<String> {
+        Some(self.index())
+    }
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        self.render().unwrap_or_else(|e| {
+            vec![(
+                "index.md".into(),
+                format!(
+                    "{}\n\nThe figures could not be rendered: {e}\n",
+                    self.index()
+                )
+                .into_bytes(),
+            )]
+        })
+    }
+}
+
+pub struct ReportStage;
+impl Stage for ReportStage {
+    const KIND: &'static str = "report";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<TeacherTable>("table1"),
+        Slot::one::<Table>("table2"),
+        Slot::one::<Table>("table3"),
+        Slot::one::<ConstructionTable>("construction"),
+        Slot::one::<CandidateTable>("candidates"),
+        Slot::one::<Figure>("impact_profiles"),
+        Slot::one::<Figure>("task_conditions"),
+        Slot::one::<Figure>("ios"),
+        Slot::one::<Figure>("learning_curves"),
+    ];
+    const DOC: &'static str =
+        "the report: Tables I-III, construction and candidate tables, figures, claims check";
+    type Params = NoParams;
+    type Output = Report;
+
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Report, StageError> {
+        let table2: Table = ctx.input("table2")?;
+        let table3: Table = ctx.input("table3")?;
+        let claims = claims::check(&table2, &table3);
+        let figures = [
+            "impact_profiles",
+            "task_conditions",
+            "ios",
+            "learning_curves",
+        ]
+        .iter()
+        .map(|s| ctx.input::<Figure>(s))
+        .collect::<Result<Vec<_>, _>>()?;
+        Ok(Report {
+            table1: Attached::of(
+                "Table I: catching with and without impact mitigation",
+                &ctx.input::<TeacherTable>("table1")?,
+            ),
+            construction: Attached::of(
+                "Demonstration construction (Table II, left half, with counts)",
+                &ctx.input::<ConstructionTable>("construction")?,
+            ),
+            candidates: Attached::of(
+                "Candidate generators",
+                &ctx.input::<CandidateTable>("candidates")?,
+            ),
+            tables: vec![table2, table3],
+            figures,
+            claims,
+        })
+    }
+}

@@ -1,0 +1,336 @@
+//! One table model for every table of the report, rendered three ways that say the same
+//! thing: Markdown for people, a tidy CSV (one line per cell) and JSON for programs.
+
+use std::fmt::Write;
+
+use serde::{Deserialize, Serialize};
+
+use crate::stats::MeanSd;
+
+/// How a column's numbers read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Unit {
+    /// A fraction shown as a percentage with one decimal.
+    Percent,
+    /// A number with this many decimals.
+    Number(u8),
+    /// A whole number.
+    Count,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Column {
+    pub name: String,
+    pub unit: Unit,
+}
+
+/// Our value of a cell: one number (built once), or one per run seed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Value {
+    Missing,
+    One(f64),
+    Seeds(Vec<f64>),
+}
+
+impl Value {
+    pub fn of(v: Option<f64>) -> Value {
+        v.map_or(Value::Missing, Value::One)
+    }
+
+    /// Per-seed values; seeds without a value (e.g. no catch completion, so no mean force)
+    /// are left out, and the count says so.
+    pub fn seeds(values: impl IntoIterator<Item = Option<f64>>) -> Value {
+        let v: Vec<f64> = values.into_iter().flatten().collect();
+        if v.is_empty() {
+            Value::Missing
+        } else {
+            Value::Seeds(v)
+        }
+    }
+
+    pub fn stats(&self) -> Option<MeanSd> {
+        match self {
+            Value::Missing => None,
+            Value::One(v) => MeanSd::of(&[*v]),
+            Value::Seeds(v) => MeanSd::of(v),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Cell {
+    pub ours: Value,
+    /// The paper's value as printed, if it reports one.
+    pub paper: Option<String>,
+}
+
+impl Cell {
+    pub fn new(ours: Value, paper: Option<&str>) -> Cell {
+        Cell {
+            ours,
+            paper: paper.map(str::to_string),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Row {
+    pub label: String,
+    pub cells: Vec<Cell>,
+}
+
+/// A table with the paper's values beside ours.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Table {
+    /// File stem of its exports, e.g. `table2`.
+    pub id: String,
+    pub title: String,
+    pub columns: Vec<Column>,
+    pub rows: Vec<Row>,
+    pub notes: Vec<String>,
+}
+
+fn number(v: f64, unit: Unit) -> String {
+    match unit {
+        Unit::Percent => format!("{:.1}%", 100.0 * v),
+        Unit::Number(d) => format!("{v:.*}", d as usize),
+        Unit::Count => format!("{v:.0}"),
+    }
+}
+
+/// `90.3% ± 0.8%` for several seeds, `90.3%` for one value, `41.1 (1 seed)` when only one
+/// seed has a value, `-` for none.
+pub fn format_value(value: &Value, unit: Unit) -> String {
+    match (value, value.stats()) {
+        (_, None) => "-".into(),
+        (
+            Value::Seeds(_),
+            Some(MeanSd {
+                mean, sd: Some(sd), ..
+            }),
+        ) => {
+            format!("{} ± {}", number(mean, unit), number(sd, unit))
+        }
+        (Value::Seeds(_), Some(m)) => format!("{} (1 seed)", number(m.mean, unit)),
+        (_, Some(m)) => number(m.mean, unit),
+    }
+}
+
+impl Table {
+    /// The row labelled `label`, if any.
+    pub fn row(&self, label: &str) -> Option<&Row> {
+        self.rows.iter().find(|r| r.label == label)
+    }
+
+    /// The cell of row `label`, column `column`.
+    pub fn cell(&self, label: &str, column: &str) -> Option<&Cell> {
+        let c = self.columns.iter().position(|c| c.name == column)?;
+        self.row(label)?.cells.get(c)
+    }
+
+    pub fn markdown(&self) -> String {
+        let mut out = String::new();
+        let _ = write!(out, "| |");
+        for c in &self.columns {
+            let _ = write!(out, " {} |", c.name);
+        }
+        let _ = write!(out, "\n|---|");
+        for _ in &self.columns {
+            let _ = write!(out, "---:|");
+        }
+        out.push('\n');
+        for r in &self.rows {
+            let _ = write!(out, "| {} |", r.label);
+            for (c, cell) in self.columns.iter().zip(&r.cells) {
+                let ours = format_value(&cell.ours, c.unit);
+                match &cell.paper {
+                    Some(p) => {
+                        let _ = write!(out, " {ours} ({p}) |");
+                    }
+                    None => {
+                        let _ = write!(out, " {ours} |");
+                    }
+                }
+            }
+            out.push('\n');
+        }
+        let _ = writeln!(
+            out,
+            "\nOurs first, the paper's value in parentheses; `a ± b` is the mean and sample standard deviation over run seeds."
+        );
+        for n in &self.notes {
+            let _ = writeln!(out, "\n{n}");
+        }
+        out
+    }
+
+    /// One line per cell: `row,column,mean,sd,n,values,paper`; `values` lists the per-seed
+    /// values separated by `;`.
+    pub fn csv(&self) -> String {
+        let mut out = String::from("row,column,mean,sd,n,values,paper\n");
+        for r in &self.rows {
+            for (c, cell) in self.columns.iter().zip(&r.cells) {
+                let stats = cell.ours.stats();
+                let values = match &cell.ours {
+                    Value::Missing => String::new(),
+                    Value::One(v) => v.to_string(),
+                    Value::Seeds(v) => v.iter().map(f64::to_string).collect::<Vec<_>>().join(";"),
+                };
+                let _ = writeln!(
+                    out,
+                    "{},{},{},{},{},{},{}",
+                    csv_field(&r.label),
+                    csv_field(&c.name),
+                    stats.map(|s| s.mean.to_string()).unwrap_or_default(),
+                    stats
+                        .and_then(|s| s.sd)
+                        .map(|s| s.to_string())
+                        .unwrap_or_default(),
+                    stats.map_or(0, |s| s.n),
+                    values,
+                    csv_field(cell.paper.as_deref().unwrap_or_default())
+                );
+            }
+        }
+        out
+    }
+
+    /// The table with each cell's mean, sd and n spelled out.
+    pub fn json(&self) -> serde_json::Value {
+        let rows: Vec<serde_json::Value> = self
+            .rows
+            .iter()
+            .map(|r| {
+                let cells: serde_json::Map<String, serde_json::Value> = self
+                    .columns
+                    .iter()
+                    .zip(&r.cells)
+                    .map(|(c, cell)| {
+                        let s = cell.ours.stats();
+                        (
+                            c.name.clone(),
+                            serde_json::json!({
+                                "mean": s.map(|s| s.mean),
+                                "sd": s.and_then(|s| s.sd),
+                                "n": s.map_or(0, |s| s.n),
+                                "value": cell.ours,
+                                "paper": cell.paper,
+                            }),
+                        )
+                    })
+                    .collect();
+                serde_json::json!({ "row": r.label, "cells": cells })
+            })
+            .collect();
+        serde_json::json!({
+            "id": self.id,
+            "title": self.title,
+            "columns": self.columns,
+            "rows": rows,
+            "notes": self.notes,
+        })
+    }
+
+    /// `<id>.md`, `<id>.csv`, `<id>.json`.
+    pub fn files(&self) -> Vec<(String, Vec<u8>)> {
+        let json = serde_json::to_string_pretty(&self.json()).unwrap_or_default() + "\n";
+        vec![
+            (
+                format!("{}.md", self.id),
+                format!("# {}\n\n{}", self.title, self.markdown()).into_bytes(),
+            ),
+            (format!("{}.csv", self.id), self.csv().into_bytes()),
+            (format!("{}.json", self.id), json.into_bytes()),
+        ]
+    }
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table() -> Table {
+        Table {
+            id: "t".into(),
+            title: "T".into(),
+            columns: vec![
+                Column {
+                    name: "task success".into(),
+                    unit: Unit::Percent,
+                },
+                Column {
+                    name: "f_max (N)".into(),
+                    unit: Unit::Number(1),
+                },
+            ],
+            rows: vec![
+                Row {
+                    label: "Ours-IL".into(),
+                    cells: vec![
+                        Cell::new(Value::Seeds(vec![0.9, 0.8, 0.85]), Some("90.3% ± 0.8%")),
+                        Cell::new(Value::seeds([Some(30.0), None, Some(40.0)]), None),
+                    ],
+                },
+                Row {
+                    label: "teacher, once".into(),
+                    cells: vec![
+                        Cell::new(Value::One(0.5), None),
+                        Cell::new(Value::Missing, Some("40.8")),
+                    ],
+                },
+                Row {
+                    label: "one seed".into(),
+                    cells: vec![
+                        Cell::new(Value::seeds([None, Some(0.25), None]), None),
+                        Cell::new(Value::seeds([None, None]), None),
+                    ],
+                },
+            ],
+            notes: vec![],
+        }
+    }
+
+    #[test]
+    fn markdown_csv_and_json_agree() {
+        let t = table();
+        let md = t.markdown();
+        assert!(
+            md.contains("| Ours-IL | 85.0% ± 5.0% (90.3% ± 0.8%) | 35.0 ± 7.1 |"),
+            "{md}"
+        );
+        assert!(md.contains("| teacher, once | 50.0% | - (40.8) |"), "{md}");
+        let csv = t.csv();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines.len(), 7);
+        assert!(md.contains("| one seed | 25.0% (1 seed) | - |"), "{md}");
+        let first: Vec<&str> = lines[1].split(',').collect();
+        assert_eq!(first[0], "Ours-IL");
+        let mean: f64 = first[2].parse().expect("mean");
+        let sd: f64 = first[3].parse().expect("sd");
+        assert!((mean - 0.85).abs() < 1e-12 && (sd - 0.05).abs() < 1e-12);
+        assert_eq!(first[4], "3");
+        assert!(
+            lines[2].starts_with("Ours-IL,f_max (N),35,"),
+            "{}",
+            lines[2]
+        );
+        assert!(lines[2].contains(",2,30;40,"), "{}", lines[2]);
+        assert_eq!(lines[3], "\"teacher, once\",task success,0.5,,1,0.5,");
+        let j = t.json();
+        let cell = &j["rows"][0]["cells"]["task success"];
+        assert_eq!(cell["mean"].as_f64(), Some(mean));
+        assert_eq!(cell["sd"].as_f64(), Some(sd));
+        assert_eq!(cell["paper"], "90.3% ± 0.8%");
+        assert_eq!(j["rows"][1]["cells"]["f_max (N)"]["n"], 0);
+    }
+}

@@ -1,0 +1,147 @@
+//! Writing a `report` stage's directory: the artifact's files (index.md, tables, figures)
+//! plus a provenance section that only this machine knows: every stage instance behind the
+//! report with its key, content hash and wall time, the profile, the run seeds and the
+//! platform class.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context as _, Result, bail};
+use osms_make::{Plan, State, StoreObjects};
+use osms_store::{Record, Store};
+
+use crate::context::Context;
+
+/// The kind whose builds `osms make` writes out as a directory.
+pub const REPORT_KIND: &str = "report";
+
+/// The directory `osms make` writes a report stage to: `<stage>/` beside pipeline.toml.
+pub fn default_dir(ctx: &Context, stage: &str) -> PathBuf {
+    ctx.pipeline_path
+        .parent()
+        .unwrap_or_else(|| Path::new("."))
+        .join(stage)
+}
+
+/// Writes the current build of report stage `stage` to `dir`, replacing what was there only
+/// once every file is written. Returns the written paths.
+pub fn write(
+    ctx: &Context,
+    plan: &Plan,
+    store: &Store,
+    stage: &str,
+    seeds: &[u64],
+    dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    let statuses = osms_make::status(plan, store, &[stage.to_string()], seeds)?;
+    let Some(root) = statuses.last() else {
+        bail!("stage `{stage}` has no instance");
+    };
+    let (Some(key), State::Cached) = (root.key, root.state) else {
+        bail!(
+            "stage `{stage}` has no current build under profile `{}`\nhint: `osms make {stage}` builds it",
+            plan.profile
+        );
+    };
+    let record = store
+        .record(&key)?
+        .with_context(|| format!("stage `{stage}`: no record for key {key}"))?;
+    let Some(kind) = ctx.registry.get(&record.kind) else {
+        bail!("kind `{}` is not known to this osms", record.kind);
+    };
+    let bytes = store.get(&record.content_hash)?;
+    let mut files = kind
+        .files(&bytes, &StoreObjects(store))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+
+    let mut lineage = Vec::new();
+    for s in &statuses {
+        let r = match s.key {
+            Some(k) => store.record(&k)?,
+            None => None,
+        };
+        lineage.push((s.instance.clone(), s.kind.clone(), r));
+    }
+    let provenance = provenance(plan, seeds, &lineage);
+    match files.iter_mut().find(|(name, _)| name == "index.md") {
+        Some((_, index)) => index.extend_from_slice(provenance.as_bytes()),
+        None => files.push(("index.md".into(), provenance.into_bytes())),
+    }
+
+    // Write into a sibling directory, then swap it in: an interrupted write leaves the old
+    // report whole.
+    let parent = dir.parent().unwrap_or_else(|| Path::new("."));
+    std::fs::create_dir_all(parent)
+        .with_context(|| format!("cannot create {}", parent.display()))?;
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "report".into());
+    let partial = parent.join(format!(".{name}.partial"));
+    if partial.exists() {
+        std::fs::remove_dir_all(&partial)
+            .with_context(|| format!("cannot remove {}", partial.display()))?;
+    }
+    std::fs::create_dir_all(&partial)
+        .with_context(|| format!("cannot create {}", partial.display()))?;
+    let mut written = Vec::new();
+    for (file, content) in &files {
+        std::fs::write(partial.join(file), content)
+            .with_context(|| format!("cannot write {}", partial.join(file).display()))?;
+        written.push(dir.join(file));
+    }
+    if dir.exists() {
+        std::fs::remove_dir_all(dir)
+            .with_context(|| format!("cannot replace {}", dir.display()))?;
+    }
+    std::fs::rename(&partial, dir).with_context(|| format!("cannot write {}", dir.display()))?;
+    Ok(written)
+}
+
+fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Record>)]) -> String {
+    let mut s = String::new();
+    let seeds_text = seeds
+        .iter()
+        .map(u64::to_string)
+        .collect::<Vec<_>>()
+        .join(", ");
+    let total: f64 = lineage
+        .iter()
+        .filter_map(|(_, _, r)| r.as_ref().map(|r| r.wall_time_secs))
+        .sum();
+    let _ = writeln!(
+        s,
+        "## Provenance\n\nProfile `{}`, run seeds {seeds_text}, platform class `{}`, osms {}. \
+         Every stage instance behind this report, in build order, with its key (what it was \
+         built from), the content hash of its artifact and the wall time of the build that \
+         stored it; {} instances, {:.0} s of builds in total (a stage built once serves every \
+         later make).\n",
+        plan.profile,
+        crate::platform::class(),
+        env!("CARGO_PKG_VERSION"),
+        lineage.len(),
+        total
+    );
+    let _ = writeln!(
+        s,
+        "| instance | kind | key | content hash | wall time (s) |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---:|");
+    for (instance, kind, r) in lineage {
+        match r {
+            Some(r) => {
+                let _ = writeln!(
+                    s,
+                    "| {instance} | {kind} | `{}` | `{}` | {:.1} |",
+                    &r.key.to_string()[..12],
+                    &r.content_hash.to_string()[..12],
+                    r.wall_time_secs
+                );
+            }
+            None => {
+                let _ = writeln!(s, "| {instance} | {kind} | - | - | - |");
+            }
+        }
+    }
+    s
+}
