@@ -67,6 +67,11 @@ fn make(text: &str, jobs: usize, teachers_from: Option<&Made>) -> Made {
 /// Builds `text` on the tiny profile in `made`'s store (what is there is reused): the hashes and
 /// the instances computed.
 fn remake(made: &Made, text: &str) -> (BTreeMap<String, Hash>, Vec<String>) {
+    remake_seeds(made, text, &[0])
+}
+
+/// [`remake`] for the run seeds `seeds`.
+fn remake_seeds(made: &Made, text: &str, seeds: &[u64]) -> (BTreeMap<String, Hash>, Vec<String>) {
     let path = made._dir.path().join("variant.toml");
     std::fs::write(&path, text).expect("write");
     let plan = Plan::new(
@@ -76,7 +81,7 @@ fn remake(made: &Made, text: &str) -> (BTreeMap<String, Hash>, Vec<String>) {
     .expect("plan");
     let opts = MakeOptions {
         targets: vec![],
-        seeds: vec![0],
+        seeds: seeds.to_vec(),
         jobs: 2,
         dry_run: false,
     };
@@ -117,7 +122,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 32, "{reference:?}");
+    assert_eq!(reference.len(), 54, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -188,7 +193,163 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
         reference,
         "other shard counts"
     );
+    the_report_shows_its_sources(&first);
+    a_sweep_rebuilds_only_its_seeds_and_the_aggregates(&first, &text);
     golden::check("outputs_pipeline_tiny", first.outputs);
+}
+
+/// The tables and figures hold what their source artifacts say, and every file renders.
+fn the_report_shows_its_sources(made: &Made) {
+    use osms_report::figure::Figure;
+    use osms_report::report::Report;
+    use osms_report::table::{Table, Value};
+    use osms_sim::stages::Evaluation;
+
+    let ours: Evaluation = load_sharded(made, "eval_ours@0");
+    let teacher: Evaluation = load_sharded(made, "eval_teacher");
+    let success = |e: &Evaluation| {
+        e.rows.iter().filter(|r| r.outcome.success()).count() as f64 / e.rows.len() as f64
+    };
+    let table2: Table = load(made, "table2");
+    let cell = |row: &str, col: &str| table2.cell(row, col).expect("cell").ours.clone();
+    assert_eq!(
+        cell("Our method / Ours-IL", "task success"),
+        Value::Seeds(vec![success(&ours)])
+    );
+    assert_eq!(
+        cell("RL teacher (original)", "task success"),
+        Value::One(success(&teacher))
+    );
+
+    // Figure (a): the teacher's mean force at the contact step, from the rows themselves.
+    let impact: Figure = load(made, "impact_profiles");
+    let forces: Vec<f64> = teacher
+        .rows
+        .iter()
+        .filter_map(|r| r.trace.as_ref()?.at(0))
+        .map(|s| f64::from(s.0))
+        .collect();
+    assert!(forces.len() > 1, "the tiny teacher touches the object");
+    let mean = forces.iter().sum::<f64>() / forces.len() as f64;
+    let at_contact = impact.panels[3].series[0]
+        .points
+        .iter()
+        .find(|p| p.x == 0.0)
+        .expect("a point at t_c");
+    assert_eq!(at_contact.y, mean);
+    let line = format!("{},RL teacher,0,{mean},", impact.panels[3].title);
+    assert!(impact.csv().contains(&line), "the CSV holds {line}");
+
+    // Figures (b): teacher success per object variant.
+    let conditions: Figure = load(made, "task_conditions");
+    for p in &conditions.panels[0].series[0].points {
+        let v = osms_sim::spec::ObjectVariant::all()[p.x as usize];
+        let rows: Vec<_> = teacher.rows.iter().filter(|r| r.variant == v).collect();
+        let s = rows.iter().filter(|r| r.outcome.success()).count() as f64 / rows.len() as f64;
+        assert_eq!(p.y, s, "{v}");
+    }
+
+    let report: Report = load(made, "report");
+    let files = report.render().expect("render");
+    let names: Vec<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
+    for want in [
+        "index.md",
+        "table1.md",
+        "table2.csv",
+        "table3.json",
+        "fig_impact_profiles.png",
+        "fig_task_conditions.svg",
+        "fig_ios_profile.csv",
+        "fig_learning_curves.png",
+        "claims.json",
+    ] {
+        assert!(names.contains(&want), "{want} in {names:?}");
+    }
+    for (name, bytes) in &files {
+        assert!(!bytes.is_empty(), "{name} is empty");
+    }
+    let (_, png) = files
+        .iter()
+        .find(|(n, _)| n == "fig_impact_profiles.png")
+        .expect("png");
+    let (w, h) = impact.size();
+    assert_eq!(u32::from_be_bytes(png[16..20].try_into().expect("w")), w);
+    assert_eq!(u32::from_be_bytes(png[20..24].try_into().expect("h")), h);
+    let index = String::from_utf8(files[0].1.clone()).expect("utf-8");
+    for section in [
+        "Table I",
+        "Table II",
+        "Table III",
+        "Claims check",
+        "![Learning curves]",
+    ] {
+        assert!(index.contains(section), "index.md has {section}");
+    }
+}
+
+/// Adding a run seed builds only that seed's students and evaluations and the stages that
+/// gather them; a seed set whose members are all cached rebuilds only the aggregates.
+fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
+    let aggregates = [
+        "impact_profiles",
+        "learning_curves",
+        "report",
+        "table2",
+        "table3",
+        "task_conditions",
+    ];
+    let per_seed = |seed: u64| -> Vec<String> {
+        [
+            "eval_global_iid",
+            "eval_naive",
+            "eval_normal",
+            "eval_ours",
+            "eval_phase_independent",
+            "student_global_iid",
+            "student_naive",
+            "student_normal",
+            "student_ours",
+            "student_phase_independent",
+        ]
+        .iter()
+        .map(|s| format!("{s}@{seed}"))
+        .collect()
+    };
+    let sorted = |mut v: Vec<String>| {
+        v.sort();
+        v
+    };
+    let expect = |seeds: &[u64]| {
+        let mut v: Vec<String> = aggregates.iter().map(|s| s.to_string()).collect();
+        for &s in seeds {
+            v.extend(per_seed(s));
+        }
+        sorted(v)
+    };
+    let (_, built) = remake_seeds(made, text, &[0, 2]);
+    assert_eq!(sorted(built), expect(&[2]), "seed 2 added");
+    let (_, built) = remake_seeds(made, text, &[0, 1, 2]);
+    assert_eq!(sorted(built), expect(&[1]), "seed 1 added");
+    let (hashes, built) = remake_seeds(made, text, &[1, 2]);
+    assert_eq!(
+        sorted(built),
+        expect(&[]),
+        "seed 0 removed: only the aggregates"
+    );
+    let (_, built) = remake_seeds(made, text, &[0]);
+    assert!(
+        built.is_empty(),
+        "every instance for seed 0 is cached: {built:?}"
+    );
+    let table2: osms_report::table::Table =
+        osms_store::decode(&made.store.get(&hashes["table2"]).expect("object")).expect("table2");
+    let cell = table2
+        .cell("Our method / Ours-IL", "task success")
+        .expect("cell");
+    let osms_report::table::Value::Seeds(v) = &cell.ours else {
+        panic!("per-seed values: {:?}", cell.ours)
+    };
+    assert_eq!(v.len(), 2, "two run seeds aggregated");
 }
 
 /// D_M and D_E hold successes only; no ω is shared between D_M, D_E, D_R and the held-out set;
@@ -204,11 +365,11 @@ fn datasets_are_disjoint_successes_and_aligned(made: &Made) {
         .iter()
         .map(|c| ("heldout".to_string(), format!("{c:?}")))
         .collect();
-    for name in ["d_m@0", "d_e@0", "d_r@0"] {
+    for name in ["d_m", "d_e", "d_r"] {
         let d: Dataset = load_sharded(made, name);
         let stats = d.stats();
         assert!(!d.items.is_empty(), "{name} is empty");
-        if name != "d_r@0" {
+        if name != "d_r" {
             assert!(d.successes_only, "{name}");
             assert!(
                 d.rollouts().all(|r| r.record.outcome.success()),
@@ -300,7 +461,7 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
     use osms_sim::{N_ACTION, N_ARM};
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
-    let mut teacher: Teacher = load(made, "teacher@0");
+    let mut teacher: Teacher = load(made, "teacher");
     teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
     teacher.task.rollout.record_privileged = true;
     let model = world.model(osms_sim::ObjectVariant::all()[0]);
@@ -312,7 +473,7 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
         .expect("object_geom");
     let mut with_contact = 0;
     for name in ["d_m", "d_r"] {
-        let d: Dataset = load_sharded(made, &format!("{name}@0"));
+        let d: Dataset = load_sharded(made, name);
         for item in &d.items {
             let r = &item.rollout;
             let stream = osms_make::rng::stream(
@@ -371,7 +532,7 @@ fn successful_rollouts_pass_through_all_five_phases(made: &Made) {
     use osms_policy::dataset::Dataset;
     use osms_sim::Phase;
 
-    let d: Dataset = load_sharded(made, "d_m@0");
+    let d: Dataset = load_sharded(made, "d_m");
     for r in d.rollouts() {
         let phases = &r.record.phase;
         let count = |p: Phase| phases.iter().filter(|&&x| x == p as u8).count();
@@ -407,7 +568,7 @@ fn the_tiny_teacher_beats_the_scripted_prior(made: &Made) {
         let e: Evaluation = load_sharded(made, name);
         e.table().pop().map_or(0.0, |l| l.success_rate)
     };
-    let (teacher, scripted) = (success("eval_teacher@0"), success("eval_scripted@0"));
+    let (teacher, scripted) = (success("eval_teacher"), success("eval_scripted"));
     assert!(
         teacher > scripted,
         "tiny teacher {teacher:.3} vs scripted prior {scripted:.3}"
@@ -421,8 +582,8 @@ fn the_osw_projection_is_its_datasets_windows(made: &Made) {
     use osms_policy::dataset::Dataset;
     use osms_policy::stages::OswSet;
 
-    let d: Dataset = load_sharded(made, "d_m@0");
-    let p: OswSet = load(made, "d_m_osw@0");
+    let d: Dataset = load_sharded(made, "d_m");
+    let p: OswSet = load(made, "d_m_osw");
     assert_eq!(p.osw, d.osw);
     assert_eq!(p.windows.len(), d.items.len());
     for (w, r) in p.windows.iter().zip(d.rollouts()) {
@@ -442,19 +603,19 @@ fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
     use osms_method::stages::CandidateSets;
     use osms_policy::stages::OswSet;
 
-    let windows: OswSet = load(made, "d_r_osw@0");
-    let manifold: Cvae = load(made, "manifold@0");
+    let windows: OswSet = load(made, "d_r_osw");
+    let manifold: Cvae = load(made, "manifold");
     assert!(manifold.params.conditional);
     assert_eq!(manifold.w_a.len(), 8 * osms_sim::N_ARM);
     assert_eq!(manifold.windows_train + manifold.windows_heldout, 6);
-    assert!(!load::<Cvae>(made, "manifold_uncond@0").params.conditional);
-    let geo: CandidateSets = load_sharded(made, "candidates_geodesic@0");
+    assert!(!load::<Cvae>(made, "manifold_uncond").params.conditional);
+    let geo: CandidateSets = load_sharded(made, "candidates_geodesic");
     assert_eq!(geo.params.generator, Generator::Geodesic);
     for (name, generator) in [
-        ("candidates_geodesic@0", Generator::Geodesic),
-        ("candidates_euclidean@0", Generator::Euclidean),
-        ("candidates_unconditional@0", Generator::Unconditional),
-        ("candidates_direct@0", Generator::Direct),
+        ("candidates_geodesic", Generator::Geodesic),
+        ("candidates_euclidean", Generator::Euclidean),
+        ("candidates_unconditional", Generator::Unconditional),
+        ("candidates_direct", Generator::Direct),
     ] {
         let sets: CandidateSets = load_sharded(made, name);
         assert_eq!(sets.params.generator, generator);
@@ -496,14 +657,14 @@ fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
             }
         }
     }
-    let table: osms_method::stages::CandidateTable = load(made, "candidates@0");
+    let table: osms_method::stages::CandidateTable = load(made, "candidates");
     let names: Vec<&str> = table.rows.iter().map(|r| r.generator.as_str()).collect();
     assert_eq!(names, ["geodesic", "euclidean", "unconditional", "direct"]);
     assert_eq!(table.rows[0], geo.stats());
 }
 
 fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
-    let d_m = made.hashes["d_m@0"];
+    let d_m = made.hashes["d_m"];
     let (records, _) = made.store.records().expect("records");
     let rec = records
         .iter()
@@ -533,7 +694,7 @@ fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
     };
     let report = osms_make::make(&made.plan, &made.store, &opts, &Silent).expect("make");
     assert!(report.failed().is_empty(), "{:?}", report.failed());
-    assert_eq!(hashes(&report)["d_m@0"], d_m, "rebuilt to the same bytes");
+    assert_eq!(hashes(&report)["d_m"], d_m, "rebuilt to the same bytes");
     assert!(
         made.store.verify().expect("verify").problems.is_empty(),
         "shard, rollout and D_M repaired"
@@ -548,12 +709,12 @@ fn cross_fitting_never_scores_a_student_on_its_training_conditions(made: &Made) 
     use osms_policy::student_stages::{ErrorPairs, StudentArtifact};
     use osms_sim::N_ACTION;
 
-    let d_e: Dataset = load_sharded(made, "d_e@0");
+    let d_e: Dataset = load_sharded(made, "d_e");
     let items: Vec<u32> = d_e.rollouts().map(|r| r.item).collect();
     let mut scored = Vec::new();
     for f in 0..2u32 {
-        let student: StudentArtifact = load(made, &format!("student_il#{f}@0"));
-        let pairs: ErrorPairs = load_sharded(made, &format!("error_pairs#{f}@0"));
+        let student: StudentArtifact = load(made, &format!("student_il#{f}"));
+        let pairs: ErrorPairs = load_sharded(made, &format!("error_pairs#{f}"));
         assert_eq!(student.fold, Some((f, 2)));
         assert_eq!(pairs.fold, Some((f, 2)));
         let trained: Vec<u32> = items.iter().copied().filter(|i| i % 2 != f).collect();
@@ -602,9 +763,9 @@ fn teacher_queries_reproduce_the_teacher(made: &Made) {
         }
     }
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
-    let mut teacher: Teacher = load(made, "teacher@0");
+    let mut teacher: Teacher = load(made, "teacher");
     teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
-    let d_e: Dataset = load_sharded(made, "d_e@0");
+    let d_e: Dataset = load_sharded(made, "d_e");
     for r in d_e.rollouts().take(3) {
         let stream = osms_make::rng::stream(0, "test", "query", u64::from(r.item));
         let own = rollout(
@@ -651,11 +812,11 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
         }
     }
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
-    let student: Student = load::<StudentArtifact>(made, "student_il#0@0").student;
-    let mut teacher: Teacher = load(made, "teacher@0");
+    let student: Student = load::<StudentArtifact>(made, "student_il#0").student;
+    let mut teacher: Teacher = load(made, "teacher");
     teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
     let spec = student.rollout_spec(&teacher.task.rollout);
-    let d_e: Dataset = load_sharded(made, "d_e@0");
+    let d_e: Dataset = load_sharded(made, "d_e");
     let condition = d_e
         .rollouts()
         .next()
@@ -731,11 +892,11 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
     use osms_sim::{N_ACTION, N_ARM, Phase};
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
-    let mut teacher: Teacher = load(made, "teacher@0");
+    let mut teacher: Teacher = load(made, "teacher");
     teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
     teacher.task.rollout.record_privileged = true;
-    let model = load::<ErrorModelArtifact>(made, "error_model@0").model;
-    let d_r: Dataset = load_sharded(made, "d_r@0");
+    let model = load::<ErrorModelArtifact>(made, "error_model").model;
+    let d_r: Dataset = load_sharded(made, "d_r");
     assert_eq!(d_r.task, teacher.task, "D_R keeps the task it ran");
     let (mut replayed, mut handed_back) = (0, 0);
     for r in d_r.rollouts().filter(|r| r.osw.complete) {
@@ -864,6 +1025,7 @@ fn validation_is_exact_when_fast_and_dstar_repeats_it(made: &Made) {
     let extra = r#"
 [stages.validate_direct]
 kind = "validate"
+seed = 0
 inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model" }
 shards = 2
 params = { q = 6 }
@@ -875,6 +1037,7 @@ shards = 3
 
 [stages.validate_unperturbed]
 kind = "validate"
+seed = 0
 inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model" }
 shards = 2
 params = { q = 6, error_model = "unperturbed" }
@@ -886,11 +1049,13 @@ shards = 2
 
 [stages.naive_direct]
 kind = "naive"
+seed = 0
 inputs = { world = "world", teacher = "teacher", data = "d_r", target = "dstar_unperturbed" }
 shards = 2
 
 [stages.normal_extended]
 kind = "normal"
+seed = 0
 inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_geodesic", error_model = "error_model", validation = "validate", manifold = "manifold", target = "dstar_unperturbed" }
 shards = 3
 "#;
@@ -917,33 +1082,33 @@ shards = 3
     let (slow, built) = remake(made, &exhaustive);
     assert_eq!(
         built,
-        ["validate@0", "validate_direct@0", "validate_unperturbed@0"],
+        ["validate", "validate_direct", "validate_unperturbed"],
         "the validations ran again, exhaustively, and nothing after them"
     );
     for s in [
-        "validate@0",
-        "dstar@0",
-        "validate_direct@0",
-        "dstar_direct@0",
-        "validate_unperturbed@0",
-        "dstar_unperturbed@0",
+        "validate",
+        "dstar",
+        "validate_direct",
+        "dstar_direct",
+        "validate_unperturbed",
+        "dstar_unperturbed",
     ] {
         assert_eq!(fast[s], slow[s], "{s}: fast and exhaustive bytes");
     }
     baselines_reach_dstar_from_streams_of_their_own(made, &fast);
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
-    let teacher: Teacher = load(made, "teacher@0");
-    let d_r: Dataset = load_sharded(made, "d_r@0");
-    let model = load::<ErrorModelArtifact>(made, "error_model@0").model;
-    let direct: CandidateSets = load_sharded(made, "candidates_direct@0");
+    let teacher: Teacher = load(made, "teacher");
+    let d_r: Dataset = load_sharded(made, "d_r");
+    let model = load::<ErrorModelArtifact>(made, "error_model").model;
+    let direct: CandidateSets = load_sharded(made, "candidates_direct");
     let v: Validation = osms_make::assemble(
-        &made.store.get(&fast["validate_direct@0"]).expect("object"),
+        &made.store.get(&fast["validate_direct"]).expect("object"),
         &osms_make::StoreObjects(&made.store),
     )
     .expect("validation");
     let dstar: DemoSet = osms_make::assemble(
-        &made.store.get(&fast["dstar_direct@0"]).expect("object"),
+        &made.store.get(&fast["dstar_direct"]).expect("object"),
         &osms_make::StoreObjects(&made.store),
     )
     .expect("D_*");
@@ -1058,9 +1223,9 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
         .expect("demo set")
     };
     let (dstar, naive, normal) = (
-        set("dstar_unperturbed@0"),
-        set("naive_direct@0"),
-        set("normal_extended@0"),
+        set("dstar_unperturbed"),
+        set("naive_direct"),
+        set("normal_extended"),
     );
     let target = dstar.len();
     assert_eq!(naive.target, Some(target));
@@ -1108,7 +1273,7 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
             .iter()
             .map(|c| ("heldout".into(), format!("{c:?}"))),
     );
-    for name in ["d_m@0", "d_e@0", "d_r@0"] {
+    for name in ["d_m", "d_e", "d_r"] {
         let d: Dataset = load_sharded(made, name);
         seen.extend(
             d.rollouts()

@@ -72,6 +72,9 @@ pub struct ValidateParams {
     /// Run every rollout from step 0 to the end (the reference the fast path is tested and
     /// benchmarked against; same artifact).
     pub exhaustive: bool,
+    /// Validate only the first this many D_R rollouts (0: all): the reduced subset the
+    /// ablations may run on. D_* and the baselines follow their validation's subset.
+    pub rollouts: usize,
 }
 
 impl Default for ValidateParams {
@@ -84,6 +87,7 @@ impl Default for ValidateParams {
             construction: Construction::Both,
             error_model: None,
             exhaustive: false,
+            rollouts: 0,
         }
     }
 }

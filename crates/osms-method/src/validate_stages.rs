@@ -62,7 +62,8 @@ impl ErrorStreams {
 
 impl Artifact for Validation {
     const TYPE_TAG: &'static str = "method.validation";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: its params name the D_R subset (`rollouts`).
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl osms_make::Sharded for Validation {
@@ -286,6 +287,18 @@ impl Inputs {
         let mut task = data.task.clone();
         // Validation reads outcomes and commanded actions; the privileged frames were for ω̄.
         task.rollout.record_privileged = false;
+        let n = match params.rollouts {
+            0 => data.items.len(),
+            n if n <= data.items.len() => n,
+            n => {
+                return Err(format!(
+                    "params.rollouts = {n}, but `data` holds {} rollouts\nhint: use at most {} (0 validates all)",
+                    data.items.len(),
+                    data.items.len()
+                )
+                .into());
+            }
+        };
         Ok(Inputs {
             world: ctx.input::<WorldArtifact>("world")?.world()?,
             agent: teacher.agent,
@@ -293,6 +306,7 @@ impl Inputs {
             sets: candidates
                 .items
                 .iter()
+                .take(n)
                 .map(|i| {
                     i.set
                         .as_ref()
@@ -301,7 +315,7 @@ impl Inputs {
                 })
                 .collect(),
             generator: candidates.params.generator.name().to_string(),
-            rollouts: data.items.into_iter().map(|i| i.rollout).collect(),
+            rollouts: data.items.into_iter().take(n).map(|i| i.rollout).collect(),
             model,
         })
     }

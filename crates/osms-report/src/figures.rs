@@ -587,3 +587,118 @@ impl Stage for LearningCurvesStage {
         ))
     }
 }
+
+/// Figure (d): candidate selection, J against SR for the candidates of successful originals
+/// (refinement) and failed ones (repair), the selected candidates highlighted.
+pub fn candidate_selection(v: &osms_method::validate_stages::Validation) -> Figure {
+    use osms_method::validate::Robustness;
+    let q = v.params.q;
+    let threshold = v.params.delta_sr;
+    let mut panels = Vec::new();
+    let mut counts = Vec::new();
+    for (refine, title) in [(true, "(a) refinement"), (false, "(b) repair")] {
+        let mut known = Vec::new();
+        let mut bounded = Vec::new();
+        let mut originals = Vec::new();
+        let (mut not_run, mut failed) = (0usize, 0usize);
+        for item in v
+            .items
+            .iter()
+            .filter(|i| i.validated && i.original.success == refine)
+        {
+            if let (Some(j), Some(sr)) = (item.original.j, item.original.robustness.sr(q)) {
+                originals.push(Point::new(sr, j));
+            }
+            let selected = item.decision.selected();
+            for (k, c) in item.candidates.iter().enumerate() {
+                let Some(j) = c.unperturbed.j() else {
+                    failed += 1;
+                    continue;
+                };
+                match c.robustness {
+                    Robustness::Full { successes } => known.push(Point {
+                        highlight: selected == Some(k),
+                        ..Point::new(f64::from(successes) / q as f64, j)
+                    }),
+                    // Every later rollout a success: the most SR could have been.
+                    Robustness::Insufficient {
+                        successes,
+                        evaluated,
+                    } => bounded.push(Point::new(
+                        f64::from(successes + q as u32 - evaluated) / q as f64,
+                        j,
+                    )),
+                    Robustness::NotRun => not_run += 1,
+                }
+            }
+        }
+        counts.push(format!(
+            "{title}: {} candidates with SR from all Q rollouts ({} selected), {} stopped below \
+             the threshold (drawn at their largest possible SR), {} not perturbed (the \
+             decision did not need them), {} failed unperturbed",
+            known.len(),
+            known.iter().filter(|p| p.highlight).count(),
+            bounded.len(),
+            not_run,
+            failed
+        ));
+        let mut series = vec![
+            Series {
+                name: "SR from all Q rollouts (filled: selected)".into(),
+                mark: Mark::Points,
+                points: known,
+            },
+            Series {
+                name: "stopped below δ_SR (upper bound)".into(),
+                mark: Mark::Points,
+                points: bounded,
+            },
+        ];
+        if refine {
+            series.push(Series {
+                name: "originals (SR_org, J_org)".into(),
+                mark: Mark::Points,
+                points: originals,
+            });
+        }
+        panels.push(Panel {
+            title: title.into(),
+            x_label: "SR (Eq. 8)".into(),
+            y_label: "J (Eq. 9)".into(),
+            x_categories: vec![],
+            x_marker: Some(threshold),
+            series,
+        });
+    }
+    Figure {
+        id: "fig_candidate_selection".into(),
+        title: "Student-aware candidate selection".into(),
+        caption: format!(
+            "J (Eq. 9, lower is better) against SR (Eq. 8) of every validated candidate that \
+             succeeded unperturbed, under the {} error model with Q = {q}; the dashed line is \
+             δ_SR = {threshold}. The fast path stops a candidate's perturbed rollouts once the \
+             decision is settled, so SR is exact only where all Q ran. {}.",
+            v.error_model,
+            counts.join("; ")
+        ),
+        panels,
+    }
+}
+
+pub struct CandidateSelectionStage;
+impl Stage for CandidateSelectionStage {
+    const KIND: &'static str = "candidate_selection";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = false;
+    const INPUTS: &'static [Slot] = &[Slot::one::<osms_method::validate_stages::Validation>(
+        "validation",
+    )];
+    const DOC: &'static str =
+        "figure (d): J vs SR of the validated candidates, selected ones marked";
+    type Params = NoParams;
+    type Output = Figure;
+
+    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {
+        Ok(candidate_selection(&ctx.sharded("validation")?))
+    }
+}

@@ -3,6 +3,7 @@
 //! claims check; and the `report` stage that bundles them with Table I, the construction
 //! table, the candidate table and the IOS profile. `docs/report.md` explains how to read it.
 
+pub mod ablations;
 pub mod claims;
 pub mod figure;
 pub mod figures;
@@ -19,6 +20,8 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register(figures::ImpactProfilesStage)
         .register(figures::TaskConditionsStage)
         .register(figures::IosFigureStage)
+        .register(figures::CandidateSelectionStage)
         .register(figures::LearningCurvesStage)
-        .register(report::ReportStage);
+        .register(report::ReportStage)
+        .register(ablations::AblationsStage);
 }

@@ -146,6 +146,7 @@ impl Stage for ReportStage {
         Slot::one::<CandidateTable>("candidates"),
         Slot::one::<Figure>("impact_profiles"),
         Slot::one::<Figure>("task_conditions"),
+        Slot::one::<Figure>("candidate_selection"),
         Slot::one::<Figure>("ios"),
         Slot::one::<Figure>("learning_curves"),
     ];

@@ -377,3 +377,130 @@ impl Stage for Table3Stage {
         ))
     }
 }
+
+#[cfg(test)]
+pub(crate) mod testing {
+    use osms_make::Member;
+    use osms_policy::demos::ConstructionStats;
+    use osms_sim::metrics::{Failure, Metrics, Outcome};
+    use osms_sim::spec::ObjectVariant;
+    use osms_sim::stages::{EvalRow, Evaluation};
+
+    pub(crate) fn stats(repair: f64, refine: f64) -> ConstructionStats {
+        ConstructionStats {
+            construction: String::new(),
+            conditions: 10,
+            original_successes: 5,
+            kept: 0,
+            refined: 0,
+            repaired: 0,
+            dropped: 0,
+            coverage: 0.5,
+            repair_rate: repair,
+            refinement_rate: refine,
+            unperturbed_max_force_n: Some(30.0),
+            demonstrations: 7,
+            extension_conditions: 0,
+            extension_demonstrations: 0,
+            target: None,
+            unused_conditions: 0,
+            steps: 70,
+        }
+    }
+
+    /// One evaluation of ten rollouts per seed: the first `success · 10` succeed, the rest
+    /// fail on force; every rollout completes the catch with f_max `force`.
+    pub(crate) fn evals(success: &[f64], force: f64) -> Vec<(Member, Evaluation)> {
+        success
+            .iter()
+            .enumerate()
+            .map(|(seed, &s)| {
+                let rows = (0..10)
+                    .map(|i| EvalRow {
+                        variant: ObjectVariant::all()[i % 2],
+                        lateral_offset_m: 0.01 * i as f64,
+                        steps: 1,
+                        metrics: Metrics {
+                            contact_time_secs: Some(0.1),
+                            contact_speed_mps: Some(1.0),
+                            max_force_n: force,
+                            follow_through_m: 0.1,
+                            event_step: 1,
+                            closest_approach_m: 0.0,
+                        },
+                        outcome: Outcome {
+                            failures: if (i as f64) < s * 10.0 {
+                                vec![]
+                            } else {
+                                vec![Failure::ForceExceeded]
+                            },
+                        },
+                        trace: None,
+                    })
+                    .collect();
+                (
+                    Member {
+                        fold: None,
+                        seed: Some(seed as u64),
+                    },
+                    Evaluation { rows },
+                )
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testing::{evals, stats};
+    use super::*;
+
+    #[test]
+    fn table2_cells_are_sample_mean_and_sd_over_seeds_in_every_format() {
+        let teacher = evals(&[0.5], 40.0).remove(0).1;
+        let (naive, normal, ours) = (
+            evals(&[0.6, 0.8, 0.7], 41.0),
+            evals(&[0.5, 0.5], 44.0),
+            evals(&[0.9, 0.7, 0.8], 37.0),
+        );
+        let s = stats(0.4, 0.6);
+        let t = table2([&s, &s, &s], &teacher, [&naive, &normal, &ours]);
+        let cell = t.cell(TABLE2_ROWS[3], TASK_SUCCESS).expect("cell");
+        let m = cell.ours.stats().expect("stats");
+        // 0.9, 0.7, 0.8: mean 0.8, sample sd 0.1.
+        assert!((m.mean - 0.8).abs() < 1e-12 && (m.sd.expect("sd") - 0.1).abs() < 1e-12);
+        assert_eq!(cell.paper.as_deref(), Some("90.3% ± 0.8%"));
+        let md = t.markdown();
+        assert!(
+            md.contains("| Our method / Ours-IL | 7 | 50.0% (91.8%) | 40.0% (44.3%) | 60.0% (59.8%) | 30.0 (36.5) | 80.0% ± 10.0% (90.3% ± 0.8%) | 100.0% ± 0.0% (93.6% ± 0.4%) | 37.0 ± 0.0 (37.3 ± 1.2) | 1.00 ± 0.00 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| RL teacher (original) | - | - (--) |"),
+            "{md}"
+        );
+        let csv = t.csv();
+        let line = csv
+            .lines()
+            .find(|l| l.starts_with("Our method / Ours-IL,task success,"))
+            .expect("csv line");
+        let f: Vec<&str> = line.split(',').collect();
+        assert_eq!(f[2].parse::<f64>().expect("mean"), m.mean);
+        assert_eq!(f[3].parse::<f64>().expect("sd"), m.sd.expect("sd"));
+        assert_eq!((f[4], f[5]), ("3", "0.9;0.7;0.8"));
+        let j = t.json();
+        let c = &j["rows"][3]["cells"][TASK_SUCCESS];
+        assert_eq!(c["mean"].as_f64(), Some(m.mean));
+        assert_eq!(c["sd"].as_f64(), m.sd);
+        assert_eq!(c["n"], 3);
+        // Normal has two seeds; the teacher row is one value.
+        assert_eq!(
+            t.cell(TABLE2_ROWS[2], TASK_SUCCESS).expect("cell").ours,
+            Value::Seeds(vec![0.5, 0.5])
+        );
+        assert_eq!(
+            t.cell(TABLE2_ROWS[0], TASK_SUCCESS).expect("cell").ours,
+            Value::One(0.5)
+        );
+    }
+}

@@ -306,7 +306,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     };
     // A report written by stage name carries its provenance, as `osms make` writes it.
     let by_name = args.target.split(['@', '#']).next() == Some(record.stage.as_str());
-    if record.kind == super::report::REPORT_KIND && by_name {
+    if super::report::REPORT_KINDS.contains(&record.kind.as_str()) && by_name {
         let plan = ctx.plan(args.selection.profile.as_deref())?;
         let seeds = Context::seeds(&args.selection, &plan);
         let written = super::report::write(ctx, &plan, &store, &record.stage, &seeds, &dir)?;

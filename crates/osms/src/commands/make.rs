@@ -100,8 +100,8 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     }
 }
 
-/// Writes every report stage this make built or found to its directory (`report/` for the
-/// stage named `report`).
+/// Writes every report or ablations stage this make built or found to its directory
+/// (`report/` for the stage named `report`).
 fn write_reports(
     ctx: &Context,
     plan: &Plan,
@@ -112,7 +112,7 @@ fn write_reports(
     for stage in plan
         .stages
         .iter()
-        .filter(|s| s.info.name == report::REPORT_KIND)
+        .filter(|s| report::REPORT_KINDS.contains(&s.info.name))
     {
         let done = made.instances.iter().any(|i| {
             i.instance == stage.name

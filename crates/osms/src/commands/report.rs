@@ -12,8 +12,9 @@ use osms_store::{Record, Store};
 
 use crate::context::Context;
 
-/// The kind whose builds `osms make` writes out as a directory.
-pub const REPORT_KIND: &str = "report";
+/// The kinds whose builds `osms make` writes out as a directory: the report and the
+/// ablations.
+pub const REPORT_KINDS: [&str; 2] = ["report", "ablations"];
 
 /// The directory `osms make` writes a report stage to: `<stage>/` beside pipeline.toml.
 pub fn default_dir(ctx: &Context, stage: &str) -> PathBuf {
