@@ -122,7 +122,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 54, "{reference:?}");
+    assert_eq!(reference.len(), 79, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -242,6 +242,7 @@ fn the_report_shows_its_sources(made: &Made) {
 
     // Figures (b): teacher success per object variant.
     let conditions: Figure = load(made, "task_conditions");
+    assert!(!conditions.panels[0].series[0].points.is_empty());
     for p in &conditions.panels[0].series[0].points {
         let v = osms_sim::spec::ObjectVariant::all()[p.x as usize];
         let rows: Vec<_> = teacher.rows.iter().filter(|r| r.variant == v).collect();
@@ -259,6 +260,7 @@ fn the_report_shows_its_sources(made: &Made) {
         "table3.json",
         "fig_impact_profiles.png",
         "fig_task_conditions.svg",
+        "fig_candidate_selection.png",
         "fig_ios_profile.csv",
         "fig_learning_curves.png",
         "claims.json",
@@ -291,6 +293,7 @@ fn the_report_shows_its_sources(made: &Made) {
 /// gather them; a seed set whose members are all cached rebuilds only the aggregates.
 fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
     let aggregates = [
+        "ablations",
         "impact_profiles",
         "learning_curves",
         "report",
@@ -300,19 +303,20 @@ fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
     ];
     let per_seed = |seed: u64| -> Vec<String> {
         [
-            "eval_global_iid",
-            "eval_naive",
-            "eval_normal",
-            "eval_ours",
-            "eval_phase_independent",
-            "student_global_iid",
-            "student_naive",
-            "student_normal",
-            "student_ours",
-            "student_phase_independent",
+            "naive",
+            "normal",
+            "ours",
+            "global_iid",
+            "phase_independent",
+            "refine_only",
+            "repair_only",
+            "ab_direct",
+            "ab_unconditional",
+            "ab_euclidean",
+            "ab_geodesic",
         ]
         .iter()
-        .map(|s| format!("{s}@{seed}"))
+        .flat_map(|s| [format!("student_{s}@{seed}"), format!("eval_{s}@{seed}")])
         .collect()
     };
     let sorted = |mut v: Vec<String>| {

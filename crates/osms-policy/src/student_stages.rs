@@ -170,20 +170,20 @@ impl Stage for StudentStage {
             }
         } else {
             let used = ctx.head::<DemoSet>("demos")?.used.unwrap_or(usize::MAX);
-            // Matched dataset size (paper 6.4): the leading groups that reach the other set's
-            // number of demonstrations.
+            // Matched dataset size (paper 6.4): the leading groups that hold at most the other
+            // set's number of demonstrations.
             let cap = if ctx.has_input("size_match") {
                 ctx.sharded::<DemoSet>("size_match")?.len()
             } else {
                 usize::MAX
             };
             for group in ctx.items::<DemoSet>("demos")?.take(used) {
-                if demos.len() >= cap {
-                    break;
-                }
                 let g = group?;
                 if g.demos.is_empty() || fold.is_some_and(|f| in_fold(g.item, f)) {
                     continue;
+                }
+                if demos.len() + g.demos.len() > cap {
+                    break;
                 }
                 items.push(g.item);
                 demos.extend(g.demos.into_iter().map(|e| e.demo));

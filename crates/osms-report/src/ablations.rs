@@ -268,6 +268,9 @@ impl Summarize for Ablations {
 }
 
 const SETS: [&str; 4] = ["direct", "unconditional", "euclidean", "geodesic"];
+
+/// Each row's construction statistics and per-seed evaluations.
+type Rows = (Vec<ConstructionStats>, Vec<Vec<(Member, Evaluation)>>);
 const CONSTRUCTIONS: [&str; 4] = ["filtering", "refine_only", "repair_only", "both"];
 
 pub struct AblationsStage;
@@ -299,10 +302,7 @@ impl Stage for AblationsStage {
     type Output = Ablations;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Ablations, StageError> {
-        let load = |names: [&str; 4]| -> Result<
-            (Vec<ConstructionStats>, Vec<Vec<(Member, Evaluation)>>),
-            StageError,
-        > {
+        let load = |names: [&str; 4]| -> Result<Rows, StageError> {
             let mut stats = Vec::new();
             let mut evals = Vec::new();
             for n in names {

@@ -132,13 +132,20 @@ fn extreme(t: &Table, row: &str, rows: &[&str], column: &str, higher: bool, clai
         rows.iter().map(|r| (*r, value(t, r, column))).collect();
     let means: Vec<(&str, Option<f64>)> =
         values.iter().map(|(r, v)| (*r, v.and_then(mean))).collect();
-    let target = means.iter().find(|(r, _)| *r == row).and_then(|(_, m)| *m);
-    let holds = target.map(|m| {
-        means
-            .iter()
-            .filter(|(r, _)| *r != row)
-            .all(|(_, o)| o.is_none_or(|o| if higher { m > o } else { m < o }))
-    });
+    // A competitor without a value cannot be ranked: the claim is then not checked.
+    let holds = means
+        .iter()
+        .map(|(_, m)| *m)
+        .collect::<Option<Vec<f64>>>()
+        .and_then(|_| {
+            let m = means.iter().find(|(r, _)| *r == row)?.1?;
+            Some(
+                means
+                    .iter()
+                    .filter(|(r, _)| *r != row)
+                    .all(|(_, o)| o.is_some_and(|o| if higher { m > o } else { m < o })),
+            )
+        });
     let evidence = values
         .iter()
         .map(|(r, v)| {

@@ -513,14 +513,14 @@ pub fn learning_curves(
     Figure {
         id: "fig_learning_curves".into(),
         title: "Learning curves".into(),
-        caption: "Top: both PPO teachers' training success rate and mean return per iteration \
-                  (training episodes, under training DR). Bottom: the final students' \
+        caption: "(1, 2) Both PPO teachers' training success rate and mean return per \
+                  iteration (training episodes, under training DR). (3, 4) The final students' \
                   flow-matching loss per element of the standardised action chunk, on training \
                   batches and on the held-out demonstrations, mean ± one sd over run seeds."
             .into(),
         panels: vec![
             Panel {
-                title: "teachers: training success".into(),
+                title: "(1) teachers: training success".into(),
                 x_label: "PPO iteration".into(),
                 y_label: "success rate".into(),
                 x_categories: vec![],
@@ -528,7 +528,7 @@ pub fn learning_curves(
                 series: teacher_series(|c| c.success_rate),
             },
             Panel {
-                title: "teachers: mean return".into(),
+                title: "(2) teachers: mean return".into(),
                 x_label: "PPO iteration".into(),
                 y_label: "return".into(),
                 x_categories: vec![],
@@ -536,7 +536,7 @@ pub fn learning_curves(
                 series: teacher_series(|c| c.mean_return),
             },
             Panel {
-                title: "students: training loss".into(),
+                title: "(3) students: training loss".into(),
                 x_label: "gradient step".into(),
                 y_label: "flow-matching loss".into(),
                 x_categories: vec![],
@@ -544,7 +544,7 @@ pub fn learning_curves(
                 series: student_series(false),
             },
             Panel {
-                title: "students: validation loss".into(),
+                title: "(4) students: validation loss".into(),
                 x_label: "gradient step".into(),
                 y_label: "flow-matching loss".into(),
                 x_categories: vec![],
@@ -642,6 +642,9 @@ pub fn candidate_selection(v: &osms_method::validate_stages::Validation) -> Figu
             not_run,
             failed
         ));
+        // Refinement needs SR ≥ SR_org, repair SR ≥ δ_SR: the fast path stops a candidate once
+        // its own bar is out of reach.
+        let bar = if refine { "SR_org" } else { "δ_SR" };
         let mut series = vec![
             Series {
                 name: "SR from all Q rollouts (filled: selected)".into(),
@@ -649,7 +652,7 @@ pub fn candidate_selection(v: &osms_method::validate_stages::Validation) -> Figu
                 points: known,
             },
             Series {
-                name: "stopped below δ_SR (upper bound)".into(),
+                name: format!("stopped below {bar} (upper bound)"),
                 mark: Mark::Points,
                 points: bounded,
             },
@@ -666,7 +669,7 @@ pub fn candidate_selection(v: &osms_method::validate_stages::Validation) -> Figu
             x_label: "SR (Eq. 8)".into(),
             y_label: "J (Eq. 9)".into(),
             x_categories: vec![],
-            x_marker: Some(threshold),
+            x_marker: (!refine).then_some(threshold),
             series,
         });
     }
@@ -675,9 +678,10 @@ pub fn candidate_selection(v: &osms_method::validate_stages::Validation) -> Figu
         title: "Student-aware candidate selection".into(),
         caption: format!(
             "J (Eq. 9, lower is better) against SR (Eq. 8) of every validated candidate that \
-             succeeded unperturbed, under the {} error model with Q = {q}; the dashed line is \
-             δ_SR = {threshold}. The fast path stops a candidate's perturbed rollouts once the \
-             decision is settled, so SR is exact only where all Q ran. {}.",
+             succeeded unperturbed, under the {} error model with Q = {q}. A refinement needs \
+             J < J_org and SR ≥ SR_org, a repair SR ≥ δ_SR = {threshold} (dashed line). The \
+             fast path stops a candidate's perturbed rollouts once its bar is out of reach, so \
+             SR is exact only where all Q ran. {}.",
             v.error_model,
             counts.join("; ")
         ),

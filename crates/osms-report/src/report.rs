@@ -162,6 +162,7 @@ impl Stage for ReportStage {
         let figures = [
             "impact_profiles",
             "task_conditions",
+            "candidate_selection",
             "ios",
             "learning_curves",
         ]
