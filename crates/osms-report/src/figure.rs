@@ -60,6 +60,8 @@ pub struct Panel {
     pub x_categories: Vec<String>,
     /// A dashed vertical line (e.g. t_c).
     pub x_marker: Option<f64>,
+    /// A fixed x range (e.g. [0, 1] for a rate); absent: the data's.
+    pub x_range: Option<(f64, f64)>,
     pub series: Vec<Series>,
 }
 
@@ -239,7 +241,9 @@ fn ranges(panel: &Panel) -> (Range<f64>, Range<f64>) {
         y0 = y0.min(0.0);
         y1 = y1.max(0.0);
     }
-    let x = if !panel.x_categories.is_empty() {
+    let x = if let Some((lo, hi)) = panel.x_range {
+        lo..hi
+    } else if !panel.x_categories.is_empty() {
         -0.5..(panel.x_categories.len() as f64 - 0.5)
     } else if bars {
         (x0 - 0.5)..(x1 + 0.5)
@@ -421,6 +425,7 @@ mod tests {
                     y_label: "force (N)".into(),
                     x_categories: vec![],
                     x_marker: Some(0.0),
+                    x_range: None,
                     series: vec![line],
                 },
                 Panel {
@@ -429,6 +434,7 @@ mod tests {
                     y_label: "pp".into(),
                     x_categories: vec!["box-large".into(), "box-small".into()],
                     x_marker: None,
+                    x_range: None,
                     series: vec![bars],
                 },
                 Panel {
@@ -437,6 +443,7 @@ mod tests {
                     y_label: "J".into(),
                     x_categories: vec![],
                     x_marker: None,
+                    x_range: None,
                     series: vec![scatter],
                 },
             ],

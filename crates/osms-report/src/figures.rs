@@ -102,6 +102,7 @@ fn profile_panels(group: &str, policies: &[(&str, Vec<&EvalRow>)]) -> Vec<Panel>
             y_label: (*unit).into(),
             x_categories: vec![],
             x_marker: Some(0.0),
+            x_range: None,
             series: policies
                 .iter()
                 .map(|(name, rows)| {
@@ -339,6 +340,7 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)];
                 y_label: "task success".into(),
                 x_categories: names.clone(),
                 x_marker: None,
+                x_range: None,
                 series: vec![teacher_bars],
             },
             Panel {
@@ -347,6 +349,7 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)];
                 y_label: "percentage points".into(),
                 x_categories: names,
                 x_marker: None,
+                x_range: None,
                 series: vec![gain],
             },
             Panel {
@@ -355,6 +358,7 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)];
                 y_label: "task success".into(),
                 x_categories: vec![],
                 x_marker: None,
+                x_range: None,
                 series: offsets,
             },
         ],
@@ -413,6 +417,7 @@ pub fn ios_figure(profile: &IosProfile) -> Figure {
             y_label: "S_IOS".into(),
             x_categories: vec![],
             x_marker: Some(0.0),
+            x_range: None,
             series: vec![Series {
                 name: "S_IOS".into(),
                 mark: Mark::Points,
@@ -525,6 +530,7 @@ pub fn learning_curves(
                 y_label: "success rate".into(),
                 x_categories: vec![],
                 x_marker: None,
+                x_range: None,
                 series: teacher_series(|c| c.success_rate),
             },
             Panel {
@@ -533,6 +539,7 @@ pub fn learning_curves(
                 y_label: "return".into(),
                 x_categories: vec![],
                 x_marker: None,
+                x_range: None,
                 series: teacher_series(|c| c.mean_return),
             },
             Panel {
@@ -541,6 +548,7 @@ pub fn learning_curves(
                 y_label: "flow-matching loss".into(),
                 x_categories: vec![],
                 x_marker: None,
+                x_range: None,
                 series: student_series(false),
             },
             Panel {
@@ -549,6 +557,7 @@ pub fn learning_curves(
                 y_label: "flow-matching loss".into(),
                 x_categories: vec![],
                 x_marker: None,
+                x_range: None,
                 series: student_series(true),
             },
         ],
@@ -670,6 +679,7 @@ pub fn candidate_selection(v: &osms_method::validate_stages::Validation) -> Figu
             y_label: "J (Eq. 9)".into(),
             x_categories: vec![],
             x_marker: (!refine).then_some(threshold),
+            x_range: Some((-0.02, 1.02)),
             series,
         });
     }
