@@ -400,16 +400,20 @@ fn a_scripted_evaluation_without_domain_randomisation_is_shared_by_a_sweep() {
             .filter(|n| n.starts_with("eval_scripted"))
             .collect()
     };
-    let with_dr = plan_of(&shipped);
+    // Shipped, it has a fixed seed: one build for every run seed.
+    assert_eq!(names(&plan_of(&shipped)), ["eval_scripted"]);
+    let fixed = "[stages.eval_scripted]\nkind = \"eval_scripted\"\nseed = 0\n";
+    assert!(shipped.contains(fixed));
+    let run_seeded = shipped.replace(fixed, "[stages.eval_scripted]\nkind = \"eval_scripted\"\n");
     assert_eq!(
-        names(&with_dr),
+        names(&plan_of(&run_seeded)),
         ["eval_scripted@0", "eval_scripted@1", "eval_scripted@2"]
     );
-    let off = shipped.replace(
+    let off = run_seeded.replace(
         "params = { rollout = { dr = \"paper\" } }",
         "params = { rollout = { dr = \"off\" } }",
     );
-    assert_ne!(off, shipped);
+    assert_ne!(off, run_seeded);
     assert_eq!(names(&plan_of(&off)), ["eval_scripted"]);
 }
 
