@@ -233,13 +233,7 @@ impl Ablations {
              paper's values beside ours. `docs/report.md` explains how to read them.\n\n",
         );
         for t in &self.tables {
-            let _ = writeln!(
-                s,
-                "## {}\n\n{}\nFiles: [{id}.csv]({id}.csv), [{id}.json]({id}.json)\n",
-                t.title,
-                t.markdown(),
-                id = t.id
-            );
+            s.push_str(&t.section());
         }
         let _ = writeln!(s, "## Claims check\n\n{}", claims::markdown(&self.claims));
         s

@@ -59,13 +59,7 @@ impl Report {
         );
         let _ = writeln!(s, "## {}\n\n{}", self.table1.title, self.table1.markdown);
         for t in &self.tables {
-            let _ = writeln!(
-                s,
-                "## {}\n\n{}\nFiles: [{id}.csv]({id}.csv), [{id}.json]({id}.json)\n",
-                t.title,
-                t.markdown(),
-                id = t.id
-            );
+            s.push_str(&t.section());
         }
         for a in [&self.construction, &self.candidates] {
             let _ = writeln!(s, "## {}\n\n{}", a.title, a.markdown);

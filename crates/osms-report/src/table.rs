@@ -233,6 +233,16 @@ impl Table {
         })
     }
 
+    /// The table as a section of a report page, linking its CSV and JSON.
+    pub fn section(&self) -> String {
+        format!(
+            "## {}\n\n{}\nFiles: [{id}.csv]({id}.csv), [{id}.json]({id}.json)\n\n",
+            self.title,
+            self.markdown(),
+            id = self.id
+        )
+    }
+
     /// `<id>.md`, `<id>.csv`, `<id>.json`.
     pub fn files(&self) -> Vec<(String, Vec<u8>)> {
         let json = serde_json::to_string_pretty(&self.json()).unwrap_or_default() + "\n";
