@@ -289,7 +289,7 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)];
             .filter_map(|(i, &v)| Some(Point::new(i as f64, of_variant(teacher, v)?)))
             .collect(),
     };
-    let ours: Vec<&Evaluation> = students[2].iter().map(|(_, e)| e).collect();
+    let ours = pooled(students[2]);
     let gain = Series {
         name: "Ours-IL − teacher".into(),
         mark: Mark::Bars,
@@ -315,12 +315,11 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)];
         .chain(students.iter().flat_map(|s| s.iter().map(|(_, e)| e)))
         .collect();
     let edge = offset_edge(&all);
-    let seeds = |i: usize| -> Vec<&Evaluation> { students[i].iter().map(|(_, e)| e).collect() };
     let offsets = vec![
         offset_series("RL teacher", &[teacher], edge),
-        offset_series("Naive-IL", &seeds(0), edge),
-        offset_series("Normal-IL", &seeds(1), edge),
-        offset_series("Ours-IL", &seeds(2), edge),
+        offset_series("Naive-IL", &pooled(students[0]), edge),
+        offset_series("Normal-IL", &pooled(students[1]), edge),
+        offset_series("Ours-IL", &ours, edge),
     ];
     Figure {
         id: "fig_task_conditions".into(),
