@@ -9,6 +9,7 @@
 pub mod golden;
 pub mod kinds;
 pub mod project;
+pub mod python;
 
 pub use kinds::registry;
 pub use project::Project;

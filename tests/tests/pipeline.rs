@@ -194,6 +194,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
         "other shard counts"
     );
     the_report_shows_its_sources(&first);
+    datasets_export_replay_and_render(&first);
     a_sweep_rebuilds_only_its_seeds_and_the_aggregates(&first, &text);
     golden::check("outputs_pipeline_tiny", first.outputs);
 }
@@ -1293,4 +1294,234 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
             seen.push((name.into(), c));
         }
     }
+}
+
+/// `osms export-dataset`, `replay` and `render` on the tiny datasets through the real command
+/// line, with pyarrow, h5py and MuJoCo's own Python bindings as independent readers.
+fn datasets_export_replay_and_render(made: &Made) {
+    use osms_policy::dataset::Dataset;
+    use osms_policy::demos::DemoSet;
+    let bin = env!("CARGO_BIN_EXE_osms-test");
+    let pipeline = made._dir.path().join("pipeline.toml");
+    let store = made.store.root().to_path_buf();
+    let out = tempfile::tempdir().expect("out dir");
+    let osms = |args: &[&str]| {
+        std::process::Command::new(bin)
+            .arg("--pipeline")
+            .arg(&pipeline)
+            .arg("--store")
+            .arg(&store)
+            .args(args)
+            .args(["--profile", "tiny"])
+            .env("OSMS_NO_PROGRESS", "1")
+            .output()
+            .expect("run osms")
+    };
+    let ok = |args: &[&str]| {
+        let o = osms(args);
+        assert!(
+            o.status.success(),
+            "osms {args:?}:\n{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        o
+    };
+    let fails = |args: &[&str], says: &str| {
+        let o = osms(args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "osms {args:?} should fail");
+        assert!(err.contains(says), "osms {args:?}: {err}");
+    };
+    let d_r: Dataset = load_sharded(made, "d_r");
+    let frames: usize = d_r.items.iter().map(|i| i.rollout.record.steps).sum();
+    let p = |d: &Path| d.to_str().expect("utf-8 path").to_string();
+
+    // Every tiny D_R episode replays bit for bit in Rust (the library; the CLI for two).
+    let world: osms_sim::stages::WorldArtifact = load(made, "world");
+    let world = world.world().expect("world");
+    for (i, item) in d_r.items.iter().enumerate() {
+        let (_, report) = osms_sim::replay::replay(
+            &world,
+            &d_r.task.rollout,
+            &item.rollout.record,
+            &mut |_, _| {},
+        )
+        .expect("replay");
+        assert!(report.bit_exact, "d_r episode {i}: {report:#?}");
+    }
+    let last = (d_r.items.len() - 1).to_string();
+    for episode in ["0", last.as_str()] {
+        let o = ok(&["replay", "d_r", "--episode", episode, "--json"]);
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        assert_eq!(v["report"]["bit_exact"], true, "{v}");
+    }
+
+    // Exports: twice the same bytes; what they say they wrote is there.
+    let lerobot = out.path().join("lerobot");
+    let robomimic = out.path().join("robomimic");
+    let export = |format: &str, dir: &Path, stage: &str| {
+        let o = ok(&[
+            "export-dataset",
+            stage,
+            "--format",
+            format,
+            "--out",
+            &p(dir),
+            "--json",
+        ]);
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let files: Vec<std::path::PathBuf> = v["files"]
+            .as_array()
+            .expect("files")
+            .iter()
+            .map(|f| f.as_str().expect("path").into())
+            .collect();
+        assert!(!files.is_empty());
+        files
+            .iter()
+            .map(|f| (f.clone(), std::fs::read(f).expect("written file")))
+            .collect::<Vec<_>>()
+    };
+    let first = export("lerobot", &lerobot, "d_r");
+    assert_eq!(export("lerobot", &lerobot, "d_r"), first, "LeRobot bytes");
+    let first = export("robomimic", &robomimic, "d_r");
+    assert_eq!(
+        export("robomimic", &robomimic, "d_r"),
+        first,
+        "robomimic bytes"
+    );
+    let dstar_dir = out.path().join("dstar");
+    export("lerobot", &dstar_dir, "dstar");
+
+    // Bad input: a clear error and nothing written.
+    fails(
+        &["replay", "no_such_stage", "--episode", "0"],
+        "no_such_stage",
+    );
+    fails(&["replay", "teacher", "--episode", "0"], "is not a dataset");
+    fails(&["replay", "dstar", "--episode", "0"], "demonstration set");
+    fails(
+        &["replay", "d_r", "--episode", &d_r.items.len().to_string()],
+        "out of range",
+    );
+    let theirs = out.path().join("theirs");
+    std::fs::create_dir(&theirs).expect("mkdir");
+    std::fs::write(theirs.join("notes.txt"), "mine").expect("write");
+    fails(
+        &[
+            "export-dataset",
+            "d_r",
+            "--format",
+            "lerobot",
+            "--out",
+            &p(&theirs),
+        ],
+        "not a dataset export directory osms wrote",
+    );
+    let blocked = out.path().join("a-file");
+    std::fs::write(&blocked, "x").expect("write");
+    fails(
+        &[
+            "export-dataset",
+            "d_r",
+            "--format",
+            "robomimic",
+            "--out",
+            &p(&blocked.join("inside")),
+        ],
+        "cannot create",
+    );
+    assert_eq!(std::fs::read(&blocked).expect("read"), b"x");
+    assert_eq!(
+        std::fs::read_dir(&theirs).expect("ls").count(),
+        1,
+        "nothing written beside someone's files"
+    );
+
+    // Independent readers.
+    let Some(python) = osms_tests::python::interpreter("dataset exports read back in Python")
+    else {
+        return;
+    };
+    let f32s = |v: &serde_json::Value| -> Vec<f32> {
+        v.as_array()
+            .expect("array")
+            .iter()
+            .map(|x| x.as_f64().expect("number") as f32)
+            .collect()
+    };
+    let lr = osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&lerobot)]);
+    assert_eq!(lr["frames"], frames);
+    assert_eq!(lr["action_shape"], serde_json::json!([frames, 24]));
+    assert_eq!(lr["info"]["codebase_version"], "v3.0");
+    assert_eq!(lr["info"]["fps"], 50);
+    let episodes = lr["episodes"].as_array().expect("episodes");
+    assert_eq!(episodes.len(), d_r.items.len());
+    let mut from = 0;
+    for (e, item) in episodes.iter().zip(&d_r.items) {
+        let r = &item.rollout.record;
+        assert_eq!(e["from"], from);
+        assert_eq!(e["length"], r.steps);
+        assert_eq!(e["to"], from + r.steps);
+        assert_eq!(f32s(&e["first_action"]), r.executed[..24]);
+        assert_eq!(e["task"], format!("catch the {}", r.condition.variant));
+        from += r.steps;
+    }
+
+    let rm = osms_tests::python::run_script(
+        &python,
+        "read-robomimic.py",
+        &[&p(&robomimic.join("d_r.hdf5"))],
+    );
+    assert_eq!(rm["total"], frames);
+    let demos = rm["demos"].as_array().expect("demos");
+    assert_eq!(demos.len(), d_r.items.len());
+    for (d, item) in demos.iter().zip(&d_r.items) {
+        let r = &item.rollout.record;
+        assert_eq!(d["num_samples"], r.steps);
+        assert_eq!(d["actions_shape"], serde_json::json!([r.steps, 24]));
+        assert_eq!(f32s(&d["first_action"]), r.executed[..24]);
+        assert_eq!(d["success"], r.outcome.success());
+        assert_eq!(d["last_done"], 1);
+    }
+    let masks = rm["mask"]["train"].as_array().expect("train").len()
+        + rm["mask"]["valid"].as_array().expect("valid").len();
+    assert_eq!(masks, d_r.items.len());
+
+    // MuJoCo's Python bindings replay the robomimic file from `osms world dump`'s MJCF.
+    let osms_cmd = format!("{bin} --pipeline {} --store {}", p(&pipeline), p(&store));
+    let replayed = osms_tests::python::run_script(
+        &python,
+        "replay-robomimic.py",
+        &[&p(&robomimic.join("d_r.hdf5")), "--osms", &osms_cmd],
+    );
+    let tolerance = 1e-9;
+    let worst = replayed["max_abs_state_deviation"]
+        .as_f64()
+        .expect("deviation");
+    assert!(
+        worst <= tolerance,
+        "Python replay deviates by {worst}: {replayed}"
+    );
+    for (i, item) in d_r.items.iter().enumerate() {
+        let d = &replayed["demos"][format!("demo_{i}")];
+        let m = &item.rollout.record.metrics;
+        let f = d["f_max_replayed"].as_f64().expect("f_max");
+        assert!(
+            (f - m.max_force_n).abs() <= 1e-9 * m.max_force_n.max(1.0),
+            "{d}"
+        );
+        let t_c = d["t_c_replayed"].as_f64();
+        assert_eq!(t_c.is_some(), m.contact_time_secs.is_some(), "{d}");
+    }
+
+    let set: DemoSet = load_sharded(made, "dstar");
+    let demo_frames: usize = set
+        .groups
+        .iter()
+        .take(set.used.unwrap_or(set.groups.len()))
+        .flat_map(|g| g.demos.iter().map(|d| d.demo.steps))
+        .sum();
+    let ds = osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&dstar_dir)]);
+    assert_eq!(ds["frames"], demo_frames);
 }

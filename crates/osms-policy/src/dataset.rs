@@ -189,8 +189,9 @@ impl osms_store::Artifact for Dataset {
     const TYPE_TAG: &'static str = "policy.dataset";
     /// 3: stored as a manifest of its shards (the rollouts are stored once); 4: records keep
     /// the arm's servo targets and ω̄ ends with them; 5: each rollout names its DR stream and
-    /// the dataset keeps the task spec it ran.
-    const SCHEMA_VERSION: u16 = 5;
+    /// the dataset keeps the task spec it ran; 6: records keep their servo targets and
+    /// physics-step counts (open-loop replay).
+    const SCHEMA_VERSION: u16 = 6;
 }
 
 impl osms_make::Sharded for Dataset {

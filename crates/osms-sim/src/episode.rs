@@ -131,6 +131,13 @@ pub struct RolloutRecord {
     /// first admissible contact happened, otherwise the phase after the step's last physics
     /// step.
     pub phase: Vec<u8>,
+    /// The servo targets every physics step of the control step tracked (after its action,
+    /// noise and delay), N_ACTION per step at full precision: with ω, the DR draws and
+    /// [`RolloutRecord::physics_steps`] they replay the rollout open loop, bit for bit.
+    pub servo_targets: Vec<f64>,
+    /// Physics steps each control step ran: the world's substeps, ±1 under timing jitter,
+    /// fewer where the episode ended inside the step, 0 for an invalid action.
+    pub physics_steps: Vec<u8>,
     pub metrics: Metrics,
     pub outcome: Outcome,
 }
@@ -153,6 +160,8 @@ impl RolloutRecord {
             object_vel: Vec::new(),
             normal_force: Vec::new(),
             phase: Vec::new(),
+            servo_targets: Vec::new(),
+            physics_steps: Vec::new(),
             metrics: Evaluator::new(SuccessSpec::default()).finish().1,
             outcome: Outcome {
                 failures: Vec::new(),
@@ -208,6 +217,88 @@ fn push3(v: &mut Vec<f32>, x: [f64; 3]) {
     v.extend(x.iter().map(|c| *c as f32));
 }
 
+/// A rollout's domain-randomisation draws: the first numbers of its stream, in this order.
+fn draw_dr(dr_spec: &DrSpec, rng: &mut StreamRng) -> DrDraw {
+    let observation_delay_steps = delay(rng, dr_spec.max_observation_delay_steps);
+    let actuation_delay_steps = delay(rng, dr_spec.max_actuation_delay_steps);
+    let mut scale = |v: f64| {
+        if v > 0.0 {
+            rng::uniform(rng, 1.0 - v, 1.0 + v)
+        } else {
+            1.0
+        }
+    };
+    DrDraw {
+        observation_delay_steps,
+        actuation_delay_steps,
+        gain_scale: scale(dr_spec.gain_variation),
+        friction_scale: scale(dr_spec.friction_variation),
+        contact_timeconst_scale: scale(dr_spec.contact_timeconst_variation),
+    }
+}
+
+fn delay(rng: &mut StreamRng, max: u32) -> u32 {
+    if max > 0 {
+        rng::below(rng, u64::from(max) + 1) as u32
+    } else {
+        0
+    }
+}
+
+/// The episode's model (ω's mass, the contact draws) and its state at the first control step's
+/// start: the perturbed home posture at rest, the object at its launch position and velocity,
+/// the servos holding the posture. Every step of this sequence is part of what a replay
+/// outside osms must repeat (docs/export.md).
+pub fn initial_data(world: &World, condition: &TaskCondition, dr: &DrDraw) -> MjData<Box<MjModel>> {
+    let ids = &world.ids;
+    let mut model = world.model(condition.variant).clone();
+    let body = ids.object_body;
+    let ratio = condition.mass_kg / model.body_mass()[body];
+    model.body_mass_mut()[body] = condition.mass_kg;
+    for c in &mut model.body_inertia_mut()[body] {
+        *c *= ratio;
+    }
+    model.geom_friction_mut()[ids.object_geom][0] *= dr.friction_scale;
+    model.geom_solref_mut()[ids.object_geom][0] *= dr.contact_timeconst_scale;
+
+    let mut data = MjData::new(Box::new(model));
+    // Mass-derived constants were computed at compile time; without this, gravity acts on
+    // the new mass but the inertia stays the old one. It uses `data` as scratch, so it comes
+    // before the initial state is set.
+    data.set_const();
+    let ranges = joint_ranges();
+    let mut posture = [0.0; N_ACTION];
+    for i in 0..N_ARM {
+        posture[i] = (world.spec.arm_home_rad[i] + condition.arm_perturbation_rad[i])
+            .clamp(ranges[i][0], ranges[i][1]);
+    }
+    for i in 0..N_HAND {
+        posture[N_ARM + i] = (world.spec.hand_home_rad[i] + condition.hand_perturbation_rad[i])
+            .clamp(ranges[N_ARM + i][0], ranges[N_ARM + i][1]);
+    }
+    {
+        let qpos = data.qpos_mut();
+        for i in 0..N_ARM {
+            qpos[ids.arm_qpos[i]] = posture[i];
+        }
+        for i in 0..N_HAND {
+            qpos[ids.hand_qpos[i]] = posture[N_ARM + i];
+        }
+        let o = ids.object_qpos;
+        qpos[o..o + 3].copy_from_slice(&condition.launch_pos_m);
+        qpos[o + 3..o + 7].copy_from_slice(&[1.0, 0.0, 0.0, 0.0]);
+    }
+    {
+        let qvel = data.qvel_mut();
+        qvel.fill(0.0);
+        let d = ids.object_dof;
+        qvel[d..d + 3].copy_from_slice(&condition.launch_vel_mps);
+    }
+    data.ctrl_mut().copy_from_slice(&posture);
+    data.forward();
+    data
+}
+
 impl<'w> Episode<'w> {
     /// Sets up a rollout of `condition`; `rng` is the rollout's own stream (DR draws and noise).
     pub fn new(
@@ -216,75 +307,22 @@ impl<'w> Episode<'w> {
         condition: TaskCondition,
         mut rng: StreamRng,
     ) -> Self {
-        let dr_spec = &spec.dr;
-        let scale = |rng: &mut StreamRng, v: f64| {
-            if v > 0.0 {
-                rng::uniform(rng, 1.0 - v, 1.0 + v)
-            } else {
-                1.0
-            }
-        };
-        let delay = |rng: &mut StreamRng, max: u32| {
-            if max > 0 {
-                rng::below(rng, u64::from(max) + 1) as u32
-            } else {
-                0
-            }
-        };
-        let dr = DrDraw {
-            observation_delay_steps: delay(&mut rng, dr_spec.max_observation_delay_steps),
-            actuation_delay_steps: delay(&mut rng, dr_spec.max_actuation_delay_steps),
-            gain_scale: scale(&mut rng, dr_spec.gain_variation),
-            friction_scale: scale(&mut rng, dr_spec.friction_variation),
-            contact_timeconst_scale: scale(&mut rng, dr_spec.contact_timeconst_variation),
-        };
+        let dr = draw_dr(&spec.dr, &mut rng);
+        Self::with_draw(world, spec, condition, dr, rng)
+    }
 
-        let ids = &world.ids;
-        let mut model = world.model(condition.variant).clone();
-        let body = ids.object_body;
-        let ratio = condition.mass_kg / model.body_mass()[body];
-        model.body_mass_mut()[body] = condition.mass_kg;
-        for c in &mut model.body_inertia_mut()[body] {
-            *c *= ratio;
-        }
-        model.geom_friction_mut()[ids.object_geom][0] *= dr.friction_scale;
-        model.geom_solref_mut()[ids.object_geom][0] *= dr.contact_timeconst_scale;
-
-        let mut data = MjData::new(Box::new(model));
-        // Mass-derived constants were computed at compile time; without this, gravity acts on
-        // the new mass but the inertia stays the old one. It uses `data` as scratch, so it comes
-        // before the initial state is set.
-        data.set_const();
+    /// Sets up a rollout with given DR draws; `rng` continues the rollout's stream after them
+    /// (actuation and observation noise, timing jitter).
+    pub fn with_draw(
+        world: &'w World,
+        spec: &'w RolloutSpec,
+        condition: TaskCondition,
+        dr: DrDraw,
+        rng: StreamRng,
+    ) -> Self {
+        let data = initial_data(world, &condition, &dr);
         let ranges = joint_ranges();
-        let mut posture = [0.0; N_ACTION];
-        for i in 0..N_ARM {
-            posture[i] = (world.spec.arm_home_rad[i] + condition.arm_perturbation_rad[i])
-                .clamp(ranges[i][0], ranges[i][1]);
-        }
-        for i in 0..N_HAND {
-            posture[N_ARM + i] = (world.spec.hand_home_rad[i] + condition.hand_perturbation_rad[i])
-                .clamp(ranges[N_ARM + i][0], ranges[N_ARM + i][1]);
-        }
-        {
-            let qpos = data.qpos_mut();
-            for i in 0..N_ARM {
-                qpos[ids.arm_qpos[i]] = posture[i];
-            }
-            for i in 0..N_HAND {
-                qpos[ids.hand_qpos[i]] = posture[N_ARM + i];
-            }
-            let o = ids.object_qpos;
-            qpos[o..o + 3].copy_from_slice(&condition.launch_pos_m);
-            qpos[o + 3..o + 7].copy_from_slice(&[1.0, 0.0, 0.0, 0.0]);
-        }
-        {
-            let qvel = data.qvel_mut();
-            qvel.fill(0.0);
-            let d = ids.object_dof;
-            qvel[d..d + 3].copy_from_slice(&condition.launch_vel_mps);
-        }
-        data.ctrl_mut().copy_from_slice(&posture);
-        data.forward();
+        let posture: [f64; N_ACTION] = std::array::from_fn(|i| data.ctrl()[i]);
         let nv = data.qvel().len();
 
         let hand_home: [f64; N_HAND] = std::array::from_fn(|i| posture[N_ARM + i]);
@@ -358,7 +396,9 @@ impl<'w> Episode<'w> {
     /// The observation at the start of a control step. Kinematics are recomputed first
     /// (`mj_step` leaves them one physics step behind the state), which leaves the integration
     /// state untouched, so a restored episode observes exactly what an uninterrupted one does.
-    fn observe(&mut self) -> Frame {
+    /// A replay (`noisy = false`) leaves out the observation noise: it reads no stream, and
+    /// the recorded deployable frames keep the noisy values.
+    fn observe(&mut self, noisy: bool) -> Frame {
         self.data.forward();
         let ids = &self.world.ids;
         let qpos = self.data.qpos();
@@ -399,7 +439,7 @@ impl<'w> Episode<'w> {
         }
         let mut seen = self.controller.pending_object_pos[0];
         let noise = self.spec.dr.object_position_noise_m;
-        if noise > 0.0 {
+        if noisy && noise > 0.0 {
             for c in &mut seen {
                 *c += noise * rng::normal(&mut self.rng);
             }
@@ -423,7 +463,7 @@ impl<'w> Episode<'w> {
         if self.is_done() {
             return false;
         }
-        let frame = self.observe();
+        let frame = self.observe(true);
         self.controller.history.push_back(frame.deployable.clone());
         while self.controller.history.len() > self.spec.history_steps.max(1) {
             self.controller.history.pop_front();
@@ -449,7 +489,7 @@ impl<'w> Episode<'w> {
         {
             self.evaluator.abort(Failure::InvalidAction);
             let phase = self.evaluator.phase();
-            self.push_record(&frame, &intended, &executed, 0.0, phase);
+            self.push_record(&frame, &intended, &executed, 0.0, phase, 0);
             return false;
         }
         let noise = self.spec.dr.actuation_noise;
@@ -477,11 +517,28 @@ impl<'w> Episode<'w> {
             }
             .max(1);
         }
+        let (step_force, ran, phase) =
+            self.physics_steps(substeps, &mut |d| hooks.after_physics_step(d));
+        self.push_record(&frame, &intended, &applied, step_force, phase, ran);
+        self.step += 1;
+        !self.is_done()
+    }
+
+    /// Up to `n` evaluated physics steps toward the current servo targets, fewer if the
+    /// episode ends: the step's largest summed admissible force, the physics steps run and the
+    /// control step's phase.
+    fn physics_steps(
+        &mut self,
+        n: u32,
+        after: &mut dyn FnMut(&MjData<Box<MjModel>>),
+    ) -> (f64, u8, Phase) {
         let touched_before = self.evaluator.first_contact().is_some();
         let mut step_force: f64 = 0.0;
-        for _ in 0..substeps {
+        let mut ran = 0u8;
+        for _ in 0..n {
             step_force = step_force.max(self.physics_step());
-            hooks.after_physics_step(&self.data);
+            ran += 1;
+            after(&self.data);
             if self.is_done() {
                 break;
             }
@@ -493,7 +550,48 @@ impl<'w> Episode<'w> {
         } else {
             self.evaluator.phase()
         };
-        self.push_record(&frame, &intended, &applied, step_force, phase);
+        (step_force, ran, phase)
+    }
+
+    /// Replays control step `k` of `record` open loop: its recorded servo targets for its
+    /// recorded number of physics steps, evaluated as the original was. `at_start` sees the
+    /// simulator at the step's start (kinematics current). Returns false once the episode is
+    /// over.
+    pub(crate) fn replay_step(
+        &mut self,
+        record: &RolloutRecord,
+        k: usize,
+        at_start: &mut dyn FnMut(usize, &MjData<Box<MjModel>>),
+    ) -> bool {
+        if self.is_done() {
+            return false;
+        }
+        let mut frame = self.observe(false);
+        at_start(k, &self.data);
+        let row = |v: &[f32], w: usize| -> [f64; N_ACTION] {
+            std::array::from_fn(|c| f64::from(v[k * w + c]))
+        };
+        let intended = row(&record.intended, N_ACTION);
+        let executed = row(&record.executed, N_ACTION);
+        // The deployable frame's noisy object position is the record's: it is an observation,
+        // not a state, and drew from the stream.
+        let seen = 48..51;
+        for (c, v) in frame.deployable[seen.clone()].iter_mut().enumerate() {
+            *v = f64::from(record.deployable[k * DEPLOYABLE_LEN + seen.start + c]);
+        }
+        let n = record.physics_steps[k];
+        if n == 0 {
+            self.evaluator.abort(Failure::InvalidAction);
+            let phase = self.evaluator.phase();
+            self.push_record(&frame, &intended, &executed, 0.0, phase, 0);
+            return false;
+        }
+        self.controller
+            .targets
+            .copy_from_slice(&record.servo_targets[k * N_ACTION..(k + 1) * N_ACTION]);
+        self.controller.executed = executed;
+        let (force, ran, phase) = self.physics_steps(u32::from(n), &mut |_| {});
+        self.push_record(&frame, &intended, &executed, force, phase, ran);
         self.step += 1;
         !self.is_done()
     }
@@ -505,9 +603,12 @@ impl<'w> Episode<'w> {
         executed: &Action,
         force: f64,
         phase: Phase,
+        physics_steps: u8,
     ) {
         let r = &mut self.record;
         r.steps += 1;
+        r.servo_targets.extend_from_slice(&self.controller.targets);
+        r.physics_steps.push(physics_steps);
         r.intended.extend(intended.iter().map(|a| *a as f32));
         r.executed.extend(executed.iter().map(|a| *a as f32));
         r.deployable
@@ -634,6 +735,8 @@ impl<'w> Episode<'w> {
         r.arm_targets.truncate(n * N_ARM);
         r.normal_force.truncate(n);
         r.phase.truncate(n);
+        r.servo_targets.truncate(n * N_ACTION);
+        r.physics_steps.truncate(n);
     }
 
     /// Runs to the end and returns the record.

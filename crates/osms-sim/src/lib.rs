@@ -9,6 +9,7 @@ mod error;
 pub mod ffi;
 pub mod metrics;
 pub mod mjcf;
+pub mod replay;
 pub mod robot;
 pub mod spec;
 pub mod stages;

@@ -61,6 +61,12 @@ pub enum Command {
     Show(ShowArgs),
     /// Write an artifact's files (tables as Markdown, CSV and JSON; learning curves as CSV)
     Export(ExportArgs),
+    /// Write a rollout dataset or demonstration set as LeRobot v3.0 (Parquet) or robomimic (HDF5)
+    ExportDataset(ExportDatasetArgs),
+    /// Replay a rollout open loop from its recorded controls and compare it with its record
+    Replay(ReplayArgs),
+    /// Render a rollout offscreen: key frames as a PNG strip, a GIF and a faded-poses picture
+    Render(RenderArgs),
     /// List the artifacts in the store
     Ls(JsonArg),
     /// Re-hash every object in the store and report damage
@@ -160,6 +166,78 @@ pub struct ExportArgs {
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
     /// Print the written paths as JSON on stdout
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The layouts `osms export-dataset` writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DatasetFormat {
+    /// LeRobot v3.0: meta/ (info, stats, tasks, episodes) and data/ Parquet files
+    Lerobot,
+    /// robomimic: one HDF5 file with data/demo_i/{actions, obs, states, rewards, dones} and mask/
+    Robomimic,
+}
+
+impl DatasetFormat {
+    pub fn name(self) -> &'static str {
+        match self {
+            DatasetFormat::Lerobot => "lerobot",
+            DatasetFormat::Robomimic => "robomimic",
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct ExportDatasetArgs {
+    /// A dataset stage (`d_r`, `dstar`, ...), or a key or content hash prefix
+    pub target: String,
+    #[command(flatten)]
+    pub selection: Selection,
+    #[arg(long, value_enum)]
+    pub format: DatasetFormat,
+    /// Directory to write [default: exports/<profile>/<instance>-<format>/ beside pipeline.toml]
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+    /// Print what was written as JSON on stdout
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// A rollout dataset stage (`d_m`, `d_e`, `d_r`), or a key or content hash prefix
+    pub target: String,
+    #[command(flatten)]
+    pub selection: Selection,
+    /// Which episode (0-based, in the dataset's order)
+    #[arg(long)]
+    pub episode: usize,
+    /// Print the report as JSON on stdout
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// A rollout dataset stage (`d_m`, `d_e`, `d_r`), or a key or content hash prefix
+    pub target: String,
+    #[command(flatten)]
+    pub selection: Selection,
+    /// Which episode (0-based, in the dataset's order)
+    #[arg(long)]
+    pub episode: usize,
+    /// The PNG strip of key frames; the GIF and the faded-poses picture are written beside it
+    /// (FILE.gif, FILE-poses.png)
+    #[arg(long)]
+    pub out: std::path::PathBuf,
+    /// Width of one frame in pixels
+    #[arg(long, default_value_t = 480)]
+    pub width: u32,
+    /// Height of one frame in pixels
+    #[arg(long, default_value_t = 360)]
+    pub height: u32,
+    /// Print what was written as JSON on stdout
     #[arg(long)]
     pub json: bool,
 }

@@ -15,23 +15,23 @@ use osms_make::describe;
 struct Shown<'a> {
     #[serde(flatten)]
     record: &'a Record,
-    also_keys: Vec<String>,
+    pub also_keys: Vec<String>,
     schema_version: u16,
     summary: serde_json::Value,
 }
 
 /// What a `show`/`export` target names, with the opened store and the plan's profile.
-struct Resolved {
-    record: Record,
+pub(super) struct Resolved {
+    pub record: Record,
     /// Other keys with the same content (hash-prefix targets only).
-    also_keys: Vec<String>,
-    store: Store,
-    profile: String,
+    pub also_keys: Vec<String>,
+    pub store: Store,
+    pub profile: String,
 }
 
 /// The record a `show`/`export` target names: a stage instance of the plan (its current build)
 /// or a key or content-hash prefix.
-fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<Resolved> {
+pub(super) fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<Resolved> {
     // The plan first: a mistyped --pipeline must not leave a new store beside it.
     let plan = ctx.plan(selection.profile.as_deref())?;
     let store = ctx.store()?;

@@ -1,9 +1,11 @@
 //! One file per verb.
 
+mod data;
 mod doctor;
 mod gc;
 mod inspect;
 mod make;
+mod outdir;
 mod report;
 mod status;
 mod verify;
@@ -31,6 +33,9 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
         Command::Why(args) => status::why(&ctx, &args),
         Command::Show(args) => inspect::show(&ctx, &args),
         Command::Export(args) => inspect::export(&ctx, &args),
+        Command::ExportDataset(args) => data::export_dataset(&ctx, &args),
+        Command::Replay(args) => data::replay(&ctx, &args),
+        Command::Render(args) => data::render(&ctx, &args),
         Command::Ls(args) => inspect::ls(&ctx, args.json),
         Command::Verify(args) => verify::run(&ctx, args.json),
         Command::Gc(args) => gc::run(&ctx, &args),

@@ -10,24 +10,18 @@ use anyhow::{Context as _, Result, bail};
 use osms_make::{Plan, State, StoreObjects};
 use osms_store::{Record, Store};
 
+use super::outdir;
 use crate::context::Context;
 
 /// The kinds whose builds `osms make` writes out as a directory: the report and the
 /// ablations.
 pub const REPORT_KINDS: [&str; 2] = ["report", "ablations"];
 
-/// The file that marks a directory as one osms wrote (and may replace).
-const MARKER: &str = ".osms-report";
-
-/// Whether `dir` may be replaced: it is empty or osms wrote it.
-fn replaceable(dir: &Path) -> Result<bool> {
-    if !dir.is_dir() {
-        return Ok(false);
-    }
-    let mut entries =
-        std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
-    Ok(entries.next().is_none() || dir.join(MARKER).is_file())
-}
+/// A report directory holds this marker: osms may replace it.
+const MARKER: outdir::Marker = outdir::Marker {
+    file: ".osms-report",
+    what: "report directory",
+};
 
 /// The directory `osms make` writes a report stage to: `<stage>/` beside pipeline.toml.
 pub fn default_dir(ctx: &Context, stage: &str) -> PathBuf {
@@ -82,58 +76,15 @@ pub fn write(
         None => files.push(("index.md".into(), provenance.into_bytes())),
     }
 
-    // Write into a sibling directory, then swap it in: an interrupted write leaves the old
-    // report whole. Only a directory osms wrote (it holds the marker) or an empty one is
-    // replaced, so `--out` can never remove someone's files.
-    if dir.exists() && !replaceable(dir)? {
-        bail!(
-            "{} exists and is not a report directory osms wrote (no {MARKER} in it)\nhint: pass an empty or new directory to --out",
-            dir.display()
-        );
-    }
-    let parent = dir.parent().unwrap_or_else(|| Path::new("."));
-    std::fs::create_dir_all(parent)
-        .with_context(|| format!("cannot create {}", parent.display()))?;
-    let name = dir
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "report".into());
-    let partial = parent.join(format!(".{name}.partial"));
-    let old = parent.join(format!(".{name}.old"));
-    for leftover in [&partial, &old] {
-        if leftover.exists() {
-            std::fs::remove_dir_all(leftover)
-                .with_context(|| format!("cannot remove {}", leftover.display()))?;
+    outdir::replace(dir, MARKER, |partial| {
+        let mut written = Vec::new();
+        for (file, content) in &files {
+            std::fs::write(partial.join(file), content)
+                .with_context(|| format!("cannot write {}", partial.join(file).display()))?;
+            written.push(PathBuf::from(file));
         }
-    }
-    std::fs::create_dir_all(&partial)
-        .with_context(|| format!("cannot create {}", partial.display()))?;
-    let mut written = Vec::new();
-    files.push((
-        MARKER.into(),
-        b"written by osms; the next report may replace this directory\n".to_vec(),
-    ));
-    for (file, content) in &files {
-        std::fs::write(partial.join(file), content)
-            .with_context(|| format!("cannot write {}", partial.join(file).display()))?;
-        if file != MARKER {
-            written.push(dir.join(file));
-        }
-    }
-    if dir.exists() {
-        std::fs::rename(dir, &old)
-            .with_context(|| format!("cannot move {} aside", dir.display()))?;
-    }
-    if let Err(e) = std::fs::rename(&partial, dir) {
-        // Put the previous report back before failing.
-        let _ = std::fs::rename(&old, dir);
-        return Err(e).with_context(|| format!("cannot write {}", dir.display()));
-    }
-    if old.exists() {
-        std::fs::remove_dir_all(&old)
-            .with_context(|| format!("cannot remove {}", old.display()))?;
-    }
-    Ok(written)
+        Ok(written)
+    })
 }
 
 fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Record>)]) -> String {
@@ -182,22 +133,4 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
         }
     }
     s
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn only_empty_or_osms_written_directories_are_replaced() {
-        let root = tempfile::tempdir().expect("dir");
-        let dir = root.path().join("out");
-        std::fs::create_dir(&dir).expect("mkdir");
-        assert!(replaceable(&dir).expect("empty"));
-        std::fs::write(dir.join("notes.txt"), "mine").expect("write");
-        assert!(!replaceable(&dir).expect("someone's files"));
-        std::fs::write(dir.join(MARKER), "").expect("marker");
-        assert!(replaceable(&dir).expect("osms wrote it"));
-        assert!(!replaceable(&dir.join(MARKER)).expect("a file"));
-    }
 }

@@ -1,0 +1,8 @@
+// Embeds the MuJoCo library directory (set by .cargo/config.toml after scripts/setup-mujoco)
+// as an rpath, so the crate's tests run without LD_LIBRARY_PATH.
+fn main() {
+    println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
+    if let Ok(dir) = std::env::var("MUJOCO_DYNAMIC_LINK_DIR") {
+        println!("cargo::rustc-link-arg=-Wl,-rpath,{dir}");
+    }
+}

@@ -1,0 +1,56 @@
+//! The Python readers the export tests use as independent checks (scripts/setup-python sets up
+//! the venv; scripts/test passes its interpreter in `OSMS_TEST_PYTHON`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The test interpreter, or `None` after logging a visible skip. Under `CI` a missing
+/// interpreter fails the test: the test command always sets one up there.
+pub fn interpreter(check: &str) -> Option<PathBuf> {
+    match std::env::var_os("OSMS_TEST_PYTHON").filter(|v| !v.is_empty()) {
+        Some(p) => Some(PathBuf::from(p)),
+        None => {
+            let mode = crate::golden::Mode::from_env();
+            assert!(
+                !mode.ci,
+                "{check} needs OSMS_TEST_PYTHON under CI (scripts/test sets it from scripts/setup-python)"
+            );
+            let line = format!("{check}: OSMS_TEST_PYTHON is not set (run scripts/test)");
+            eprintln!("skipped: {line}");
+            if let Some(log) = mode.skip_log {
+                use std::io::Write;
+                if let Ok(mut f) = std::fs::OpenOptions::new()
+                    .append(true)
+                    .create(true)
+                    .open(log)
+                {
+                    let _ = writeln!(f, "{line}");
+                }
+            }
+            None
+        }
+    }
+}
+
+/// Runs `scripts/<script>` with `args` and parses the one JSON object it prints.
+pub fn run_script(python: &Path, script: &str, args: &[&str]) -> serde_json::Value {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../scripts")
+        .join(script);
+    let out = Command::new(python)
+        .arg(&path)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("run {}: {e}", path.display()));
+    assert!(
+        out.status.success(),
+        "{script} {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "{script} printed no JSON ({e}):\n{}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    })
+}
