@@ -1035,7 +1035,7 @@ mod tests {
         }
     }
 
-    pub(super) fn mixed() -> ExportSet {
+    fn mixed() -> ExportSet {
         set(vec![
             episode("sphere-small", 5, 0.0, true),
             episode("cube-large", 3, 1.0, false),
@@ -1043,7 +1043,7 @@ mod tests {
         ])
     }
 
-    pub(super) fn rollouts() -> ExportSet {
+    fn rollouts() -> ExportSet {
         set(vec![
             episode("sphere-small", 6, 0.0, true),
             episode("mug", 2, -1.0, true),
@@ -1269,20 +1269,3 @@ mod tests {
         ));
     }
 }
-// THROWAWAY-BEGIN
-#[cfg(test)]
-mod throwaway {
-    #[test]
-    fn keep_for_python() {
-        for (name, s) in [
-            ("mixed", super::tests::mixed()),
-            ("rollouts", super::tests::rollouts()),
-        ] {
-            let d = std::path::Path::new("/tmp/lerobot-out").join(name);
-            let _ = std::fs::remove_dir_all(&d);
-            std::fs::create_dir_all(&d).unwrap();
-            super::write(&s, &d).unwrap();
-        }
-    }
-}
-// THROWAWAY-END

@@ -38,7 +38,7 @@ struct Source {
 }
 
 enum Contents {
-    Rollouts(Dataset),
+    Rollouts(Box<Dataset>),
     Demos(DemoSet),
 }
 
@@ -113,10 +113,10 @@ fn load(ctx: &Context, target: &str, selection: &Selection) -> Result<Source> {
     let bytes = store.get(&record.content_hash)?;
     let objects = StoreObjects(store);
     let contents = match record.type_tag.as_str() {
-        DATASET_TAG => Contents::Rollouts(
+        DATASET_TAG => Contents::Rollouts(Box::new(
             osms_make::assemble::<Dataset>(&bytes, &objects)
                 .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", record.instance()))?,
-        ),
+        )),
         DEMO_SET_TAG => Contents::Demos(
             osms_make::assemble::<DemoSet>(&bytes, &objects)
                 .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", record.instance()))?,
