@@ -1301,7 +1301,7 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
 fn datasets_export_replay_and_render(made: &Made) {
     use osms_policy::dataset::Dataset;
     use osms_policy::demos::DemoSet;
-    let bin = env!("CARGO_BIN_EXE_osms-test");
+    let bin = env!("CARGO_BIN_EXE_osms-shipped");
     let pipeline = made._dir.path().join("pipeline.toml");
     let store = made.store.root().to_path_buf();
     let out = tempfile::tempdir().expect("out dir");
@@ -1436,6 +1436,47 @@ fn datasets_export_replay_and_render(made: &Made) {
         std::fs::read_dir(&theirs).expect("ls").count(),
         1,
         "nothing written beside someone's files"
+    );
+
+    // Render: the strip names the other two files (a dotted stem keeps its dots).
+    let strip = out.path().join("pictures").join("catch.v2.png");
+    let o = ok(&[
+        "render",
+        "d_r",
+        "--episode",
+        "0",
+        "--out",
+        &p(&strip),
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--json",
+    ]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let poses = out.path().join("pictures").join("catch.v2-poses.png");
+    let gif = out.path().join("pictures").join("catch.v2.gif");
+    assert_eq!(
+        v["files"],
+        serde_json::json!([p(&strip), p(&poses), p(&gif)])
+    );
+    for f in [&strip, &poses, &gif] {
+        assert!(
+            std::fs::metadata(f).expect("rendered file").len() > 1000,
+            "{}",
+            f.display()
+        );
+    }
+    fails(
+        &[
+            "render",
+            "d_r",
+            "--episode",
+            "0",
+            "--out",
+            &p(&out.path().join("x.jpg")),
+        ],
+        "must name a .png file",
     );
 
     // Independent readers.

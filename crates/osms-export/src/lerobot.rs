@@ -35,7 +35,7 @@ use parquet::file::properties::WriterProperties;
 use parquet::file::writer::{SerializedColumnWriter, SerializedFileWriter};
 use parquet::schema::types::Type;
 
-use crate::{ExportError, ExportSet, FPS};
+use crate::{ExportError, ExportSet};
 
 /// The LeRobot dataset format version written.
 pub const CODEBASE_VERSION: &str = "v3.0";
@@ -84,12 +84,13 @@ pub fn omega_names() -> Vec<String> {
     n
 }
 
-/// Writes `set` in LeRobot v3.0 layout into the empty directory `out`; returns the files written.
+/// Writes `set` in LeRobot v3.0 layout into the directory `out`, empty but for hidden files
+/// (a writer's marker); returns the files written.
 pub fn write(set: &ExportSet, out: &Path) -> Result<Vec<PathBuf>, ExportError> {
     crate::validate(set)?;
     check(set)?;
     let mut entries = fs::read_dir(out).map_err(|e| ExportError::io(out, e))?;
-    if entries.next().is_some() {
+    if entries.any(|e| e.map_or(true, |e| !e.file_name().to_string_lossy().starts_with('.'))) {
         return Err(ExportError::Format(format!(
             "{} is not empty: a LeRobot dataset is written into an empty directory",
             out.display()
@@ -547,7 +548,7 @@ impl DataTable {
         let mut frame_index = Vec::with_capacity(rows);
         for e in eps {
             for k in 0..e.frames {
-                timestamp.push((k as f64 / f64::from(FPS)) as f32);
+                timestamp.push((k as f64 / f64::from(set.fps)) as f32);
                 frame_index.push(to_i64(k));
             }
         }
@@ -728,7 +729,7 @@ fn osms_metadata(set: &ExportSet) -> KeyValue {
     let v = serde_json::json!({
         "provenance": set.provenance,
         "source_kind": set.source_kind,
-        "fps": FPS,
+        "fps": set.fps,
         "timestep_secs": set.timestep_secs,
         "substeps": set.substeps,
     });
@@ -807,7 +808,7 @@ fn info_json(set: &ExportSet, tasks: &Tasks, data: &DataTable) -> J {
             "video_files_size_in_mb".into(),
             v(VIDEO_FILES_SIZE_IN_MB.into()),
         ),
-        ("fps".into(), v(FPS.into())),
+        ("fps".into(), v(set.fps.into())),
         (
             "splits".into(),
             v(serde_json::json!({"train": format!("0:{n}")})),
@@ -1032,6 +1033,7 @@ mod tests {
             mjcf: Vec::new(),
             timestep_secs: 0.002,
             substeps: 10,
+            fps: 50,
         }
     }
 

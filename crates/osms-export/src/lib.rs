@@ -16,9 +16,6 @@ use osms_sim::replay::{self, ReplayReport};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
 use osms_sim::{N_ACTION, RolloutRecord, World};
 
-/// Control rate of every rollout (Hz): the world's 2 ms timestep times 10 substeps.
-pub const FPS: u32 = 50;
-
 /// What an export failed on.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
@@ -119,6 +116,21 @@ pub struct ExportSet {
     /// Physics timestep (s) and physics steps per control step.
     pub timestep_secs: f64,
     pub substeps: u32,
+    /// The control rate (Hz), 1 / (timestep · substeps): 50 with the world's defaults.
+    pub fps: u32,
+}
+
+/// The world's control rate as whole frames per second, which both formats need.
+pub fn control_fps(world: &World) -> Result<u32, ExportError> {
+    let rate = 1.0 / (world.spec.timestep_secs * f64::from(world.spec.substeps));
+    let fps = rate.round();
+    if (rate - fps).abs() > 1e-6 * rate || fps < 1.0 {
+        return Err(ExportError::Format(format!(
+            "the world's control rate 1 / (timestep_secs {} × substeps {}) = {rate} Hz is not a whole number of frames per second, which LeRobot's fps needs; choose world params whose control period divides one second",
+            world.spec.timestep_secs, world.spec.substeps
+        )));
+    }
+    Ok(fps as u32)
 }
 
 /// Names of the deployable observation's channels ([`DEPLOYABLE_LEN`]).
@@ -212,6 +224,7 @@ pub fn from_dataset(
             .collect(),
         timestep_secs: world.spec.timestep_secs,
         substeps: world.spec.substeps,
+        fps: control_fps(world)?,
     })
 }
 
@@ -286,7 +299,11 @@ fn check_replay(index: usize, report: &ReplayReport) -> Result<(), ExportError> 
 
 /// A demonstration set as an export: the student representation (deployable frames and
 /// commanded labels), no physics (the set keeps no simulator state).
-pub fn from_demo_set(provenance: Provenance, set: &DemoSet, world: &World) -> ExportSet {
+pub fn from_demo_set(
+    provenance: Provenance,
+    set: &DemoSet,
+    world: &World,
+) -> Result<ExportSet, ExportError> {
     let used = set.used.unwrap_or(set.groups.len()).min(set.groups.len());
     let mut episodes = Vec::new();
     for (g, group) in set.groups[..used].iter().enumerate() {
@@ -316,14 +333,15 @@ pub fn from_demo_set(provenance: Provenance, set: &DemoSet, world: &World) -> Ex
             });
         }
     }
-    ExportSet {
+    Ok(ExportSet {
         provenance,
         source_kind: "demonstrations",
         episodes,
         mjcf: Vec::new(),
         timestep_secs: world.spec.timestep_secs,
         substeps: world.spec.substeps,
-    }
+        fps: control_fps(world)?,
+    })
 }
 
 fn execution_name(e: osms_policy::demos::Execution) -> String {

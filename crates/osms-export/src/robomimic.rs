@@ -165,7 +165,7 @@ fn env_args(set: &ExportSet) -> Result<String, ExportError> {
         env_kwargs: EnvKwargs {
             provenance: &set.provenance,
             source_kind: set.source_kind,
-            fps: crate::FPS,
+            fps: set.fps,
             timestep_secs: set.timestep_secs,
             substeps: set.substeps,
             state: set
@@ -356,6 +356,7 @@ mod tests {
             ],
             timestep_secs: 0.002,
             substeps: 10,
+            fps: 50,
         }
     }
 

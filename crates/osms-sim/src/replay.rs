@@ -55,6 +55,13 @@ impl ReplayReport {
 /// Why a record cannot be replayed.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ReplayError {
+    #[error("the record's {field} hold {got} values for {steps} steps, expected {want}")]
+    Malformed {
+        field: &'static str,
+        steps: usize,
+        got: usize,
+        want: usize,
+    },
     #[error(
         "the record has no servo targets for replay ({targets} values, {physics} physics-step counts for {steps} steps); it was made before records kept them"
     )]
@@ -83,6 +90,20 @@ pub fn replay(
             targets: record.servo_targets.len(),
             physics: record.physics_steps.len(),
         });
+    }
+    for (field, got, width) in [
+        ("intended actions", record.intended.len(), N_ACTION),
+        ("executed actions", record.executed.len(), N_ACTION),
+        ("deployable frames", record.deployable.len(), DEPLOYABLE_LEN),
+    ] {
+        if got != record.steps * width {
+            return Err(ReplayError::Malformed {
+                field,
+                steps: record.steps,
+                got,
+                want: record.steps * width,
+            });
+        }
     }
     // The stream is never read: replay draws no noise and takes the DR draws from the record.
     let unused = rng::stream(0, "replay", "unused", 0);

@@ -178,8 +178,9 @@ impl WorldSpec {
         if !(self.timestep_secs > 0.0 && self.timestep_secs <= 0.01) {
             return bad("timestep_secs must be in (0, 0.01]");
         }
-        if self.substeps == 0 {
-            return bad("substeps must be at least 1");
+        // Records count a control step's physics steps in a u8, with one more under jitter.
+        if !(1..=254).contains(&self.substeps) {
+            return bad("substeps must be in 1..=254");
         }
         if !(self.friction > 0.0 && self.contact_timeconst_secs > 0.0 && self.impratio >= 1.0) {
             return bad(

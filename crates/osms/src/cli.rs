@@ -196,7 +196,7 @@ pub struct ExportDatasetArgs {
     pub selection: Selection,
     #[arg(long, value_enum)]
     pub format: DatasetFormat,
-    /// Directory to write [default: exports/<profile>/<instance>-<format>/ beside pipeline.toml]
+    /// Directory to write [default: exports/<profile>/<stage>-<format>/ beside pipeline.toml]
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
     /// Print what was written as JSON on stdout
@@ -227,8 +227,8 @@ pub struct RenderArgs {
     /// Which episode (0-based, in the dataset's order)
     #[arg(long)]
     pub episode: usize,
-    /// The PNG strip of key frames; the GIF and the faded-poses picture are written beside it
-    /// (FILE.gif, FILE-poses.png)
+    /// The PNG strip of key frames (NAME.png); the GIF and the faded-poses picture are written
+    /// beside it (NAME.gif, NAME-poses.png)
     #[arg(long)]
     pub out: std::path::PathBuf,
     /// Width of one frame in pixels

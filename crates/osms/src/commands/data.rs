@@ -165,11 +165,13 @@ fn world_of(store: &Store, record: &Record) -> Result<Record> {
     )
 }
 
-fn bar(len: usize, what: &str) -> indicatif::ProgressBar {
-    let bar = indicatif::ProgressBar::with_draw_target(
-        Some(len as u64),
-        indicatif::ProgressDrawTarget::stderr(),
-    );
+fn bar(ctx: &Context, len: usize, what: &str) -> indicatif::ProgressBar {
+    let target = if ctx.progress {
+        indicatif::ProgressDrawTarget::stderr()
+    } else {
+        indicatif::ProgressDrawTarget::hidden()
+    };
+    let bar = indicatif::ProgressBar::with_draw_target(Some(len as u64), target);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
             "{prefix:.bold} [{bar:30}] {pos}/{len} episodes, {elapsed} (eta {eta})",
@@ -203,14 +205,15 @@ pub fn export_dataset(ctx: &Context, args: &ExportDatasetArgs) -> Result<ExitCod
         .map_err(|e| anyhow::anyhow!("cannot compile the world of {instance}: {e}"))?;
     let set: ExportSet = match &source.contents {
         Contents::Rollouts(d) => {
-            let bar = bar(d.items.len(), &format!("replaying {instance}"));
+            let bar = bar(ctx, d.items.len(), &format!("replaying {instance}"));
             let set = osms_export::from_dataset(source.provenance(), d, &world, &|n| {
                 bar.set_position(n as u64)
             });
             bar.finish_and_clear();
             set.with_context(|| format!("cannot export {instance}"))?
         }
-        Contents::Demos(s) => osms_export::from_demo_set(source.provenance(), s, &world),
+        Contents::Demos(s) => osms_export::from_demo_set(source.provenance(), s, &world)
+            .with_context(|| format!("cannot export {instance}"))?,
     };
     let written = outdir::replace(&dir, MARKER, |partial| {
         let mut files = match args.format {
@@ -360,16 +363,21 @@ pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
             strip_path.display()
         );
     }
-    let stem = strip_path.with_extension("");
-    let poses_path = PathBuf::from(format!("{}-poses.png", stem.display()));
-    let gif_path = stem.with_extension("gif");
+    let poses_path = strip_path.with_file_name(format!(
+        "{}-poses.png",
+        strip_path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    ));
+    let gif_path = strip_path.with_extension("gif");
     let parent = match strip_path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
+    osms_render::osmesa_available()?;
     std::fs::create_dir_all(&parent)
         .with_context(|| format!("cannot create {}", parent.display()))?;
-    osms_render::osmesa_available()?;
     let world = source
         .world
         .world()

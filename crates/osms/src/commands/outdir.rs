@@ -39,8 +39,8 @@ pub fn check(dir: &Path, marker: Marker) -> Result<()> {
     Ok(())
 }
 
-/// Writes `dir` through `fill`, which fills a fresh sibling directory and returns the paths
-/// it wrote (relative to it), then swaps it in. Returns the written paths under `dir`.
+/// Writes `dir` through `fill`, which fills a fresh sibling directory (holding only the hidden
+/// marker) and returns the paths it wrote (relative to it), then swaps it in. Returns the written paths under `dir`.
 pub fn replace(
     dir: &Path,
     marker: Marker,
@@ -59,14 +59,34 @@ pub fn replace(
         .with_context(|| format!("{} names no directory", dir.display()))?;
     let partial = parent.join(format!(".{name}.partial"));
     let old = parent.join(format!(".{name}.old"));
+    // A make killed between the two renames below leaves the previous directory only as
+    // `.old`: put it back first.
+    if !dir.exists() && old.join(marker.file).is_file() {
+        std::fs::rename(&old, dir)
+            .with_context(|| format!("cannot restore {} from {}", dir.display(), old.display()))?;
+    }
     for leftover in [&partial, &old] {
         if leftover.exists() {
+            if !replaceable(leftover, marker)? {
+                bail!(
+                    "{} is in the way and is not a {} osms wrote\nhint: move it away, osms writes beside --out through it",
+                    leftover.display(),
+                    marker.what
+                );
+            }
             std::fs::remove_dir_all(leftover)
                 .with_context(|| format!("cannot remove {}", leftover.display()))?;
         }
     }
     std::fs::create_dir_all(&partial)
         .with_context(|| format!("cannot create {}", partial.display()))?;
+    // The marker first: a leftover of an interrupted write is then osms's to remove.
+    let marker_path = partial.join(marker.file);
+    std::fs::write(
+        &marker_path,
+        format!("written by osms; osms may replace this {}\n", marker.what),
+    )
+    .with_context(|| format!("cannot write {}", marker_path.display()))?;
     let written = match fill(&partial) {
         Ok(w) => w,
         Err(e) => {
@@ -74,15 +94,11 @@ pub fn replace(
             return Err(e);
         }
     };
-    let marker_path = partial.join(marker.file);
-    std::fs::write(
-        &marker_path,
-        format!("written by osms; osms may replace this {}\n", marker.what),
-    )
-    .with_context(|| format!("cannot write {}", marker_path.display()))?;
-    if dir.exists() {
-        std::fs::rename(dir, &old)
-            .with_context(|| format!("cannot move {} aside", dir.display()))?;
+    if dir.exists()
+        && let Err(e) = std::fs::rename(dir, &old)
+    {
+        let _ = std::fs::remove_dir_all(&partial);
+        return Err(e).with_context(|| format!("cannot move {} aside", dir.display()));
     }
     if let Err(e) = std::fs::rename(&partial, dir) {
         // Put the previous directory back before failing.
@@ -150,5 +166,30 @@ mod tests {
             .map(|e| e.expect("entry").file_name())
             .collect();
         assert_eq!(entries, vec![std::ffi::OsString::from("out")]);
+    }
+
+    #[test]
+    fn leftovers_are_removed_only_when_osms_wrote_them_and_an_old_copy_is_restored() {
+        let root = tempfile::tempdir().expect("dir");
+        let dir = root.path().join("out");
+        let theirs = root.path().join(".out.partial");
+        std::fs::create_dir(&theirs).expect("mkdir");
+        std::fs::write(theirs.join("keep.txt"), "mine").expect("write");
+        let err = replace(&dir, M, |_| Ok(Vec::new())).expect_err("in the way");
+        assert!(err.to_string().contains("is in the way"), "{err}");
+        assert!(theirs.join("keep.txt").is_file());
+        std::fs::remove_dir_all(&theirs).expect("rm");
+
+        // A write killed between moving the old directory aside and swapping the new one in.
+        let old = root.path().join(".out.old");
+        std::fs::create_dir(&old).expect("mkdir");
+        std::fs::write(old.join(M.file), "").expect("marker");
+        std::fs::write(old.join("a.txt"), "one").expect("write");
+        let err = replace(&dir, M, |_| bail!("interrupted")).expect_err("fails");
+        assert_eq!(err.to_string(), "interrupted");
+        assert_eq!(
+            std::fs::read_to_string(dir.join("a.txt")).expect("restored"),
+            "one"
+        );
     }
 }
