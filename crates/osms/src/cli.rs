@@ -204,8 +204,9 @@ pub struct ExportDatasetArgs {
     pub json: bool,
 }
 
+/// One episode of a rollout dataset.
 #[derive(Debug, Args)]
-pub struct ReplayArgs {
+pub struct EpisodeRef {
     /// A rollout dataset stage (`d_m`, `d_e`, `d_r`), or a key or content hash prefix
     pub target: String,
     #[command(flatten)]
@@ -213,6 +214,12 @@ pub struct ReplayArgs {
     /// Which episode (0-based, in the dataset's order)
     #[arg(long)]
     pub episode: usize,
+}
+
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    #[command(flatten)]
+    pub at: EpisodeRef,
     /// Print the report as JSON on stdout
     #[arg(long)]
     pub json: bool,
@@ -220,13 +227,8 @@ pub struct ReplayArgs {
 
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// A rollout dataset stage (`d_m`, `d_e`, `d_r`), or a key or content hash prefix
-    pub target: String,
     #[command(flatten)]
-    pub selection: Selection,
-    /// Which episode (0-based, in the dataset's order)
-    #[arg(long)]
-    pub episode: usize,
+    pub at: EpisodeRef,
     /// The PNG strip of key frames (NAME.png); the GIF and the faded-poses picture are written
     /// beside it (NAME.gif, NAME-poses.png)
     #[arg(long)]

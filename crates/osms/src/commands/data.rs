@@ -260,32 +260,32 @@ pub fn export_dataset(ctx: &Context, args: &ExportDatasetArgs) -> Result<ExitCod
 }
 
 pub fn replay(ctx: &Context, args: &ReplayArgs) -> Result<ExitCode> {
-    let source = load(ctx, &args.target, &args.selection)?;
+    let source = load(ctx, &args.at.target, &args.at.selection)?;
     let dataset = source.rollouts("replayed")?;
-    source.check_episode(args.episode)?;
+    source.check_episode(args.at.episode)?;
     let instance = source.resolved.record.instance();
     let world = source
         .world
         .world()
         .map_err(|e| anyhow::anyhow!("cannot compile the world of {instance}: {e}"))?;
-    let rollout = &dataset.items[args.episode].rollout;
+    let rollout = &dataset.items[args.at.episode].rollout;
     let (_, report) = osms_sim::replay::replay(
         &world,
         &dataset.task.rollout,
         &rollout.record,
         &mut |_, _| {},
     )
-    .with_context(|| format!("{instance} episode {}", args.episode))?;
+    .with_context(|| format!("{instance} episode {}", args.at.episode))?;
     if args.json {
         print_json(&serde_json::json!({
             "stage": instance,
-            "episode": args.episode,
+            "episode": args.at.episode,
             "item": rollout.item,
             "attempt": rollout.attempt,
             "report": report,
         }))?;
     } else {
-        print!("{}", describe(&instance, args.episode, &report));
+        print!("{}", describe(&instance, args.at.episode, &report));
     }
     Ok(if report.bit_exact {
         ExitCode::SUCCESS
@@ -352,9 +352,9 @@ fn describe(instance: &str, episode: usize, r: &osms_sim::replay::ReplayReport) 
 }
 
 pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
-    let source = load(ctx, &args.target, &args.selection)?;
+    let source = load(ctx, &args.at.target, &args.at.selection)?;
     let dataset = source.rollouts("rendered")?;
-    source.check_episode(args.episode)?;
+    source.check_episode(args.at.episode)?;
     let instance = source.resolved.record.instance();
     let strip_path = args.out.clone();
     if strip_path.extension().and_then(|e| e.to_str()) != Some("png") {
@@ -382,18 +382,18 @@ pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
         .world
         .world()
         .map_err(|e| anyhow::anyhow!("cannot compile the world of {instance}: {e}"))?;
-    let record = &dataset.items[args.episode].rollout.record;
+    let record = &dataset.items[args.at.episode].rollout.record;
     let opts = osms_render::RenderOptions {
         width: args.width,
         height: args.height,
         ..osms_render::RenderOptions::default()
     };
     let rendered = osms_render::render_rollout(&world, &dataset.task.rollout, record, &opts)
-        .with_context(|| format!("cannot render {instance} episode {}", args.episode))?;
+        .with_context(|| format!("cannot render {instance} episode {}", args.at.episode))?;
     if !rendered.replay.bit_exact {
         bail!(
             "{instance} episode {}: the replay does not reproduce the record (`osms replay` shows where), so the pictures would not show this rollout",
-            args.episode
+            args.at.episode
         );
     }
     let files = [
@@ -421,7 +421,7 @@ pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
     if args.json {
         print_json(&serde_json::json!({
             "stage": instance,
-            "episode": args.episode,
+            "episode": args.at.episode,
             "success": record.outcome.success(),
             "key_frames": keys,
             "gif_frames": rendered.gif_frames,
@@ -430,7 +430,7 @@ pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
     } else {
         println!(
             "rendered {instance} episode {} ({}, {} steps):",
-            args.episode,
+            args.at.episode,
             if record.outcome.success() {
                 "a catch"
             } else {
