@@ -1557,12 +1557,7 @@ fn datasets_export_replay_and_render(made: &Made) {
     }
 
     let set: DemoSet = load_sharded(made, "dstar");
-    let demo_frames: usize = set
-        .groups
-        .iter()
-        .take(set.used.unwrap_or(set.groups.len()))
-        .flat_map(|g| g.demos.iter().map(|d| d.demo.steps))
-        .sum();
+    let demo_frames: usize = set.demos().map(|d| d.steps).sum();
     let ds = osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&dstar_dir)]);
     assert_eq!(ds["frames"], demo_frames);
 }

@@ -133,13 +133,18 @@ pub fn control_fps(world: &World) -> Result<u32, ExportError> {
     Ok(fps as u32)
 }
 
-/// Names of the deployable observation's channels ([`DEPLOYABLE_LEN`]).
-pub fn state_names() -> Vec<String> {
-    let mut n = Vec::with_capacity(DEPLOYABLE_LEN);
+/// The robot part both observations start with: arm q, arm q̇, hand q, hand q̇.
+fn push_robot_names(n: &mut Vec<String>) {
     n.extend(ARM_JOINTS.iter().map(|j| format!("{j}.pos")));
     n.extend(ARM_JOINTS.iter().map(|j| format!("{j}.vel")));
     n.extend(HAND_JOINTS.iter().map(|j| format!("{j}.pos")));
     n.extend(HAND_JOINTS.iter().map(|j| format!("{j}.vel")));
+}
+
+/// Names of the deployable observation's channels ([`DEPLOYABLE_LEN`]).
+pub fn state_names() -> Vec<String> {
+    let mut n = Vec::with_capacity(DEPLOYABLE_LEN);
+    push_robot_names(&mut n);
     n.extend(["object.x", "object.y", "object.z"].map(String::from));
     n.extend(
         action_names()
@@ -152,10 +157,7 @@ pub fn state_names() -> Vec<String> {
 /// Names of the privileged observation's channels ([`PRIVILEGED_LEN`]).
 pub fn environment_state_names() -> Vec<String> {
     let mut n = Vec::with_capacity(PRIVILEGED_LEN);
-    n.extend(ARM_JOINTS.iter().map(|j| format!("{j}.pos")));
-    n.extend(ARM_JOINTS.iter().map(|j| format!("{j}.vel")));
-    n.extend(HAND_JOINTS.iter().map(|j| format!("{j}.pos")));
-    n.extend(HAND_JOINTS.iter().map(|j| format!("{j}.vel")));
+    push_robot_names(&mut n);
     for (what, axes) in [
         ("object.pos", &["x", "y", "z"][..]),
         ("object.quat", &["w", "x", "y", "z"][..]),
@@ -304,9 +306,8 @@ pub fn from_demo_set(
     set: &DemoSet,
     world: &World,
 ) -> Result<ExportSet, ExportError> {
-    let used = set.used.unwrap_or(set.groups.len()).min(set.groups.len());
     let mut episodes = Vec::new();
-    for (g, group) in set.groups[..used].iter().enumerate() {
+    for (g, group) in set.used_groups().iter().enumerate() {
         for (e, entry) in group.demos.iter().enumerate() {
             let demo = &entry.demo;
             episodes.push(ExportEpisode {

@@ -59,12 +59,7 @@ impl Source {
     fn episodes(&self) -> usize {
         match &self.contents {
             Contents::Rollouts(d) => d.items.len(),
-            Contents::Demos(s) => s
-                .groups
-                .iter()
-                .take(s.used.unwrap_or(s.groups.len()))
-                .map(|g| g.demos.len())
-                .sum(),
+            Contents::Demos(s) => s.demos().count(),
         }
     }
 
