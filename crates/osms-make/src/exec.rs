@@ -84,6 +84,10 @@ impl MakeReport {
 /// Hooks for the CLI's progress display and log lines.
 pub trait Observer: Sync {
     fn waiting_for_lock(&self) {}
+    /// A line about what a cluster make is doing (submissions, adopted jobs).
+    fn note(&self, text: &str) {
+        tracing::info!("{text}");
+    }
     /// Called before an instance runs; the returned sink receives its progress.
     fn started(&self, instance: &str, reason: &str) -> Box<dyn Progress + '_>;
     fn finished(&self, report: &InstanceReport);
@@ -258,6 +262,7 @@ pub fn make(
                     &input_hashes,
                     size_bytes,
                     wall_time_secs,
+                    wall_time_secs * pool.current_num_threads() as f64,
                 );
                 rec.parts = parts;
                 store.put_record(&rec)?;
@@ -293,9 +298,9 @@ pub fn make(
 }
 
 /// An input whose object failed its hash check when loaded.
-struct Damaged {
-    input: InstanceId,
-    hash: Hash,
+pub(crate) struct Damaged {
+    pub(crate) input: InstanceId,
+    pub(crate) hash: Hash,
 }
 
 /// The state of a record's artifact: its object's, or the first part (shard) that is not
@@ -323,7 +328,7 @@ impl Objects for StoreObjects<'_> {
 
 /// Reads every input object, slot by slot (a gather slot's members in order). The shards of a
 /// sharded input are read when the stage streams them.
-fn load_inputs(
+pub(crate) fn load_inputs(
     plan: &Plan,
     store: &Store,
     inputs: &[InputInstance],
@@ -353,8 +358,56 @@ fn load_inputs(
     Ok(Ok(loaded))
 }
 
+/// Runs `f` on the instance's kind with everything it needs: a panicking kind fails its own
+/// stage only, not the whole make. rayon resumes a worker's panic in the caller of the
+/// parallel op, so catching here covers item threads too. Nothing the stage left half-done is
+/// observable: it wrote at most complete shards, and its record is only written after this
+/// returns `Ok`.
 #[allow(clippy::too_many_arguments)]
-fn build(
+pub(crate) fn with_env<R>(
+    plan: &Plan,
+    store: &Store,
+    id: InstanceId,
+    key: Hash,
+    inputs: &BTreeMap<String, Vec<InputBytes>>,
+    input_hashes: &[(String, Hash)],
+    pool: &rayon::ThreadPool,
+    progress: &dyn Progress,
+    f: impl FnOnce(&dyn crate::kind::DynKind, &RunEnv<'_>) -> Result<R, StageError> + Send,
+) -> Result<R, StageError>
+where
+    R: Send,
+{
+    let stage = &plan.stages[id.stage];
+    let stream_name = plan.stream_name(id);
+    let shards = StoreShards {
+        plan,
+        store,
+        id,
+        stage_key: key,
+        input_hashes,
+        shards: stage.shards,
+        threads: pool.current_num_threads(),
+    };
+    let env = RunEnv {
+        stage: &stream_name,
+        seed: plan.effective_seed(id),
+        fold: plan.fold(id),
+        params: &stage.params,
+        inputs,
+        objects: &StoreObjects(store),
+        progress,
+        shards: &shards,
+    };
+    panic::catch_unwind(AssertUnwindSafe(|| {
+        pool.install(|| f(stage.kind.as_ref(), &env))
+    }))
+    .map_err(|payload| format!("stage panicked: {}", panic_message(payload.as_ref())))?
+}
+
+/// Builds an instance: runs its kind, checks the output's type and stores it.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn build(
     plan: &Plan,
     store: &Store,
     id: InstanceId,
@@ -365,31 +418,17 @@ fn build(
     progress: &dyn Progress,
 ) -> Result<(Hash, u64, Vec<Hash>), StageError> {
     let stage = &plan.stages[id.stage];
-    let stream_name = plan.stream_name(id);
-    let shards = StoreShards {
+    let out = with_env(
         plan,
         store,
         id,
-        stage_key: key,
+        key,
+        &inputs,
         input_hashes,
-        shards: stage.shards,
-    };
-    let env = RunEnv {
-        stage: &stream_name,
-        seed: plan.effective_seed(id),
-        fold: plan.fold(id),
-        params: &stage.params,
-        inputs: &inputs,
-        objects: &StoreObjects(store),
+        pool,
         progress,
-        shards: &shards,
-    };
-    // A panicking kind must fail its own stage only, not the whole make. rayon resumes a
-    // worker's panic in the caller of the parallel op, so catching here covers item threads too.
-    // Nothing the stage left half-done is observable: it wrote at most complete shards, and
-    // its record is only written after this returns `Ok`.
-    let out = panic::catch_unwind(AssertUnwindSafe(|| pool.install(|| stage.kind.run(&env))))
-        .map_err(|payload| format!("stage panicked: {}", panic_message(payload.as_ref())))??;
+        |kind, env| kind.run(env),
+    )?;
     let bytes = out.bytes;
     let tag = read_header(&bytes)?.type_tag;
     if tag != stage.info.output_tag {
@@ -427,7 +466,8 @@ fn panic_message(payload: &(dyn Any + Send)) -> &str {
     }
 }
 
-fn record(
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn record(
     plan: &Plan,
     id: InstanceId,
     key: Hash,
@@ -435,6 +475,7 @@ fn record(
     input_hashes: &[(String, Hash)],
     size_bytes: u64,
     wall_time_secs: f64,
+    cpu_secs: f64,
 ) -> Record {
     let stage = &plan.stages[id.stage];
     Record {
@@ -453,6 +494,7 @@ fn record(
         size_bytes,
         osms_version: OSMS_VERSION.to_string(),
         wall_time_secs,
+        cpu_secs: Some(cpu_secs),
     }
 }
 
@@ -465,6 +507,7 @@ struct StoreShards<'a> {
     stage_key: Hash,
     input_hashes: &'a [(String, Hash)],
     shards: u32,
+    threads: usize,
 }
 
 impl ShardIo for StoreShards<'_> {
@@ -480,9 +523,11 @@ impl ShardIo for StoreShards<'_> {
 
     fn save(
         &self,
+        index: usize,
         range: &Range<usize>,
         bytes: Vec<u8>,
         items: Vec<Hash>,
+        wall_secs: f64,
     ) -> Result<(), StageError> {
         let (start, end) = (range.start as u64, range.end as u64);
         let content_hash = self.store.put(&bytes)?;
@@ -493,12 +538,14 @@ impl ShardIo for StoreShards<'_> {
             content_hash,
             self.input_hashes,
             bytes.len() as u64,
-            0.0,
+            wall_secs,
+            wall_secs * self.threads as f64,
         );
         rec.shard = Some(ShardOf {
             stage_key: self.stage_key,
             start,
             end,
+            index: Some(index as u32),
         });
         // The items' objects stay with the shard through a gc, for the resume.
         rec.parts = items;

@@ -10,6 +10,7 @@ use std::any::Any;
 use std::collections::BTreeMap;
 use std::ops::Range;
 use std::sync::Arc;
+use std::time::Instant;
 
 use osms_store::{Artifact, Hash, decode, encode};
 use rayon::prelude::*;
@@ -474,13 +475,15 @@ pub trait ShardIo: Sync {
     fn ranges(&self, n_items: usize) -> Vec<Range<usize>>;
     /// A previously stored shard, if one is intact.
     fn load(&self, range: &Range<usize>) -> Option<Vec<u8>>;
-    /// Stores a shard (the list of its items' objects, `items`), so a killed make resumes
-    /// from it.
+    /// Stores shard `index` (the list of its items' objects, `items`), computed in
+    /// `wall_secs`, so a killed make resumes from it.
     fn save(
         &self,
+        index: usize,
         range: &Range<usize>,
         bytes: Vec<u8>,
         items: Vec<Hash>,
+        wall_secs: f64,
     ) -> Result<(), StageError>;
 }
 
@@ -502,6 +505,20 @@ pub struct RunEnv<'a> {
 pub struct RunOutput {
     pub bytes: Vec<u8>,
     pub parts: Vec<Hash>,
+}
+
+/// What [`DynKind::run_shard`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShardRun {
+    Computed {
+        items: u64,
+    },
+    /// The shard was already in the store.
+    Stored,
+    /// The stage has fewer items than shards, and so no shard of this index.
+    NoSuchShard {
+        shards: u32,
+    },
 }
 
 /// Static facts about a kind.
@@ -528,6 +545,15 @@ pub trait DynKind: Send + Sync {
     fn output_role(&self, params: &ParsedParams) -> Option<&'static str>;
     /// Runs the stage and returns the encoded output artifact.
     fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError>;
+    /// Computes and stores one shard of an itemised stage (a cluster array task); the merge
+    /// is a later [`DynKind::run`], which finds every shard stored.
+    fn run_shard(&self, _env: &RunEnv<'_>, _index: u32) -> Result<ShardRun, StageError> {
+        Err(format!(
+            "kind `{}` is not itemised: it has no shards",
+            self.info().name
+        )
+        .into())
+    }
     /// Decodes an output artifact of this kind (reading its shards from `objects`) and
     /// summarises it.
     fn summarize(
@@ -689,54 +715,13 @@ impl<S: ItemStage> DynKind for Itemised<S> {
         env.progress.set_total(n as u64);
         let mut items = Vec::with_capacity(n);
         let mut hashes = Vec::with_capacity(n);
-        for range in env.shards.ranges(n) {
-            // A finished shard of an interrupted make: its items' objects, if all are intact.
-            let stored = env.shards.load(&range).and_then(|bytes| {
-                let shard = decode::<ShardItems>(&bytes).ok()?;
-                let loaded = shard
-                    .0
-                    .iter()
-                    .map(|h| load_item::<S::Item>(env.objects, h))
-                    .collect::<Result<Vec<_>, _>>()
-                    .ok()?;
-                (loaded.len() == range.len()).then_some((shard.0, loaded))
-            });
-            let (shard_hashes, shard_items) = match stored {
+        for (index, range) in env.shards.ranges(n).into_iter().enumerate() {
+            let (shard_hashes, shard_items) = match self.stored_shard(env, &range) {
                 Some(stored) => {
                     env.progress.inc(range.len() as u64);
                     stored
                 }
-                None => {
-                    let computed = range
-                        .clone()
-                        .into_par_iter()
-                        .map(|i| {
-                            let mut rng = match env.seed {
-                                Some(seed) => rng::stream(seed, env.stage, "item", i as u64),
-                                // Kinds without randomness still get a generator so the
-                                // signature stays uniform. It must not depend on the stage
-                                // name, which such kinds' keys leave out.
-                                None => rng::stream(0, "", "item", i as u64),
-                            };
-                            let item = self.0.run_item(&ctx, &prepared, i, &mut rng);
-                            env.progress.inc(1);
-                            item
-                        })
-                        .collect::<Result<Vec<_>, _>>()?;
-                    let mut shard_hashes = Vec::with_capacity(computed.len());
-                    let mut shard_items = Vec::with_capacity(computed.len());
-                    for item in computed {
-                        let stored = StoredItem(item);
-                        shard_hashes.push(env.objects.put(&encode(&stored)?)?);
-                        shard_items.push(stored.0);
-                    }
-                    env.shards.save(
-                        &range,
-                        encode(&ShardItems(shard_hashes.clone()))?,
-                        shard_hashes.clone(),
-                    )?;
-                    (shard_hashes, shard_items)
-                }
+                None => self.compute_shard(env, &ctx, &prepared, index, &range)?,
             };
             hashes.extend(shard_hashes);
             items.extend(shard_items);
@@ -751,6 +736,88 @@ impl<S: ItemStage> DynKind for Itemised<S> {
             })?,
             parts: hashes,
         })
+    }
+
+    fn run_shard(&self, env: &RunEnv<'_>, index: u32) -> Result<ShardRun, StageError> {
+        let ctx = env.ctx::<S::Params>();
+        let prepared = self.0.prepare(&ctx)?;
+        let n = self.0.n_items(&ctx, &prepared);
+        let ranges = env.shards.ranges(n);
+        let Some(range) = ranges.get(index as usize) else {
+            return Ok(ShardRun::NoSuchShard {
+                shards: ranges.len() as u32,
+            });
+        };
+        env.progress.set_total(range.len() as u64);
+        if self.stored_shard(env, range).is_some() {
+            return Ok(ShardRun::Stored);
+        }
+        self.compute_shard(env, &ctx, &prepared, index as usize, range)?;
+        Ok(ShardRun::Computed {
+            items: range.len() as u64,
+        })
+    }
+}
+
+impl<S: ItemStage> Itemised<S> {
+    /// A finished shard of an interrupted make: its items' objects, if all are intact.
+    fn stored_shard(
+        &self,
+        env: &RunEnv<'_>,
+        range: &Range<usize>,
+    ) -> Option<(Vec<Hash>, Vec<S::Item>)> {
+        let bytes = env.shards.load(range)?;
+        let shard = decode::<ShardItems>(&bytes).ok()?;
+        let loaded = shard
+            .0
+            .iter()
+            .map(|h| load_item::<S::Item>(env.objects, h))
+            .collect::<Result<Vec<_>, _>>()
+            .ok()?;
+        (loaded.len() == range.len()).then_some((shard.0, loaded))
+    }
+
+    /// Computes the items of one shard in parallel, stores each and the shard.
+    fn compute_shard(
+        &self,
+        env: &RunEnv<'_>,
+        ctx: &Ctx<'_, S::Params>,
+        prepared: &S::Prepared,
+        index: usize,
+        range: &Range<usize>,
+    ) -> Result<(Vec<Hash>, Vec<S::Item>), StageError> {
+        let started = Instant::now();
+        let computed = range
+            .clone()
+            .into_par_iter()
+            .map(|i| {
+                let mut rng = match env.seed {
+                    Some(seed) => rng::stream(seed, env.stage, "item", i as u64),
+                    // Kinds without randomness still get a generator so the signature stays
+                    // uniform. It must not depend on the stage name, which such kinds' keys
+                    // leave out.
+                    None => rng::stream(0, "", "item", i as u64),
+                };
+                let item = self.0.run_item(ctx, prepared, i, &mut rng);
+                env.progress.inc(1);
+                item
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut shard_hashes = Vec::with_capacity(computed.len());
+        let mut shard_items = Vec::with_capacity(computed.len());
+        for item in computed {
+            let stored = StoredItem(item);
+            shard_hashes.push(env.objects.put(&encode(&stored)?)?);
+            shard_items.push(stored.0);
+        }
+        env.shards.save(
+            index,
+            range,
+            encode(&ShardItems(shard_hashes.clone()))?,
+            shard_hashes.clone(),
+            started.elapsed().as_secs_f64(),
+        )?;
+        Ok((shard_hashes, shard_items))
     }
 }
 

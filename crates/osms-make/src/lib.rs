@@ -11,6 +11,7 @@ mod kind;
 mod pipeline;
 mod plan;
 pub mod rng;
+pub mod slurm;
 mod status;
 
 pub use error::{Error, Invalid, Location, Result};
@@ -18,8 +19,8 @@ pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, Store
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
     Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest, Member, NoProgress, Numerics,
-    Objects, ParsedParams, Progress, Registry, RunOutput, Sharded, Slot, Stage, StageError,
-    Summarize, assemble,
+    Objects, ParsedParams, Progress, Registry, RunOutput, ShardRun, Sharded, Slot, Stage,
+    StageError, Summarize, assemble,
 };
 pub use pipeline::{Pipeline, StageSpec};
 pub use plan::{

@@ -33,6 +33,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::error::{Error, Location, Result, list};
+use crate::slurm::ExecutorConfig;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -43,6 +44,8 @@ struct RawPipeline {
     stages: BTreeMap<String, RawStage>,
     #[serde(default)]
     profiles: BTreeMap<String, BTreeMap<String, RawOverlay>>,
+    #[serde(default)]
+    executor: ExecutorConfig,
 }
 
 #[derive(Deserialize)]
@@ -119,6 +122,8 @@ pub struct Pipeline {
     /// What a make given no targets builds (empty: every stage).
     pub default_targets: Vec<String>,
     pub stages: BTreeMap<String, StageSpec>,
+    /// `[executor]`: where stages run (never part of a key).
+    pub executor: ExecutorConfig,
     source: String,
     doc: toml_edit::Document<String>,
 }
@@ -236,6 +241,9 @@ impl Pipeline {
                 }
             }
         }
+        let names: Vec<&str> = stages.keys().map(String::as_str).collect();
+        raw.executor
+            .validate(&names, &|keys| key_location(path, &source, &doc, keys))?;
         Ok(Pipeline {
             path: path.to_path_buf(),
             profile,
@@ -243,6 +251,7 @@ impl Pipeline {
             default_seeds,
             default_targets: raw.pipeline.targets,
             stages,
+            executor: raw.executor,
             source,
             doc,
         })
@@ -307,7 +316,7 @@ fn key_depth(doc: &toml_edit::Document<String>, keys: &[&str]) -> usize {
     keys.len()
 }
 
-fn key_location(
+pub(crate) fn key_location(
     path: &Path,
     source: &str,
     doc: &toml_edit::Document<String>,

@@ -68,6 +68,8 @@ pub struct Plan {
     pub default_seeds: Vec<u64>,
     /// The targets of a make given none (empty: every stage).
     pub default_targets: Vec<String>,
+    /// `[executor]` of the pipeline (a user config may overlay it).
+    pub executor: crate::slurm::ExecutorConfig,
     index: BTreeMap<String, usize>,
 }
 
@@ -386,12 +388,22 @@ impl Plan {
             profile: pipeline.profile.clone(),
             default_seeds: pipeline.default_seeds.clone(),
             default_targets: pipeline.default_targets.clone(),
+            executor: pipeline.executor.clone(),
             index,
         })
     }
 
     pub fn stage_index(&self, name: &str) -> Option<usize> {
         self.index.get(name).copied()
+    }
+
+    /// The instance that [`Plan::display`] names `name`, among those of a make with `seeds`.
+    pub fn instance_named(&self, name: &str, seeds: &[u64]) -> Option<InstanceId> {
+        let stage = name.split(['#', '@']).next()?;
+        let index = self.stage_index(stage)?;
+        self.stage_instances(index, seeds)
+            .into_iter()
+            .find(|id| self.display(*id) == name)
     }
 
     pub fn stage_names(&self) -> Vec<&str> {

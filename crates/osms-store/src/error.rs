@@ -47,6 +47,22 @@ pub enum Error {
     Decode { tag: String, reason: String },
     #[error("index record {path} is unreadable: {reason}")]
     BadRecord { path: PathBuf, reason: String },
+    #[error(
+        "{root} is not an osms store as seen from host {host} (no OSMS_STORE marker); \
+         hint: a cluster task must see the same store as `osms make`: put the store on a \
+         filesystem shared by the submit host and the compute nodes (e.g. --store /shared/...)"
+    )]
+    NotShared { root: PathBuf, host: String },
+    #[error(
+        "the store at {root} is on {name}, which cannot hold a cluster build: {why}; \
+         hint: put the store on NFS, Lustre, GPFS, BeeGFS or CephFS (--store DIR), or build \
+         locally without --executor slurm"
+    )]
+    UnsafeFilesystem {
+        root: PathBuf,
+        name: String,
+        why: String,
+    },
     #[error("`{text}` is not a hash: expected 64 hexadecimal digits")]
     BadHash { text: String },
 }

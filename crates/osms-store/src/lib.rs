@@ -6,14 +6,16 @@
 
 mod codec;
 mod error;
+mod fscheck;
 mod hash;
 mod statcache;
 mod store;
 
 pub use codec::{Artifact, FORMAT_VERSION, Header, MAGIC, decode, encode, read_header};
 pub use error::{Error, Result};
+pub use fscheck::{FsCheck, FsClass, classify};
 pub use hash::Hash;
 pub use store::{
     GcReport, ObjectState, Record, ShardOf, Store, StoreLock, UnreadableRecord, VerifyProblem,
-    VerifyReport,
+    VerifyReport, host_name,
 };

@@ -6,12 +6,17 @@
 //! <root>/index/ab/<key>.json  stage key -> content hash + metadata (a [`Record`])
 //! <root>/state/<name>         small files owned by the engine (e.g. the last build of each stage)
 //! <root>/tmp/                 writes in flight; emptied by whoever takes the lock
+//! <root>/tmp/tasks/<name>/    writes in flight of one cluster task (see [`Store::for_task`])
 //! <root>/lock                 advisory lock file serialising writers
 //! ```
 //!
 //! Every write goes to `tmp/`, is fsynced, renamed into place, and the directory is fsynced, so
 //! a crash at any point leaves either the old state or the new one, never a half-written file.
 //! Every read re-hashes, so a damaged object is reported, never used.
+//!
+//! Cluster tasks write without the lock: each writes content-addressed objects (two writers of
+//! one object write the same bytes, and a rename over it is harmless) and the records of its own
+//! keys, through a temp directory of its own that the lock holder's clean-up leaves alone.
 
 use std::collections::BTreeSet;
 use std::fs::{self, File, OpenOptions};
@@ -55,6 +60,10 @@ pub struct Record {
     pub size_bytes: u64,
     pub osms_version: String,
     pub wall_time_secs: f64,
+    /// Core-seconds spent computing the artifact, its shards included (wall time times the
+    /// threads it ran on, summed over the jobs of a cluster build): what `osms plan` scales.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_secs: Option<f64>,
 }
 
 impl Record {
@@ -79,6 +88,9 @@ pub struct ShardOf {
     pub stage_key: Hash,
     pub start: u64,
     pub end: u64,
+    /// Which of the stage's shards it is (its cluster array task).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub index: Option<u32>,
 }
 
 /// The state of one object on disk.
@@ -145,10 +157,22 @@ pub struct StoreLock {
 #[derive(Debug, Clone)]
 pub struct Store {
     root: PathBuf,
+    /// Where writes in flight go: `tmp/`, or a cluster task's own directory below it.
+    tmp: PathBuf,
     stat_cache: Arc<Mutex<Option<StatCache>>>,
 }
 
 const STAT_CACHE: &str = "statcache";
+const TASKS: &str = "tasks";
+
+/// This machine's host name, for messages about where a task ran.
+pub fn host_name() -> String {
+    fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "this host".to_string())
+}
 
 static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
@@ -164,6 +188,7 @@ impl Store {
             });
         }
         let store = Store {
+            tmp: root.join("tmp"),
             root,
             stat_cache: Arc::default(),
         };
@@ -195,6 +220,72 @@ impl Store {
             }
         }
         store.ensure_dirs()
+    }
+
+    /// Opens a store that must already exist: a cluster task on a node where the store's path
+    /// is not the shared store would otherwise create an empty one there and compute into it.
+    pub fn open_existing(root: impl Into<PathBuf>) -> Result<Self> {
+        let root = root.into();
+        if !root.join(MARKER).is_file() {
+            return Err(Error::NotShared {
+                root: root.clone(),
+                host: host_name(),
+            });
+        }
+        Self::open(root)
+    }
+
+    /// The same store, writing through `tmp/tasks/<name>/`: for a cluster task, whose writes
+    /// must survive the lock holder's clean-up of `tmp/` while it runs. `name` identifies the
+    /// task (its Slurm job id), so the driver can remove the directory once the task is gone.
+    pub fn for_task(&self, name: &str) -> Result<Store> {
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
+            || name.starts_with('.')
+        {
+            return Err(Error::Foreign {
+                reason: format!(
+                    "`{name}` is not a usable task name (letters, digits, `_`, `-`, `.`)"
+                ),
+            });
+        }
+        let tmp = self.root.join("tmp").join(TASKS).join(name);
+        fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        Ok(Store {
+            root: self.root.clone(),
+            tmp,
+            stat_cache: Arc::default(),
+        })
+    }
+
+    /// The names of the task directories under `tmp/tasks/`, sorted.
+    pub fn task_dirs(&self) -> Result<Vec<String>> {
+        let dir = self.root.join("tmp").join(TASKS);
+        let entries = match fs::read_dir(&dir) {
+            Ok(e) => e,
+            Err(e) if e.kind() == ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(e) => return Err(Error::io(&dir, e)),
+        };
+        let mut names = Vec::new();
+        for entry in entries {
+            let entry = entry.map_err(|e| Error::io(&dir, e))?;
+            names.push(entry.file_name().to_string_lossy().into_owned());
+        }
+        names.sort();
+        Ok(names)
+    }
+
+    /// Removes a finished task's directory with whatever a kill left in it. Callers hold the
+    /// lock and know the task is no longer running.
+    pub fn remove_task_dir(&self, name: &str) -> Result<()> {
+        let dir = self.root.join("tmp").join(TASKS).join(name);
+        match fs::remove_dir_all(&dir) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == ErrorKind::NotFound => Ok(()),
+            Err(e) => Err(Error::io(&dir, e)),
+        }
     }
 
     fn ensure_dirs(self) -> Result<Self> {
@@ -244,11 +335,17 @@ impl Store {
         Ok(StoreLock { _file: file })
     }
 
+    /// Removes the files in `tmp/`; the task directories below it belong to cluster tasks that
+    /// may still be running.
     fn clear_tmp(&self) -> Result<()> {
         let tmp = self.root.join("tmp");
         let entries = fs::read_dir(&tmp).map_err(|e| Error::io(&tmp, e))?;
         for entry in entries {
-            let path = entry.map_err(|e| Error::io(&tmp, e))?.path();
+            let entry = entry.map_err(|e| Error::io(&tmp, e))?;
+            if entry.file_type().map(|t| t.is_dir()).unwrap_or(false) {
+                continue;
+            }
+            let path = entry.path();
             match fs::remove_file(&path) {
                 Ok(()) => {}
                 Err(e) if e.kind() == ErrorKind::NotFound => {}
@@ -261,8 +358,8 @@ impl Store {
     /// Writes `bytes` to `dest` through a temp file in `tmp/`. Only for lock holders: taking the
     /// lock empties `tmp/`.
     fn write_atomic(&self, dest: &Path, bytes: &[u8]) -> Result<()> {
-        let tmp_dir = self.root.join("tmp");
-        fs::create_dir_all(&tmp_dir).map_err(|e| Error::io(&tmp_dir, e))?;
+        let tmp_dir = &self.tmp;
+        fs::create_dir_all(tmp_dir).map_err(|e| Error::io(tmp_dir, e))?;
         let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
         write_via(
             &tmp_dir.join(format!("{}-{n}", std::process::id())),
@@ -438,6 +535,21 @@ impl Store {
     /// Replaces a state file. Callers hold the lock.
     pub fn write_state(&self, name: &str, bytes: &[u8]) -> Result<()> {
         self.write_atomic(&self.root.join("state").join(name), bytes)
+    }
+
+    /// Removes a state file, if it exists. Callers hold the lock.
+    pub fn remove_state(&self, name: &str) -> Result<()> {
+        let path = self.root.join("state").join(name);
+        match fs::remove_file(&path) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == ErrorKind::NotFound => Ok(()),
+            Err(e) => Err(Error::io(&path, e)),
+        }
+    }
+
+    /// The path of a state file or directory (for logs that other programs write).
+    pub fn state_path(&self, name: &str) -> PathBuf {
+        self.root.join("state").join(name)
     }
 
     /// Re-hashes every object, checks every record's object exists and reports anything that
@@ -635,6 +747,7 @@ mod tests {
             size_bytes: 0,
             osms_version: "0".into(),
             wall_time_secs: 0.0,
+            cpu_secs: None,
         }
     }
 
@@ -741,6 +854,7 @@ mod tests {
                 stage_key,
                 start,
                 end: start + 1,
+                index: None,
             });
             store.put_record(&r).expect("record");
             key
@@ -832,6 +946,50 @@ mod tests {
             reopened.object_state_cached(&hash).expect("state"),
             ObjectState::Missing
         );
+    }
+
+    #[test]
+    fn task_stores_write_through_their_own_directory_which_the_lock_leaves_alone() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path()).expect("open");
+        let task = store.for_task("4242_3").expect("task store");
+        let hash = task
+            .put(&encode(&Blob(vec![7])).expect("encode"))
+            .expect("put");
+        assert_eq!(
+            store.get(&hash).expect("visible to all"),
+            task.get(&hash).expect("get")
+        );
+        // A task killed mid-write leaves its temp file in its directory...
+        fs::write(dir.path().join("tmp/tasks/4242_3/99-0"), "half").expect("write");
+        fs::write(dir.path().join("tmp/77-0"), "half").expect("write");
+        drop(store.lock(|| {}).expect("lock"));
+        // ...which the lock holder does not touch (the task may still be running)...
+        assert!(dir.path().join("tmp/tasks/4242_3/99-0").exists());
+        assert!(!dir.path().join("tmp/77-0").exists());
+        assert_eq!(store.task_dirs().expect("list"), vec!["4242_3".to_string()]);
+        // ...until the task is known to be gone.
+        store.remove_task_dir("4242_3").expect("remove");
+        assert!(store.task_dirs().expect("list").is_empty());
+        assert!(store.verify().expect("verify").problems.is_empty());
+        for bad in ["", "../x", ".hidden", "a/b"] {
+            assert!(store.for_task(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn open_existing_refuses_a_path_that_is_not_a_store_and_creates_nothing() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let missing = dir.path().join("not-mounted-here");
+        let err = Store::open_existing(&missing).expect_err("refused");
+        assert!(matches!(err, Error::NotShared { .. }), "{err}");
+        assert!(
+            err.to_string().contains("shared by the submit host"),
+            "{err}"
+        );
+        assert!(!missing.exists());
+        Store::open(&missing).expect("create");
+        Store::open_existing(&missing).expect("now it is one");
     }
 
     #[test]

@@ -80,6 +80,9 @@ pub enum Command {
     /// The simulated world
     #[command(subcommand)]
     World(WorldCommand),
+    /// Build one submitted instance or shard (run by Slurm jobs of `make --executor slurm`)
+    #[command(hide = true)]
+    RunTask(RunTaskArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -121,9 +124,23 @@ pub struct MakeArgs {
     /// Worker threads [default: all cores]
     #[arg(long, short = 'j')]
     pub jobs: Option<usize>,
+    /// Where stages run: `local`, or `slurm` (a job array per sharded stage; see "Running on a
+    /// cluster" in README.md) [default: `[executor] kind`, else local]
+    #[arg(long, value_name = "local|slurm")]
+    pub executor: Option<osms_make::slurm::ExecutorKind>,
     /// Print the report as JSON on stdout
     #[arg(long)]
     pub json: bool,
+}
+
+/// `osms run-task`: what a Slurm job runs on a compute node (not for people).
+#[derive(Debug, Args)]
+pub struct RunTaskArgs {
+    /// The stage key the driver submitted
+    pub key: String,
+    /// Compute this shard only (an array task); without it, build the instance (the merge)
+    #[arg(long)]
+    pub shard: Option<u32>,
 }
 
 #[derive(Debug, Args)]

@@ -42,6 +42,12 @@ impl Observer for MakeObserver {
         }
     }
 
+    fn note(&self, text: &str) {
+        if !self.quiet {
+            eprintln!("{text}");
+        }
+    }
+
     fn started(&self, instance: &str, reason: &str) -> Box<dyn Progress + '_> {
         if !self.quiet {
             eprintln!("building {instance} ({reason})");

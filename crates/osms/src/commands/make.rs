@@ -1,7 +1,9 @@
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::{Result, bail};
+use anyhow::{Context as _, Result, bail};
+use osms_make::slurm::cmd::SlurmCli;
+use osms_make::slurm::{ExecutorConfig, ExecutorKind, Launch, load_user_config, user_config_path};
 use osms_make::{MakeOptions, Outcome, Plan};
 
 use crate::EXIT_FAILURE;
@@ -39,7 +41,15 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         quiet: ctx.quiet,
         verbose: ctx.verbose,
     };
-    let report = osms_make::make(&plan, &store, &opts, &observer)?;
+    let config = executor_config(&plan)?;
+    let executor = args.executor.or(config.kind).unwrap_or(ExecutorKind::Local);
+    // A dry run submits nothing: it is the same plan whatever the executor.
+    let report = if executor == ExecutorKind::Slurm && !args.dry_run {
+        let launch = launch(ctx, &store, &config)?;
+        osms_make::slurm::make_slurm(&plan, &store, &opts, &config, &SlurmCli, &launch, &observer)?
+    } else {
+        osms_make::make(&plan, &store, &opts, &observer)?
+    };
 
     if args.json {
         print_json(&report)?;
@@ -100,6 +110,40 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     }
 }
 
+/// The pipeline's `[executor]` with the user config's on top.
+pub(crate) fn executor_config(plan: &Plan) -> Result<ExecutorConfig> {
+    match user_config_path() {
+        Some(path) => {
+            let user = load_user_config(&path, &plan.stage_names())?;
+            Ok(plan.executor.overlaid(&user))
+        }
+        None => Ok(plan.executor.clone()),
+    }
+}
+
+/// How Slurm tasks start this osms: absolute paths, since a job's working directory and
+/// host differ from ours.
+fn launch(ctx: &Context, store: &osms_store::Store, config: &ExecutorConfig) -> Result<Launch> {
+    let abs = |p: &std::path::Path| {
+        std::fs::canonicalize(p).with_context(|| format!("cannot resolve {}", p.display()))
+    };
+    let binary = match &config.slurm.binary {
+        Some(b) => b.clone(),
+        None => abs(&std::env::current_exe().context("cannot find the osms executable")?)?,
+    };
+    let pipeline = abs(&ctx.pipeline_path)?;
+    let workdir = pipeline
+        .parent()
+        .map(std::path::Path::to_path_buf)
+        .unwrap_or_else(|| "/".into());
+    Ok(Launch {
+        binary,
+        pipeline,
+        store: abs(store.root())?,
+        workdir,
+    })
+}
+
 /// Writes every report or ablations stage this make built or found to its directory
 /// (`report/` for the stage named `report`).
 fn write_reports(
@@ -141,7 +185,7 @@ fn write_reports(
 /// MuJoCo and the library is not the pinned release. Its version would enter the keys, so
 /// nothing cached would be reused wrongly, but results from an unpinned MuJoCo are not the
 /// project's results (a `MUJOCO_DYNAMIC_LINK_DIR` in the shell links another one at build time).
-fn foreign_mujoco(plan: &Plan, pinned: &str) -> Option<String> {
+pub(crate) fn foreign_mujoco(plan: &Plan, pinned: &str) -> Option<String> {
     let (stage, loaded) = plan.stages.iter().find_map(|s| {
         s.info
             .numerics

@@ -8,6 +8,7 @@ mod make;
 mod outdir;
 mod report;
 mod status;
+mod task;
 mod verify;
 mod world;
 
@@ -40,6 +41,7 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
         Command::Verify(args) => verify::run(&ctx, args.json),
         Command::Gc(args) => gc::run(&ctx, &args),
         Command::World(crate::cli::WorldCommand::Dump(args)) => world::dump(&ctx, &args),
+        Command::RunTask(args) => task::run(&ctx, &args),
         Command::Doctor(_) | Command::Kinds(_) => unreachable!("handled above"),
     }
 }

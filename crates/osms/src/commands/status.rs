@@ -1,6 +1,8 @@
 use std::process::ExitCode;
 
 use anyhow::Result;
+use osms_make::slurm::ClusterStatus;
+use osms_make::slurm::cmd::SlurmCli;
 use osms_make::{Lineage, State, describe};
 
 use crate::EXIT_FAILURE;
@@ -14,8 +16,19 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
     let seeds = Context::seeds(&args.selection, &plan);
     let statuses = osms_make::status(&plan, &store, &args.targets, &seeds)?;
     let not_up_to_date = statuses.iter().filter(|s| s.state != State::Cached).count();
+    let cluster = cluster(&store);
     if args.json {
-        print_json(&statuses)?;
+        // Each instance with jobs on a cluster gains a `cluster` object.
+        let mut value = serde_json::to_value(&statuses)?;
+        if let (Some(items), Ok(cluster)) = (value.as_array_mut(), &cluster) {
+            for item in items {
+                let key = item.get("key").and_then(|k| k.as_str()).map(str::to_string);
+                if let Some(c) = cluster.iter().find(|c| Some(c.key.to_hex()) == key) {
+                    item["cluster"] = serde_json::to_value(c)?;
+                }
+            }
+        }
+        print_json(&value)?;
     } else if !ctx.quiet {
         if not_up_to_date == 0 {
             println!(
@@ -45,6 +58,14 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
                     }
                 }
             }
+            match &cluster {
+                Ok(cluster) => {
+                    for c in cluster {
+                        println!("{:<8} {}", "slurm", describe_cluster(c));
+                    }
+                }
+                Err(e) => println!("{:<8} cannot ask Slurm: {e}", "slurm"),
+            }
             let cached = statuses.len() - not_up_to_date;
             println!(
                 "{not_up_to_date} of {} stages not up to date, {cached} cached (profile {}).",
@@ -59,6 +80,32 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
     } else {
         Ok(ExitCode::SUCCESS)
     }
+}
+
+/// What the cluster is doing for the instances with jobs on record (nothing, and no call to
+/// Slurm, when there are none).
+fn cluster(store: &osms_store::Store) -> Result<Vec<ClusterStatus>, osms_make::Error> {
+    osms_make::slurm::cluster_status(store, &SlurmCli)
+}
+
+fn describe_cluster(c: &ClusterStatus) -> String {
+    let mut text = format!("{}: ", c.instance);
+    if let Some(array) = c.array_job {
+        text.push_str(&format!(
+            "shards {}/{} done, {} running, {} submitted",
+            c.shards_done, c.shards, c.shards_running, c.shards_submitted
+        ));
+        if !c.shards_failed.is_empty() {
+            let failed: Vec<String> = c.shards_failed.iter().map(u32::to_string).collect();
+            text.push_str(&format!(", failed {}", failed.join(",")));
+        }
+        text.push_str(&format!(" (array job {array}); "));
+    }
+    text.push_str(&format!("job {} {}", c.job, c.job_state.to_lowercase()));
+    if !c.reason.is_empty() && c.reason != "None" {
+        text.push_str(&format!(" ({})", c.reason));
+    }
+    text
 }
 
 pub fn why(ctx: &Context, args: &WhyArgs) -> Result<ExitCode> {

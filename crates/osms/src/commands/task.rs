@@ -1,0 +1,83 @@
+//! `osms run-task KEY [--shard I]`: one Slurm job of `osms make --executor slurm`.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context as _, Result, bail};
+use osms_make::NoProgress;
+use osms_make::ShardRun;
+use osms_make::slurm::{TaskOutcome, ledger, run_task};
+use osms_store::{Hash, Store, host_name};
+
+use crate::cli::RunTaskArgs;
+use crate::context::Context;
+
+pub fn run(ctx: &Context, args: &RunTaskArgs) -> Result<ExitCode> {
+    let started = Instant::now();
+    let key: Hash = args.key.parse()?;
+    // Never create a store here: a node that does not see the shared one must say so.
+    let shared = Store::open_existing(&ctx.store_path)?;
+    let spec = ledger::read_task(&shared, &key)?.with_context(|| {
+        format!(
+            "no task {} in the store at {} (host {}); hint: `osms make --executor slurm` writes \
+             it when it submits the job",
+            key.short(),
+            ctx.store_path.display(),
+            host_name()
+        )
+    })?;
+    let store = shared.for_task(&task_name())?;
+    let plan = ctx.plan(Some(&spec.profile))?;
+    if let Some(problem) = super::make::foreign_mujoco(&plan, osms_sim::MUJOCO_PINNED) {
+        bail!("{problem}");
+    }
+    let what = match args.shard {
+        Some(i) => format!("shard {i} of {}", spec.instance),
+        None => spec.instance.clone(),
+    };
+    eprintln!(
+        "osms run-task: {what} (key {}) on {}, {} threads",
+        key.short(),
+        host_name(),
+        spec.threads
+    );
+    let outcome = run_task(&plan, &store, &spec, args.shard, &NoProgress)?;
+    let secs = started.elapsed().as_secs_f64();
+    match outcome {
+        TaskOutcome::AlreadyBuilt { content_hash } => eprintln!(
+            "osms run-task: {} is already in the store ({})",
+            spec.instance,
+            content_hash.short()
+        ),
+        TaskOutcome::Built { content_hash, .. } => eprintln!(
+            "osms run-task: built {} -> {} in {secs:.2}s",
+            spec.instance,
+            content_hash.short()
+        ),
+        TaskOutcome::Shard(ShardRun::Computed { items }) => {
+            eprintln!("osms run-task: {what}: {items} items in {secs:.2}s")
+        }
+        TaskOutcome::Shard(ShardRun::Stored) => {
+            eprintln!("osms run-task: {what} was already in the store")
+        }
+        TaskOutcome::Shard(ShardRun::NoSuchShard { shards }) => eprintln!(
+            "osms run-task: {what}: the stage has only {shards} shards (fewer items than shards); nothing to do"
+        ),
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The task's name for its temp directory: the Slurm job (array task) it is, as squeue shows
+/// it, so the driver can tell when it is gone.
+fn task_name() -> String {
+    let var = |name: &str| std::env::var(name).ok().filter(|v| !v.is_empty());
+    match (
+        var("SLURM_ARRAY_JOB_ID"),
+        var("SLURM_ARRAY_TASK_ID"),
+        var("SLURM_JOB_ID"),
+    ) {
+        (Some(job), Some(task), _) => format!("{job}_{task}"),
+        (_, _, Some(job)) => job,
+        _ => format!("local-{}", std::process::id()),
+    }
+}
