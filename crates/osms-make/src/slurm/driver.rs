@@ -62,7 +62,14 @@ pub fn make_slurm(
 ) -> Result<MakeReport> {
     let lock = store.lock(|| observer.waiting_for_lock())?;
     let fs = store.check_for_cluster(&lock, config.slurm.trust_filesystem.unwrap_or(false))?;
-    tracing::info!("store on {} ({:?})", fs.name, fs.class);
+    observer.note(&match fs.class {
+        osms_store::FsClass::Local => format!(
+            "store on {} (a local disk: fine for a single-node cluster; the compute nodes of a \
+             larger one must see the same store)",
+            fs.name
+        ),
+        _ => format!("store on {}", fs.name),
+    });
     let instances = plan.instances(&opts.targets, &opts.seeds)?;
     let heads = Heads::load(store)?;
     let mut states: BTreeMap<InstanceId, State> =
