@@ -203,6 +203,48 @@ pub trait Stage: Send + Sync + 'static {
     fn numerics() -> Vec<Numerics> {
         Vec::new()
     }
+
+    /// How large a build with these params and inputs is, for `osms plan`'s estimates.
+    fn scale(_params: &Self::Params, inputs: &[(&str, f64)]) -> Scale {
+        Scale::follow(inputs)
+    }
+}
+
+/// How large one build is, in units its kind chooses, for scaling a measured build's
+/// core-seconds to another profile (`osms plan`): `work` is what its run time is proportional
+/// to, `size` what the work of the stages it feeds grows with (e.g. a dataset's rollouts).
+/// Only ratios between builds of one stage matter.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Scale {
+    pub work: f64,
+    pub size: f64,
+}
+
+impl Scale {
+    /// A stage that does as much work as its largest input is large, and is as large: an
+    /// evaluation over conditions, a validation over rollouts, a table over evaluations.
+    pub fn follow(inputs: &[(&str, f64)]) -> Scale {
+        let largest = inputs.iter().map(|(_, s)| *s).fold(1.0, f64::max);
+        Scale {
+            work: largest,
+            size: largest,
+        }
+    }
+
+    /// `n` items, each one unit of work.
+    pub fn items(n: f64) -> Scale {
+        Scale { work: n, size: n }
+    }
+
+    /// The size of input slot `slot` (1 if absent).
+    pub fn input(inputs: &[(&str, f64)], slot: &str) -> f64 {
+        inputs
+            .iter()
+            .filter(|(s, _)| *s == slot)
+            .map(|(_, v)| *v)
+            .fold(0.0, f64::max)
+            .max(1.0)
+    }
 }
 
 /// A stage whose work is a list of independent items (e.g. rollouts). Item `i` draws from the
@@ -250,6 +292,11 @@ pub trait ItemStage: Send + Sync + 'static {
     /// As [`Stage::numerics`].
     fn numerics() -> Vec<Numerics> {
         Vec::new()
+    }
+
+    /// As [`Stage::scale`].
+    fn scale(_params: &Self::Params, inputs: &[(&str, f64)]) -> Scale {
+        Scale::follow(inputs)
     }
 }
 
@@ -543,6 +590,8 @@ pub trait DynKind: Send + Sync {
     fn draws_randomness(&self, params: &ParsedParams) -> bool;
     /// The role of the output of a stage with these params.
     fn output_role(&self, params: &ParsedParams) -> Option<&'static str>;
+    /// How large a build with these params and input sizes is ([`Stage::scale`]).
+    fn scale(&self, params: &ParsedParams, inputs: &[(&str, f64)]) -> Scale;
     /// Runs the stage and returns the encoded output artifact.
     fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError>;
     /// Computes and stores one shard of an itemised stage (a cluster array task); the merge
@@ -671,6 +720,9 @@ macro_rules! shared_kind_methods {
         }
         fn output_role(&self, params: &ParsedParams) -> Option<&'static str> {
             S::output_role(params.typed::<S::Params>())
+        }
+        fn scale(&self, params: &ParsedParams, inputs: &[(&str, f64)]) -> Scale {
+            S::scale(params.typed::<S::Params>(), inputs)
         }
         fn summarize(
             &self,

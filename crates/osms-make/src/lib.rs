@@ -5,6 +5,7 @@
 //! [`Registry`] of stage kinds, [`make`] builds, [`status`] and [`why`] explain.
 
 mod error;
+mod estimate;
 mod exec;
 mod heads;
 mod kind;
@@ -15,11 +16,12 @@ pub mod slurm;
 mod status;
 
 pub use error::{Error, Invalid, Location, Result};
+pub use estimate::{Estimate, InstanceEstimate, Measured, estimate, scales};
 pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, StoreObjects, make};
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
     Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest, Member, NoProgress, Numerics,
-    Objects, ParsedParams, Progress, Registry, RunOutput, ShardRun, Sharded, Slot, Stage,
+    Objects, ParsedParams, Progress, Registry, RunOutput, Scale, ShardRun, Sharded, Slot, Stage,
     StageError, Summarize, assemble,
 };
 pub use pipeline::{Pipeline, StageSpec};

@@ -18,7 +18,7 @@
 use std::fmt::Write;
 
 use osms_make::rng::{self, StreamRng};
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError, Summarize};
 use osms_policy::dataset::Dataset;
 use osms_policy::stages::{Teacher, policy_numerics};
 use osms_sim::stages::WorldArtifact;
@@ -335,6 +335,15 @@ impl ItemStage for IosProfileStage {
     type Prepared = (World, Teacher, Dataset);
     type Item = IosItem;
     type Output = IosProfile;
+
+    /// `rollouts` D_R rollouts profiled, each `draws` times.
+    fn scale(params: &IosParams, inputs: &[(&str, f64)]) -> Scale {
+        let n = Scale::input(inputs, "data").min(params.rollouts as f64);
+        Scale {
+            work: n * params.draws.max(1) as f64,
+            size: n,
+        }
+    }
 
     fn numerics() -> Vec<Numerics> {
         policy_numerics()

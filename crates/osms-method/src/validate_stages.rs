@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_make::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError, Summarize};
 use osms_policy::Agent;
 use osms_policy::catch::CatchTaskSpec;
 use osms_policy::dataset::{Dataset, DemoRollout};
@@ -387,6 +387,15 @@ impl ItemStage for ValidateStage {
 
     fn numerics() -> Vec<Numerics> {
         policy_numerics()
+    }
+
+    /// The D_R rollouts validated (`rollouts`, 0: all of `data`).
+    fn scale(params: &ValidateParams, inputs: &[(&str, f64)]) -> Scale {
+        let data = Scale::input(inputs, "data");
+        Scale::items(match params.rollouts {
+            0 => data,
+            n => data.min(n as f64),
+        })
     }
     fn prepare(&self, ctx: &Ctx<'_, ValidateParams>) -> Result<Inputs, StageError> {
         Inputs::load(ctx, ctx.params)

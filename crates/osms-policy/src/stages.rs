@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_make::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, Stage, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, Stage, StageError, Summarize};
 use osms_sim::World;
 use osms_sim::conditions::sample;
 use osms_sim::control::DrSpec;
@@ -174,6 +174,14 @@ impl Stage for TeacherStage {
 
     fn numerics() -> Vec<Numerics> {
         policy_numerics()
+    }
+
+    /// PPO's episodes (their rollouts dominate; the network's width is not counted).
+    fn scale(params: &TeacherParams, _: &[(&str, f64)]) -> Scale {
+        Scale {
+            work: f64::from(params.ppo.iterations) * f64::from(params.ppo.episodes_per_iteration),
+            size: 1.0,
+        }
     }
 
     fn run(&self, ctx: &Ctx<'_, TeacherParams>) -> Result<Teacher, StageError> {
@@ -464,6 +472,11 @@ impl ItemStage for CollectStage {
 
     fn numerics() -> Vec<Numerics> {
         policy_numerics()
+    }
+
+    /// `n` rollouts.
+    fn scale(params: &CollectParams, _: &[(&str, f64)]) -> Scale {
+        Scale::items(params.n as f64)
     }
     fn output_role(params: &CollectParams) -> Option<&'static str> {
         params.role.map(DatasetRole::name)

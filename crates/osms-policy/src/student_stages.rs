@@ -8,7 +8,7 @@ use std::collections::BTreeSet;
 use std::fmt::Write;
 
 use osms_make::rng::StreamRng;
-use osms_make::{Ctx, Fold, ItemStage, Numerics, Slot, Stage, StageError, Summarize};
+use osms_make::{Ctx, Fold, ItemStage, Numerics, Scale, Slot, Stage, StageError, Summarize};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::DrSpec;
 use osms_sim::stages::{Conditions, EvalRow, Evaluation, WorldArtifact};
@@ -142,6 +142,14 @@ impl Stage for StudentStage {
 
     fn numerics() -> Vec<Numerics> {
         policy_numerics()
+    }
+
+    /// Training steps times batch size (the network's width is not counted).
+    fn scale(params: &StudentParams, _: &[(&str, f64)]) -> Scale {
+        Scale {
+            work: f64::from(params.steps) * params.batch as f64,
+            size: 1.0,
+        }
     }
 
     fn run(&self, ctx: &Ctx<'_, StudentParams>) -> Result<StudentArtifact, StageError> {

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_make::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Sharded, Slot, Stage, StageError, Summarize};
+use osms_make::{Ctx, ItemStage, Numerics, Scale, Sharded, Slot, Stage, StageError, Summarize};
 use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
@@ -142,6 +142,11 @@ impl ItemStage for ConditionsStage {
             name: "osms-sim",
             version: crate::NUMERICS_VERSION.to_string(),
         }]
+    }
+
+    /// `n` conditions.
+    fn scale(params: &ConditionsParams, _: &[(&str, f64)]) -> Scale {
+        Scale::items(params.n as f64)
     }
     fn prepare(&self, ctx: &Ctx<'_, ConditionsParams>) -> Result<[f64; 3], StageError> {
         Ok(ctx.input::<WorldArtifact>("world")?.home_palm_pos)

@@ -51,8 +51,22 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         osms_make::make(&plan, &store, &opts, &observer)?
     };
 
+    // A dry run also says what the work would cost, scaled from the builds in the store.
+    let estimate = if args.dry_run {
+        Some(estimate(ctx, &plan, &store, &report, &seeds)?)
+    } else {
+        None
+    };
     if args.json {
-        print_json(&report)?;
+        let mut value = serde_json::to_value(&report)?;
+        if let Some(e) = &estimate {
+            value["estimate"] = serde_json::to_value(e)?;
+        }
+        print_json(&value)?;
+    } else if let Some(e) = &estimate
+        && !ctx.quiet
+    {
+        print_estimate(e);
     }
     let built = report.count(|o| matches!(o, Outcome::Built { .. }));
     let cached = report.count(|o| matches!(o, Outcome::Cached));
@@ -107,6 +121,75 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             failed.join(", ")
         );
         Ok(ExitCode::from(EXIT_FAILURE))
+    }
+}
+
+/// The core-hours of what a dry run would build, from the measured builds of every profile.
+fn estimate(
+    ctx: &Context,
+    plan: &Plan,
+    store: &osms_store::Store,
+    report: &osms_make::MakeReport,
+    seeds: &[u64],
+) -> Result<osms_make::Estimate> {
+    let profiles = osms_make::Pipeline::load(&ctx.pipeline_path, None)?.profiles;
+    let references = profiles
+        .iter()
+        .map(|p| ctx.plan(Some(p)))
+        .collect::<Result<Vec<_>>>()?;
+    let would_build: Vec<String> = report
+        .instances
+        .iter()
+        .filter(|i| matches!(i.outcome, Outcome::WouldBuild { .. }))
+        .map(|i| i.instance.clone())
+        .collect();
+    let threads = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    Ok(osms_make::estimate(
+        plan,
+        &references,
+        store,
+        seeds,
+        &would_build,
+        threads,
+    )?)
+}
+
+fn print_estimate(e: &osms_make::Estimate) {
+    if e.instances.is_empty() {
+        return;
+    }
+    eprintln!(
+        "estimate for profile {} (core-hours, scaled from measured builds; see docs/slurm.md):",
+        e.profile
+    );
+    for i in &e.instances {
+        match (&i.core_hours, &i.measured) {
+            (Some(h), Some(m)) => eprintln!(
+                "  {:<28} {:>10.2}  ({} work {:.0} vs {:.0} on {}: {:.1} core-s{})",
+                i.instance,
+                h,
+                i.kind,
+                i.work,
+                m.work,
+                m.profile,
+                m.core_secs,
+                if m.threads_assumed {
+                    ", threads assumed"
+                } else {
+                    ""
+                }
+            ),
+            _ => eprintln!("  {:<28} {:>10}  (no measured build)", i.instance, "?"),
+        }
+    }
+    eprintln!("  {:<28} {:>10.2}", "total", e.total_core_hours);
+    if !e.unmeasured.is_empty() {
+        eprintln!(
+            "  not in the total ({} unmeasured): build a smaller profile first, e.g. `osms make -p tiny`",
+            e.unmeasured.len()
+        );
     }
 }
 

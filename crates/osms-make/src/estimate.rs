@@ -1,0 +1,156 @@
+//! The cost model behind `osms make --dry-run`: each instance's core-hours, scaled from the
+//! measured core-seconds of the same stage built under another (smaller) profile.
+//!
+//! A build's core-seconds are in its record (`cpu_secs`: wall time times threads, summed over
+//! the jobs of a cluster build). Every kind says how large a build is ([`Scale`]): a dataset
+//! its rollouts, a teacher its PPO episodes, a student its steps times batch, most others as
+//! large as their largest input. Sizes flow down the graph, so a validation of a 20,000-rollout
+//! D_R is 20 times one of 1,000. The estimate of an instance is a measured build's core-seconds
+//! times target work over measured work, from the measuring profile with the most work (the
+//! least dominated by fixed costs). Fixed costs (model set-up, loading inputs) are scaled too,
+//! which overestimates; network width is not in the teacher's or student's work.
+
+use std::collections::BTreeMap;
+
+use osms_store::{Hash, Store};
+use serde::Serialize;
+
+use crate::error::Result;
+use crate::kind::Scale;
+use crate::plan::{InstanceId, Plan};
+use crate::status::{State, status};
+
+/// The planned [`Scale`] of every instance needed for `targets`, from params alone.
+pub fn scales(
+    plan: &Plan,
+    targets: &[String],
+    seeds: &[u64],
+) -> Result<BTreeMap<InstanceId, Scale>> {
+    let mut out: BTreeMap<InstanceId, Scale> = BTreeMap::new();
+    for id in plan.instances(targets, seeds)? {
+        let stage = &plan.stages[id.stage];
+        let inputs: Vec<(String, f64)> = plan
+            .input_instances(id, seeds)
+            .into_iter()
+            .map(|i| (i.slot, out.get(&i.id).map(|s| s.size).unwrap_or(1.0)))
+            .collect();
+        let refs: Vec<(&str, f64)> = inputs.iter().map(|(s, v)| (s.as_str(), *v)).collect();
+        out.insert(id, stage.kind.scale(&stage.params, &refs));
+    }
+    Ok(out)
+}
+
+/// A measured build an estimate scales.
+#[derive(Debug, Clone, Serialize)]
+pub struct Measured {
+    pub profile: String,
+    pub key: Hash,
+    pub core_secs: f64,
+    pub work: f64,
+    /// Core-seconds per unit of work.
+    pub core_secs_per_unit: f64,
+    /// The record predates `cpu_secs`: its wall time was multiplied by an assumed thread count.
+    pub threads_assumed: bool,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct InstanceEstimate {
+    pub instance: String,
+    pub kind: String,
+    pub work: f64,
+    /// `None`: no profile has a build of this stage to scale.
+    pub core_hours: Option<f64>,
+    pub measured: Option<Measured>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Estimate {
+    pub profile: String,
+    pub total_core_hours: f64,
+    pub instances: Vec<InstanceEstimate>,
+    /// Instances no profile has measured (not in the total).
+    pub unmeasured: Vec<String>,
+}
+
+/// Estimates the core-hours of `instances` of `target` from the builds in `store` of the same
+/// stages under `references` (other profiles of the same pipeline). Records without
+/// `cpu_secs` count `assumed_threads` threads.
+pub fn estimate(
+    target: &Plan,
+    references: &[Plan],
+    store: &Store,
+    seeds: &[u64],
+    instances: &[String],
+    assumed_threads: usize,
+) -> Result<Estimate> {
+    let all_targets: Vec<String> = Vec::new();
+    let planned = scales(target, &all_targets, seeds)?;
+    // Every measured build, by instance name: (core-seconds, work, profile, key, assumed).
+    let mut measured: BTreeMap<String, Vec<Measured>> = BTreeMap::new();
+    for plan in references {
+        let sizes = scales(plan, &all_targets, seeds)?;
+        for st in status(plan, store, &all_targets, seeds)? {
+            let (State::Cached, Some(key)) = (st.state, st.key) else {
+                continue;
+            };
+            let Some(rec) = store.record(&key)? else {
+                continue;
+            };
+            let (core_secs, threads_assumed) = match rec.cpu_secs {
+                Some(c) => (c, false),
+                None => (rec.wall_time_secs * assumed_threads as f64, true),
+            };
+            let work = sizes.get(&st.id).map(|s| s.work).unwrap_or(1.0);
+            if core_secs <= 0.0 {
+                continue;
+            }
+            measured
+                .entry(st.instance.clone())
+                .or_default()
+                .push(Measured {
+                    profile: plan.profile.clone(),
+                    key,
+                    core_secs,
+                    work,
+                    core_secs_per_unit: core_secs / work,
+                    threads_assumed,
+                });
+        }
+    }
+    let mut out = Estimate {
+        profile: target.profile.clone(),
+        total_core_hours: 0.0,
+        instances: Vec::new(),
+        unmeasured: Vec::new(),
+    };
+    for (id, scale) in &planned {
+        let name = target.display(*id);
+        if !instances.contains(&name) {
+            continue;
+        }
+        // The largest measured build of any instance of the stage (its seeds and folds do the
+        // same work).
+        let stage = &target.stages[id.stage].name;
+        let best = measured
+            .iter()
+            .filter(|(n, _)| n.split(['#', '@']).next() == Some(stage.as_str()))
+            .flat_map(|(_, m)| m)
+            .max_by(|a, b| a.work.total_cmp(&b.work))
+            .cloned();
+        let core_hours = best
+            .as_ref()
+            .map(|m| m.core_secs * scale.work / m.work / 3600.0);
+        match core_hours {
+            Some(h) => out.total_core_hours += h,
+            None => out.unmeasured.push(name.clone()),
+        }
+        out.instances.push(InstanceEstimate {
+            instance: name,
+            kind: target.stages[id.stage].info.name.to_string(),
+            work: scale.work,
+            core_hours,
+            measured: best,
+        });
+    }
+    Ok(out)
+}
