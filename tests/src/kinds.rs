@@ -4,7 +4,9 @@ use std::time::Duration;
 
 use mujoco_rs::prelude::MjModel;
 use osms_make::rng::{self, StreamRng};
-use osms_make::{Ctx, ItemStage, Numerics, Registry, Sharded, Slot, Stage, StageError, Summarize};
+use osms_make::{
+    Ctx, ItemStage, Numerics, Registry, Scale, Sharded, Slot, Stage, StageError, Summarize,
+};
 use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
@@ -99,6 +101,10 @@ impl ItemStage for NumbersKind {
     type Prepared = ();
     type Item = Vec<f64>;
     type Output = Numbers;
+
+    fn scale(params: &NumbersParams, _: &[(&str, f64)]) -> Scale {
+        Scale::items(f64::from(params.n))
+    }
 
     fn output_role(params: &NumbersParams) -> Option<&'static str> {
         params.role.map(|r| match r {
@@ -325,6 +331,10 @@ impl ItemStage for DropKind {
     type Prepared = MjModel;
     type Item = Vec<f64>;
     type Output = Drops;
+
+    fn scale(params: &DropParams, _: &[(&str, f64)]) -> Scale {
+        Scale::items(f64::from(params.n))
+    }
 
     fn numerics() -> Vec<Numerics> {
         vec![Numerics {

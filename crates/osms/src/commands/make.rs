@@ -160,6 +160,13 @@ fn print_estimate(e: &osms_make::Estimate) {
     if e.instances.is_empty() {
         return;
     }
+    if e.unmeasured.len() == e.instances.len() {
+        eprintln!(
+            "no core-hour estimate: no profile has a build of these stages to scale; build a \
+             smaller profile first (e.g. `osms make -p tiny`)"
+        );
+        return;
+    }
     eprintln!(
         "estimate for profile {} (core-hours, scaled from measured builds; see docs/slurm.md):",
         e.profile
