@@ -2,6 +2,8 @@ use std::collections::BTreeSet;
 use std::process::ExitCode;
 
 use anyhow::{Result, bail};
+use osms_make::slurm::cmd::{Scheduler, SlurmCli};
+use osms_make::slurm::ledger;
 use osms_make::{Pipeline, Plan, State};
 
 use crate::cli::GcArgs;
@@ -44,6 +46,9 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
     };
     let _lock = store
         .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
+    if !args.dry_run {
+        refuse_while_tasks_run(&store)?;
+    }
     let mut keep = BTreeSet::new();
     // Every key the plan can compute now, built or not: an unbuilt one may have shards from an
     // interrupted make, which the store keeps until the stage is complete.
@@ -83,4 +88,37 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Cluster tasks write objects before their records, without the lock: a gc while one runs
+/// could remove an object its record is about to name. Refuses while any job on record is
+/// still queued or running, or when Slurm cannot say.
+fn refuse_while_tasks_run(store: &osms_store::Store) -> Result<()> {
+    let subs: Vec<_> = ledger::submissions(store)?
+        .into_iter()
+        .filter(|s| s.failed.is_none())
+        .collect();
+    if subs.is_empty() {
+        return Ok(());
+    }
+    let ids: Vec<u64> = subs.iter().flat_map(|s| s.job_ids()).collect();
+    let queued = SlurmCli.queue(&ids).map_err(|e| {
+        anyhow::anyhow!(
+            "the store has Slurm jobs on record ({}) and Slurm cannot be asked whether they \
+             still run: {e}\nhint: run gc where squeue works, or after `osms make --executor \
+             slurm` has finished",
+            subs.iter().map(|s| s.instance.as_str()).collect::<Vec<_>>().join(", ")
+        )
+    })?;
+    if let Some(q) = queued.first() {
+        bail!(
+            "Slurm job {} of this store is still {} ({} job(s) in all); gc could remove objects \
+             a running task is about to record\nhint: wait for `osms make --executor slurm` to \
+             finish, or scancel the jobs",
+            q.task_name(),
+            q.state.to_lowercase(),
+            queued.len()
+        );
+    }
+    Ok(())
 }
