@@ -81,7 +81,7 @@ impl Scheduler for Inline {
         self.ok.borrow_mut().insert(id, ok);
         Ok(id)
     }
-    fn queue(&self, _: &[u64]) -> osms_make::Result<Vec<Queued>> {
+    fn queue_all(&self) -> osms_make::Result<Vec<Queued>> {
         Ok(Vec::new())
     }
     fn ended(&self, _: &[u64]) -> Option<Vec<Ended>> {
@@ -113,6 +113,7 @@ fn slurm_make(p: &Project, sched: &Inline) -> MakeReport {
         pipeline: p.pipeline.clone(),
         store: p.store.clone(),
         workdir: p.dir.path().to_path_buf(),
+        platform: osms::platform::class(),
     };
     make_slurm(&plan, &store, &opts, &config(), sched, &launch, &Silent).expect("slurm make")
 }
@@ -221,6 +222,29 @@ fn a_task_refuses_a_store_it_cannot_see_and_a_pipeline_changed_since_submission(
         .find(|w| w.len() == 64)
         .expect("the key in the script")
         .to_string();
+    // A task on a node of another platform class refuses before computing anything.
+    let store = p.open_store();
+    let hash: Hash = key.parse().expect("key");
+    let mut spec = osms_make::slurm::ledger::read_task(&store, &hash)
+        .expect("read")
+        .expect("spec");
+    spec.platform = "x86_64-elsewhere".into();
+    let lock = store.lock(|| {}).expect("lock");
+    osms_make::slurm::ledger::write_task(&store, &spec).expect("write");
+    let out = p.run(
+        std::path::Path::new(BIN),
+        &["run-task", &key, "--shard", "0"],
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("platform class") && err.contains("x86_64-elsewhere"),
+        "{err}"
+    );
+    spec.platform = osms::platform::class();
+    osms_make::slurm::ledger::write_task(&store, &spec).expect("write");
+    drop(lock);
+
     p.write_pipeline(&osms_tests::project::ENGINE_PIPELINE.replace("steps = 400", "steps = 401"));
     let out = p.run(
         std::path::Path::new(BIN),

@@ -101,7 +101,8 @@ pub fn estimate(
                 None => (rec.wall_time_secs * assumed_threads as f64, true),
             };
             let work = sizes.get(&st.id).map(|s| s.work).unwrap_or(1.0);
-            if core_secs <= 0.0 {
+            // A build of no work (`n = 0`) says nothing about the cost of one unit.
+            if core_secs <= 0.0 || work <= 0.0 {
                 continue;
             }
             measured

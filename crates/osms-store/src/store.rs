@@ -167,11 +167,15 @@ const TASKS: &str = "tasks";
 
 /// This machine's host name, for messages about where a task ran.
 pub fn host_name() -> String {
-    fs::read_to_string("/proc/sys/kernel/hostname")
-        .map(|s| s.trim().to_string())
-        .ok()
-        .filter(|s| !s.is_empty())
-        .unwrap_or_else(|| "this host".to_string())
+    static NAME: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    NAME.get_or_init(|| {
+        fs::read_to_string("/proc/sys/kernel/hostname")
+            .map(|s| s.trim().to_string())
+            .ok()
+            .filter(|s| !s.is_empty())
+            .unwrap_or_else(|| "localhost".to_string())
+    })
+    .clone()
 }
 
 static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
@@ -362,7 +366,9 @@ impl Store {
         fs::create_dir_all(tmp_dir).map_err(|e| Error::io(tmp_dir, e))?;
         let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
         write_via(
-            &tmp_dir.join(format!("{}-{n}", std::process::id())),
+            // Tasks on several hosts may share a directory name space: the host keeps their
+            // temp names apart.
+            &tmp_dir.join(format!("{}-{}-{n}", host_name(), std::process::id())),
             dest,
             bytes,
         )

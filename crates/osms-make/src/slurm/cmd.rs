@@ -38,10 +38,13 @@ pub struct Queued {
     pub state: String,
     /// Why it waits (`Dependency`, `Resources`, `DependencyNeverSatisfied`, ...) or `None`.
     pub reason: String,
+    /// The job id of this very task (`%A`, `SLURM_JOB_ID` inside it): an array task gets its
+    /// own once it starts.
+    pub id: u64,
 }
 
 impl Queued {
-    /// The name osms gives the task's temp directory and Slurm its log: `JOB` or `JOB_TASK`.
+    /// How Slurm names the task in logs and `scancel`: `JOB` or `JOB_TASK`.
     pub fn task_name(&self) -> String {
         match self.task {
             Some(t) => format!("{}_{t}", self.job),
@@ -63,8 +66,19 @@ pub struct Ended {
 pub trait Scheduler {
     /// Submits a job; returns its id.
     fn submit(&self, job: &JobRequest) -> Result<u64>;
-    /// The jobs among `ids` that Slurm still holds, array tasks one by one.
-    fn queue(&self, ids: &[u64]) -> Result<Vec<Queued>>;
+    /// Every job of this user that Slurm still holds, array tasks one by one.
+    fn queue_all(&self) -> Result<Vec<Queued>>;
+    /// The jobs among `ids` (job or array ids) that Slurm still holds.
+    fn queue(&self, ids: &[u64]) -> Result<Vec<Queued>> {
+        if ids.is_empty() {
+            return Ok(Vec::new());
+        }
+        Ok(self
+            .queue_all()?
+            .into_iter()
+            .filter(|q| ids.contains(&q.job))
+            .collect())
+    }
     /// How jobs among `ids` ended, if the cluster keeps accounting (`None` if it does not).
     fn ended(&self, ids: &[u64]) -> Option<Vec<Ended>>;
     fn cancel(&self, ids: &[u64]) -> Result<()>;
@@ -163,8 +177,8 @@ pub fn parse_sbatch(out: &str) -> Result<u64> {
         .ok_or_else(|| Error::usage(format!("sbatch printed `{}`, not a job id", out.trim())))
 }
 
-/// Lines of `squeue -h -r -o '%F|%K|%T|%r'`: array job id (the job id for other jobs), array
-/// task index (`N/A` for other jobs), state, reason.
+/// Lines of `squeue -h -r -o '%F|%K|%T|%r|%A'`: array job id (the job id for other jobs), array
+/// task index (`N/A` for other jobs), state, reason, the task's own job id.
 pub fn parse_squeue(out: &str) -> Vec<Queued> {
     out.lines()
         .filter_map(|line| {
@@ -173,11 +187,13 @@ pub fn parse_squeue(out: &str) -> Vec<Queued> {
             let task = f.next()?.trim().parse().ok();
             let state = f.next()?.trim().to_string();
             let reason = f.next().unwrap_or("").trim().to_string();
+            let id = f.next().and_then(|i| i.trim().parse().ok()).unwrap_or(job);
             Some(Queued {
                 job,
                 task,
                 state,
                 reason,
+                id,
             })
         })
         .collect()
@@ -219,20 +235,24 @@ impl Scheduler for SlurmCli {
         parse_sbatch(&out)
     }
 
-    fn queue(&self, ids: &[u64]) -> Result<Vec<Queued>> {
-        if ids.is_empty() {
-            return Ok(Vec::new());
+    fn queue_all(&self) -> Result<Vec<Queued>> {
+        // All of this user's jobs, filtered by the caller: `squeue -j` fails outright once every
+        // listed job has left the controller's memory. `-r` gives pending array tasks a line
+        // each. A busy controller times out now and then: three tries.
+        let mut last = None;
+        for attempt in 0..3u32 {
+            if attempt > 0 {
+                std::thread::sleep(std::time::Duration::from_secs(5 * u64::from(attempt)));
+            }
+            match run(
+                Command::new("squeue").args(["-h", "-r", "--me", "-o", "%F|%K|%T|%r|%A"]),
+                None,
+            ) {
+                Ok(out) => return Ok(parse_squeue(&out)),
+                Err(e) => last = Some(e),
+            }
         }
-        // All of this user's jobs, filtered here: `squeue -j` fails outright once every listed
-        // job has left the controller's memory. `-r` gives pending array tasks a line each.
-        let out = run(
-            Command::new("squeue").args(["-h", "-r", "--me", "-o", "%F|%K|%T|%r"]),
-            None,
-        )?;
-        Ok(parse_squeue(&out)
-            .into_iter()
-            .filter(|q| ids.contains(&q.job))
-            .collect())
+        Err(last.expect("at least one attempt"))
     }
 
     fn ended(&self, ids: &[u64]) -> Option<Vec<Ended>> {
@@ -288,10 +308,11 @@ mod tests {
 
     #[test]
     fn squeue_lines_of_arrays_and_plain_jobs() {
-        let out = "12|0|RUNNING|None\n12|1|PENDING|Resources\n13|N/A|PENDING|Dependency\n";
+        let out = "12|0|RUNNING|None|15\n12|1|PENDING|Resources|12\n13|N/A|PENDING|Dependency|13\n";
         let q = parse_squeue(out);
         assert_eq!(q.len(), 3);
         assert_eq!(q[0].task_name(), "12_0");
+        assert_eq!(q[0].id, 15);
         assert_eq!(q[1].reason, "Resources");
         assert_eq!(q[2].task, None);
         assert_eq!(q[2].task_name(), "13");

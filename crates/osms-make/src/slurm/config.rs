@@ -100,6 +100,24 @@ pub struct SlurmConfig {
     pub stages: BTreeMap<String, JobResources>,
 }
 
+/// sbatch flags osms sets itself or that would break the driver, long and short.
+const OWN_FLAGS: &[&str] = &[
+    "array",
+    "dependency",
+    "parsable",
+    "output",
+    "error",
+    "job-name",
+    "wrap",
+    "chdir",
+    "cpus-per-task",
+    "clusters",
+    "cluster",
+    "wait",
+    "kill-on-invalid-dep",
+];
+const OWN_SHORT: &[char] = &['a', 'd', 'o', 'e', 'J', 'D', 'c', 'M', 'W'];
+
 /// Default seconds between polls.
 pub const DEFAULT_POLL_SECS: f64 = 10.0;
 
@@ -194,12 +212,12 @@ impl ExecutorConfig {
     ) -> Result<()> {
         let s = &self.slurm;
         if let Some(p) = s.poll_secs
-            && !(p.is_finite() && p > 0.0)
+            && !(0.01..=86_400.0).contains(&p)
         {
             return Err(Error::invalid(
                 locate(&["executor", "slurm", "poll_secs"]),
-                format!("[executor.slurm] poll_secs = {p} must be a positive number of seconds"),
-                None,
+                format!("[executor.slurm] poll_secs = {p} is out of range"),
+                Some("use seconds between 0.01 and 86400 (a day)".into()),
             ));
         }
         let global = s.resources();
@@ -219,6 +237,7 @@ impl ExecutorConfig {
                 .map(|n| format!("[executor.slurm.stages.{n}]"))
                 .unwrap_or_else(|| "[executor.slurm]".to_string());
             if let Some(n) = stage
+                && !stage_names.is_empty()
                 && !stage_names.contains(&n)
             {
                 return Err(Error::invalid(
@@ -239,21 +258,15 @@ impl ExecutorConfig {
             }
             for flag in &res.sbatch_args {
                 let name = flag.trim_start_matches('-').split('=').next().unwrap_or("");
-                if [
-                    "array",
-                    "dependency",
-                    "parsable",
-                    "output",
-                    "error",
-                    "job-name",
-                    "wrap",
-                ]
-                .contains(&name)
-                {
+                // A short flag may carry its value: `-a0-3`, `-J name`.
+                let short = (flag.starts_with('-') && !flag.starts_with("--"))
+                    .then(|| flag.chars().nth(1))
+                    .flatten();
+                if OWN_FLAGS.contains(&name) || short.is_some_and(|c| OWN_SHORT.contains(&c)) {
                     return Err(Error::invalid(
                         at("sbatch_args"),
                         format!("{table} sbatch_args holds `{flag}`, which osms sets itself"),
-                        Some("osms sets --array, --dependency, --parsable, --output, --error, --job-name and the script".into()),
+                        Some("osms sets --array, --dependency, --parsable, --output, --error, --job-name, --chdir and the script itself; --cpus-per-task goes in `cpus_per_task` (it is also the task's thread count); jobs must stay on the cluster squeue sees (no --clusters), and the driver waits itself (no --wait)".into()),
                     ));
                 }
             }
@@ -294,9 +307,14 @@ struct UserConfig {
     executor: ExecutorConfig,
 }
 
-/// Reads a user config file and checks it against the pipeline's stages, with errors located
-/// in it.
-pub fn load_user_config(path: &Path, stage_names: &[&str]) -> Result<ExecutorConfig> {
+/// Reads a user config file, with errors located in it. Per-stage tables for stages this
+/// pipeline does not declare are allowed (one user config serves many projects); `unknown`
+/// lists them so the caller can say so.
+pub fn load_user_config(
+    path: &Path,
+    stage_names: &[&str],
+    unknown: &mut Vec<String>,
+) -> Result<ExecutorConfig> {
     let source = std::fs::read_to_string(path).map_err(|source| Error::Read {
         path: path.to_path_buf(),
         source,
@@ -327,9 +345,18 @@ pub fn load_user_config(path: &Path, stage_names: &[&str]) -> Result<ExecutorCon
             None,
         )
     })?;
-    parsed.executor.validate(stage_names, &|keys| {
+    parsed.executor.validate(&[], &|keys| {
         crate::pipeline::key_location(path, &source, &doc, keys)
     })?;
+    unknown.extend(
+        parsed
+            .executor
+            .slurm
+            .stages
+            .keys()
+            .filter(|n| !stage_names.contains(&n.as_str()))
+            .cloned(),
+    );
     Ok(parsed.executor)
 }
 
@@ -403,12 +430,31 @@ mod tests {
             "[executor.slurm]\npartition = \"cpu\"\nmemory = \"4G\"\n",
         )
         .expect("write");
-        let e = load_user_config(&path, &[]).expect_err("unknown field");
+        let e = load_user_config(&path, &[], &mut Vec::new()).expect_err("unknown field");
         let text = e.to_string();
         assert!(text.contains("config.toml:3:"), "{text}");
         assert!(text.contains("memory"), "{text}");
         std::fs::write(&path, "[executor.slurm]\npartition = \"cpu\"\n[executor.slurm.stages.nope]\ncpus_per_task = 2\n").expect("write");
-        let e = load_user_config(&path, &["teacher"]).expect_err("unknown stage");
-        assert!(e.to_string().contains("config.toml:3:"), "{e}");
+        let mut unknown = Vec::new();
+        load_user_config(&path, &["teacher"], &mut unknown).expect("other projects' stages");
+        assert_eq!(unknown, ["nope"]);
+        std::fs::write(&path, "[executor.slurm]\nsbatch_args = [\"-J\", \"x\"]\n").expect("write");
+        let e = load_user_config(&path, &[], &mut Vec::new()).expect_err("-J");
+        assert!(e.to_string().contains("config.toml:2:"), "{e}");
+        for bad in [
+            "-a0-3",
+            "--clusters=x",
+            "-M",
+            "--cpus-per-task=4",
+            "--chdir=/",
+            "-W",
+        ] {
+            let c = parse(&format!("[executor.slurm]\nsbatch_args = [\"{bad}\"]\n"));
+            assert!(c.validate(&[], &|_| None).is_err(), "{bad}");
+        }
+        let c = parse("[executor.slurm]\nsbatch_args = [\"--qos=low\", \"--constraint=avx2\"]\n");
+        c.validate(&[], &|_| None).expect("ordinary flags");
+        let c = parse("[executor.slurm]\npoll_secs = 1e300\n");
+        assert!(c.validate(&[], &|_| None).is_err());
     }
 }

@@ -37,6 +37,9 @@ pub struct Launch {
     pub store: PathBuf,
     /// The jobs' working directory (the project).
     pub workdir: PathBuf,
+    /// The platform class of the submit host: a task on a node of another class refuses to
+    /// run, since glibc's libm may give other bits there (docs/store.md, "Platform classes").
+    pub platform: String,
 }
 
 enum State {
@@ -45,6 +48,8 @@ enum State {
         sub: Submission,
         reason: String,
         since: Instant,
+        /// When its jobs were first seen gone from the queue without its record.
+        gone_since: Option<Instant>,
     },
     Available(Hash),
     Unavailable(String),
@@ -77,8 +82,16 @@ pub fn make_slurm(
     let mut built: BTreeSet<InstanceId> = BTreeSet::new();
     let mut report = MakeReport::default();
     let poll = Duration::from_secs_f64(config.poll_secs());
-    let mut queue: Vec<Queued> = sched.queue(&known_jobs(store)?)?;
+    // A record written on another node may take a while to show on a network filesystem
+    // (NFS caches a missing name for up to a minute): only then is a job that left the queue
+    // without it taken to have failed.
+    let grace = match fs.class {
+        osms_store::FsClass::Local => Duration::ZERO,
+        _ => Duration::from_secs(90),
+    };
+    let mut queue: Vec<Queued> = sched.queue_all()?;
     clean_task_dirs(store, &queue)?;
+    let mut noted_waits: BTreeSet<(u64, String)> = BTreeSet::new();
 
     loop {
         // Hand out everything whose inputs are available, in dependency order.
@@ -128,6 +141,8 @@ pub fn make_slurm(
                 Ok(Some(rec)) => match record_state(store, &rec)? {
                     (_, ObjectState::Present) => {
                         heads.update(&name, &rec)?;
+                        // Built by jobs of an earlier driver that stopped before they ended.
+                        ledger::remove(store, &key)?;
                         let cut_off = inputs.iter().any(|i| built.contains(&i.id));
                         let r = InstanceReport {
                             instance: name,
@@ -163,7 +178,7 @@ pub fn make_slurm(
                     ));
                     sub
                 }
-                None => submit(
+                None => match submit(
                     plan,
                     store,
                     config,
@@ -173,8 +188,26 @@ pub fn make_slurm(
                     id,
                     key,
                     &input_hashes,
-                )
-                .map_err(|e| Error::usage(format!("cannot submit `{name}`: {e}")))?,
+                ) {
+                    Ok(sub) => sub,
+                    // One stage that cannot be submitted (a QOS limit, a bad partition) fails
+                    // alone; everything that does not need it goes on.
+                    Err(e) => {
+                        let r = InstanceReport {
+                            instance: name.clone(),
+                            key: Some(key),
+                            content_hash: None,
+                            outcome: Outcome::Failed {
+                                error: format!("cannot submit: {e}"),
+                            },
+                            wall_time_secs: 0.0,
+                        };
+                        observer.finished(&r);
+                        report.instances.push(r);
+                        states.insert(id, State::Unavailable(name));
+                        continue;
+                    }
+                },
             };
             observer.note(&format!("{name} ({reason}): {}", describe_jobs(&sub)));
             states.insert(
@@ -183,6 +216,7 @@ pub fn make_slurm(
                     sub,
                     reason,
                     since: Instant::now(),
+                    gone_since: None,
                 },
             );
         }
@@ -198,16 +232,15 @@ pub fn make_slurm(
         std::thread::sleep(poll);
         // The queue first, then the store: a job gone from the queue wrote its record before
         // it exited, so a record missing after that is really missing.
-        let ids: Vec<u64> = running
-            .iter()
-            .flat_map(|id| match &states[id] {
-                State::Running { sub, .. } => sub.job_ids(),
-                _ => Vec::new(),
-            })
-            .collect();
-        queue = sched.queue(&ids)?;
+        queue = sched.queue_all()?;
         for id in running {
-            let State::Running { sub, reason, since } = &states[&id] else {
+            let State::Running {
+                sub,
+                reason,
+                since,
+                gone_since,
+            } = &states[&id]
+            else {
                 continue;
             };
             let name = plan.display(id);
@@ -247,6 +280,36 @@ pub fn make_slurm(
             if stuck {
                 sched.cancel(&[sub.job])?;
             }
+            // Reasons a job may wait on for ever: say so once, and leave it to the user.
+            for q in &alive {
+                if q.state == "PENDING"
+                    && NEVER_CLEARS.iter().any(|r| q.reason.starts_with(r))
+                    && noted_waits.insert((q.job, q.reason.clone()))
+                {
+                    observer.note(&format!(
+                        "{name}: job {} is pending with reason {}, which may never clear; \
+                         check [executor.slurm] (partition, account, time, mem) or scancel it",
+                        q.task_name(),
+                        q.reason
+                    ));
+                }
+            }
+            if alive.is_empty() && !stuck {
+                let first_gone = gone_since.unwrap_or_else(Instant::now);
+                if first_gone.elapsed() < grace {
+                    let (sub, reason, since) = (sub.clone(), reason.clone(), *since);
+                    states.insert(
+                        id,
+                        State::Running {
+                            sub,
+                            reason,
+                            since,
+                            gone_since: Some(first_gone),
+                        },
+                    );
+                    continue;
+                }
+            }
             if alive.is_empty() || stuck {
                 let why = failure(store, sched, sub)?;
                 let mut failed = sub.clone();
@@ -264,25 +327,31 @@ pub fn make_slurm(
                 states.insert(id, State::Unavailable(name));
             }
         }
-        clean_task_dirs(store, &sched.queue(&known_jobs(store)?)?)?;
+        clean_task_dirs(store, &queue)?;
     }
     store.save_stat_cache()?;
     Ok(report)
 }
 
-/// Every job id in the ledger.
-fn known_jobs(store: &Store) -> Result<Vec<u64>> {
-    Ok(ledger::submissions(store)?
-        .iter()
-        .flat_map(Submission::job_ids)
-        .collect())
-}
+/// Pending reasons that do not clear by waiting.
+const NEVER_CLEARS: &[&str] = &[
+    "PartitionTimeLimit",
+    "PartitionNodeLimit",
+    "InvalidAccount",
+    "InvalidQOS",
+    "BadConstraints",
+    "QOSMax",
+    "AssocMax",
+];
 
-/// Removes the temp directories of tasks that are no longer queued or running.
+/// Removes the temp directories of tasks that are no longer queued or running. A task's
+/// directory is named after its own job id (`SLURM_JOB_ID`, squeue's `%A`); `queue` is every
+/// job of this user, so a task of another make on the same store is not touched either.
 fn clean_task_dirs(store: &Store, queue: &[Queued]) -> Result<()> {
-    let alive: BTreeSet<String> = queue.iter().map(Queued::task_name).collect();
+    let alive: BTreeSet<String> = queue.iter().map(|q| q.id.to_string()).collect();
     for dir in store.task_dirs()? {
-        if !alive.contains(&dir) {
+        // Directories osms did not name after a job (a task run by hand) are left alone.
+        if dir.parse::<u64>().is_ok() && !alive.contains(&dir) {
             store.remove_task_dir(&dir)?;
         }
     }
@@ -340,11 +409,14 @@ fn submit(
         seeds: opts.seeds.clone(),
         input_hashes: input_hashes.to_vec(),
         threads: resources.cpus(),
+        platform: launch.platform.clone(),
     };
     ledger::write_task(store, &spec)?;
-    let logs = store.state_path(ledger::LOGS);
-    std::fs::create_dir_all(&logs)
-        .map_err(|e| Error::usage(format!("cannot create {}: {e}", logs.display())))?;
+    let log_dir = store.state_path(ledger::LOGS);
+    std::fs::create_dir_all(&log_dir)
+        .map_err(|e| Error::usage(format!("cannot create {}: {e}", log_dir.display())))?;
+    // Slurm expands `%` in --output; a literal one is `%%`.
+    let logs = PathBuf::from(log_dir.to_string_lossy().replace('%', "%%"));
     let job_name = format!("osms-{name}");
     let array = if stage.info.itemised && stage.shards > 1 {
         let (_, done) = shard_cpu_secs(store, &key)?;
@@ -366,7 +438,22 @@ fn submit(
     } else {
         None
     };
-    let job = sched.submit(&JobRequest {
+    // On record before the merge is submitted: a driver that dies in between, or a merge that
+    // cannot be submitted, must not leave shards running that no ledger knows (gc asks it).
+    if let Some(a) = &array {
+        ledger::write_submission(
+            store,
+            &Submission {
+                instance: name.clone(),
+                key,
+                array: Some(a.clone()),
+                job: a.id,
+                shards: stage.shards,
+                failed: None,
+            },
+        )?;
+    }
+    let merge = sched.submit(&JobRequest {
         name: job_name.clone(),
         flags: resources.sbatch_flags(),
         array: None,
@@ -374,7 +461,17 @@ fn submit(
         log: logs.join(format!("{job_name}-%j.log")),
         workdir: launch.workdir.clone(),
         script: script(launch, &key, false),
-    })?;
+    });
+    let job = match merge {
+        Ok(job) => job,
+        Err(e) => {
+            if let Some(a) = &array {
+                let _ = sched.cancel(&[a.id]);
+                ledger::remove(store, &key)?;
+            }
+            return Err(e);
+        }
+    };
     let sub = Submission {
         instance: name,
         key,

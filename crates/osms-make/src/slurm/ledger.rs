@@ -31,6 +31,8 @@ pub struct TaskSpec {
     pub input_hashes: Vec<(String, Hash)>,
     /// Threads each task runs (its `--cpus-per-task`).
     pub threads: u32,
+    /// The submit host's platform class; a task elsewhere refuses to run.
+    pub platform: String,
 }
 
 /// The jobs submitted for one instance.

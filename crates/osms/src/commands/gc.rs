@@ -107,7 +107,10 @@ fn refuse_while_tasks_run(store: &osms_store::Store) -> Result<()> {
             "the store has Slurm jobs on record ({}) and Slurm cannot be asked whether they \
              still run: {e}\nhint: run gc where squeue works, or after `osms make --executor \
              slurm` has finished",
-            subs.iter().map(|s| s.instance.as_str()).collect::<Vec<_>>().join(", ")
+            subs.iter()
+                .map(|s| s.instance.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
         )
     })?;
     if let Some(q) = queued.first() {

@@ -204,7 +204,15 @@ fn print_estimate(e: &osms_make::Estimate) {
 pub(crate) fn executor_config(plan: &Plan) -> Result<ExecutorConfig> {
     match user_config_path() {
         Some(path) => {
-            let user = load_user_config(&path, &plan.stage_names())?;
+            let mut unknown = Vec::new();
+            let user = load_user_config(&path, &plan.stage_names(), &mut unknown)?;
+            if !unknown.is_empty() {
+                tracing::debug!(
+                    "{}: [executor.slurm.stages] for stages this pipeline does not declare: {}",
+                    path.display(),
+                    unknown.join(", ")
+                );
+            }
             Ok(plan.executor.overlaid(&user))
         }
         None => Ok(plan.executor.clone()),
@@ -219,7 +227,7 @@ fn launch(ctx: &Context, store: &osms_store::Store, config: &ExecutorConfig) -> 
     };
     let binary = match &config.slurm.binary {
         Some(b) => b.clone(),
-        None => abs(&std::env::current_exe().context("cannot find the osms executable")?)?,
+        None => pinned_binary(store)?,
     };
     let pipeline = abs(&ctx.pipeline_path)?;
     let workdir = pipeline
@@ -231,7 +239,30 @@ fn launch(ctx: &Context, store: &osms_store::Store, config: &ExecutorConfig) -> 
         pipeline,
         store: abs(store.root())?,
         workdir,
+        platform: crate::platform::class(),
     })
+}
+
+/// A copy of this osms in the store, named by its hash, for the tasks to run: rebuilding
+/// `target/release/osms` while jobs wait (`./osms` rebuilds it on every call) must not give
+/// one stage shards from two binaries.
+fn pinned_binary(store: &osms_store::Store) -> Result<std::path::PathBuf> {
+    use std::os::unix::fs::PermissionsExt;
+    let exe = std::env::current_exe().context("cannot find the osms executable")?;
+    let bytes = std::fs::read(&exe).with_context(|| format!("cannot read {}", exe.display()))?;
+    let name = format!("osms-{}", &osms_store::Hash::of(&bytes).to_hex()[..16]);
+    let dir = store.state_path("slurm/bin");
+    let dest = dir.join(&name);
+    if !dest.is_file() {
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        let tmp = dir.join(format!(".{name}.{}", std::process::id()));
+        std::fs::write(&tmp, &bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::set_permissions(&tmp, std::fs::Permissions::from_mode(0o755))
+            .with_context(|| format!("cannot make {} executable", tmp.display()))?;
+        std::fs::rename(&tmp, &dest).with_context(|| format!("cannot write {}", dest.display()))?;
+    }
+    std::fs::canonicalize(&dest).with_context(|| format!("cannot resolve {}", dest.display()))
 }
 
 /// Writes every report or ablations stage this make built or found to its directory

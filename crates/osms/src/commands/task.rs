@@ -26,6 +26,18 @@ pub fn run(ctx: &Context, args: &RunTaskArgs) -> Result<ExitCode> {
             host_name()
         )
     })?;
+    let here = crate::platform::class();
+    if spec.platform != here {
+        bail!(
+            "this node ({}) is of platform class {here}, the submit host of {}: glibc's libm can \
+             give other bits here, so its output would not match a local build\nhint: keep the \
+             jobs on nodes like the submit host (`sbatch_args = [\"--constraint=...\"]` under \
+             [executor.slurm]), or run the driver on such a node; docs/store.md explains \
+             platform classes",
+            host_name(),
+            spec.platform
+        );
+    }
     let store = shared.for_task(&task_name())?;
     let plan = ctx.plan(Some(&spec.profile))?;
     if let Some(problem) = super::make::foreign_mujoco(&plan, osms_sim::MUJOCO_PINNED) {
@@ -67,17 +79,11 @@ pub fn run(ctx: &Context, args: &RunTaskArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// The task's name for its temp directory: the Slurm job (array task) it is, as squeue shows
-/// it, so the driver can tell when it is gone.
+/// The task's name for its temp directory: its own Slurm job id (squeue's `%A`; every array
+/// task has one), so the driver can tell when it is gone.
 fn task_name() -> String {
-    let var = |name: &str| std::env::var(name).ok().filter(|v| !v.is_empty());
-    match (
-        var("SLURM_ARRAY_JOB_ID"),
-        var("SLURM_ARRAY_TASK_ID"),
-        var("SLURM_JOB_ID"),
-    ) {
-        (Some(job), Some(task), _) => format!("{job}_{task}"),
-        (_, _, Some(job)) => job,
-        _ => format!("local-{}", std::process::id()),
+    match std::env::var("SLURM_JOB_ID") {
+        Ok(job) if job.parse::<u64>().is_ok() => job,
+        _ => format!("local-{}-{}", host_name(), std::process::id()),
     }
 }
