@@ -166,35 +166,20 @@ pub fn make(
         }
 
         let key = plan.key(id, &input_hashes);
-        let reason = match readable_record(store, &key)? {
-            Err(unreadable) => unreadable.to_string(),
-            Ok(Some(rec)) => match record_state(store, &rec)? {
-                (_, ObjectState::Present) => {
-                    let cut_off = inputs.iter().any(|i| built.contains(&i.id));
-                    available.insert(id, rec.content_hash);
-                    // A dry run holds no lock, so it writes nothing but the stat cache.
-                    if !opts.dry_run {
-                        heads.update(&name, &rec)?;
-                    }
-                    let r = InstanceReport {
-                        instance: name,
-                        key: Some(key),
-                        content_hash: Some(rec.content_hash),
-                        outcome: if cut_off {
-                            Outcome::CutOff
-                        } else {
-                            Outcome::Cached
-                        },
-                        wall_time_secs: 0.0,
-                    };
-                    observer.finished(&r);
-                    report.instances.push(r);
-                    continue;
+        let reason = match find(plan, store, &heads, id, &name, &key, &input_hashes)? {
+            Found::Present(rec) => {
+                let cut_off = inputs.iter().any(|i| built.contains(&i.id));
+                available.insert(id, rec.content_hash);
+                // A dry run holds no lock, so it writes nothing but the stat cache.
+                if !opts.dry_run {
+                    heads.update(&name, &rec)?;
                 }
-                (hash, ObjectState::Missing) => Reason::ObjectMissing { hash }.to_string(),
-                (hash, ObjectState::Damaged { .. }) => Reason::ObjectDamaged { hash }.to_string(),
-            },
-            Ok(None) => heads.reason_to_build(plan, id, &name, &input_hashes),
+                let r = cached_report(name, key, &rec, cut_off);
+                observer.finished(&r);
+                report.instances.push(r);
+                continue;
+            }
+            Found::Build(reason) => reason,
         };
 
         if opts.dry_run {
@@ -295,6 +280,53 @@ pub fn make(
     }
     store.save_stat_cache()?;
     Ok(report)
+}
+
+/// An instance's artifact in the store, or why it must be built.
+pub(crate) enum Found {
+    Present(Box<Record>),
+    Build(String),
+}
+
+/// Looks up the artifact of instance `id` (named `name`) under `key`.
+pub(crate) fn find(
+    plan: &Plan,
+    store: &Store,
+    heads: &Heads,
+    id: InstanceId,
+    name: &str,
+    key: &Hash,
+    input_hashes: &[(String, Hash)],
+) -> Result<Found> {
+    Ok(Found::Build(match readable_record(store, key)? {
+        Err(unreadable) => unreadable.to_string(),
+        Ok(Some(rec)) => match record_state(store, &rec)? {
+            (_, ObjectState::Present) => return Ok(Found::Present(Box::new(rec))),
+            (hash, ObjectState::Missing) => Reason::ObjectMissing { hash }.to_string(),
+            (hash, ObjectState::Damaged { .. }) => Reason::ObjectDamaged { hash }.to_string(),
+        },
+        Ok(None) => heads.reason_to_build(plan, id, name, input_hashes),
+    }))
+}
+
+/// The report of an instance found in the store (`cut_off`: although an input was rebuilt).
+pub(crate) fn cached_report(
+    name: String,
+    key: Hash,
+    rec: &Record,
+    cut_off: bool,
+) -> InstanceReport {
+    InstanceReport {
+        instance: name,
+        key: Some(key),
+        content_hash: Some(rec.content_hash),
+        outcome: if cut_off {
+            Outcome::CutOff
+        } else {
+            Outcome::Cached
+        },
+        wall_time_secs: 0.0,
+    }
 }
 
 /// An input whose object failed its hash check when loaded.

@@ -266,19 +266,7 @@ impl Store {
 
     /// The names of the task directories under `tmp/tasks/`, sorted.
     pub fn task_dirs(&self) -> Result<Vec<String>> {
-        let dir = self.root.join("tmp").join(TASKS);
-        let entries = match fs::read_dir(&dir) {
-            Ok(e) => e,
-            Err(e) if e.kind() == ErrorKind::NotFound => return Ok(Vec::new()),
-            Err(e) => return Err(Error::io(&dir, e)),
-        };
-        let mut names = Vec::new();
-        for entry in entries {
-            let entry = entry.map_err(|e| Error::io(&dir, e))?;
-            names.push(entry.file_name().to_string_lossy().into_owned());
-        }
-        names.sort();
-        Ok(names)
+        sorted_names(&self.root.join("tmp").join(TASKS))
     }
 
     /// Removes a finished task's directory with whatever a kill left in it. Callers hold the
@@ -523,19 +511,7 @@ impl Store {
 
     /// Names of the state files directly inside `state/<dir>/`, sorted.
     pub fn list_state(&self, dir: &str) -> Result<Vec<String>> {
-        let path = self.root.join("state").join(dir);
-        let entries = match fs::read_dir(&path) {
-            Ok(e) => e,
-            Err(e) if e.kind() == ErrorKind::NotFound => return Ok(Vec::new()),
-            Err(e) => return Err(Error::io(&path, e)),
-        };
-        let mut names = Vec::new();
-        for entry in entries {
-            let entry = entry.map_err(|e| Error::io(&path, e))?;
-            names.push(entry.file_name().to_string_lossy().into_owned());
-        }
-        names.sort();
-        Ok(names)
+        sorted_names(&self.root.join("state").join(dir))
     }
 
     /// Replaces a state file. Callers hold the lock.
@@ -699,6 +675,22 @@ fn parse_record(path: &Path, bytes: &[u8]) -> Result<Record> {
         path: path.to_path_buf(),
         reason: e.to_string(),
     })
+}
+
+/// The names of the entries directly inside `dir`, sorted; none if it does not exist.
+fn sorted_names(dir: &Path) -> Result<Vec<String>> {
+    let entries = match fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(Error::io(dir, e)),
+    };
+    let mut names = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(|e| Error::io(dir, e))?;
+        names.push(entry.file_name().to_string_lossy().into_owned());
+    }
+    names.sort();
+    Ok(names)
 }
 
 /// Files two levels below `dir` (`dir/ab/file`), sorted, so reports come out in a stable order.

@@ -18,9 +18,9 @@ use std::time::{Duration, Instant};
 use osms_store::{Hash, ObjectState, Store};
 
 use crate::error::{Error, Result};
+use crate::exec::{Found, cached_report, find, record_state};
 use crate::exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome};
-use crate::exec::{readable_record, record_state};
-use crate::heads::{Heads, Reason};
+use crate::heads::Heads;
 use crate::plan::{InstanceId, Plan};
 use crate::slurm::ExecutorConfig;
 use crate::slurm::cmd::{JobRequest, Queued, Scheduler};
@@ -136,36 +136,19 @@ pub fn make_slurm(
                 continue;
             }
             let key = plan.key(id, &input_hashes);
-            let reason = match readable_record(store, &key)? {
-                Err(unreadable) => unreadable.to_string(),
-                Ok(Some(rec)) => match record_state(store, &rec)? {
-                    (_, ObjectState::Present) => {
-                        heads.update(&name, &rec)?;
-                        // Built by jobs of an earlier driver that stopped before they ended.
-                        ledger::remove(store, &key)?;
-                        let cut_off = inputs.iter().any(|i| built.contains(&i.id));
-                        let r = InstanceReport {
-                            instance: name,
-                            key: Some(key),
-                            content_hash: Some(rec.content_hash),
-                            outcome: if cut_off {
-                                Outcome::CutOff
-                            } else {
-                                Outcome::Cached
-                            },
-                            wall_time_secs: 0.0,
-                        };
-                        observer.finished(&r);
-                        report.instances.push(r);
-                        states.insert(id, State::Available(rec.content_hash));
-                        continue;
-                    }
-                    (hash, ObjectState::Missing) => Reason::ObjectMissing { hash }.to_string(),
-                    (hash, ObjectState::Damaged { .. }) => {
-                        Reason::ObjectDamaged { hash }.to_string()
-                    }
-                },
-                Ok(None) => heads.reason_to_build(plan, id, &name, &input_hashes),
+            let reason = match find(plan, store, &heads, id, &name, &key, &input_hashes)? {
+                Found::Present(rec) => {
+                    heads.update(&name, &rec)?;
+                    // Built by jobs of an earlier driver that stopped before they ended.
+                    ledger::remove(store, &key)?;
+                    let cut_off = inputs.iter().any(|i| built.contains(&i.id));
+                    let r = cached_report(name, key, &rec, cut_off);
+                    observer.finished(&r);
+                    report.instances.push(r);
+                    states.insert(id, State::Available(rec.content_hash));
+                    continue;
+                }
+                Found::Build(reason) => reason,
             };
             let adopted = ledger::read_submission(store, &key)?.filter(|sub| {
                 sub.failed.is_none() && queue.iter().any(|q| sub.job_ids().contains(&q.job))
