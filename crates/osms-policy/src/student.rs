@@ -519,6 +519,11 @@ impl Policy for StudentPolicy<'_> {
         let obs = self.student.observation(view);
         self.student.act(&obs, &mut self.rng)
     }
+
+    /// A deployable policy: it reads no privileged quantity at all.
+    fn reads_contact_force(&self) -> bool {
+        false
+    }
 }
 
 impl Student {

@@ -1,17 +1,47 @@
-//! Rollouts per second per core of the scripted catcher against a bare `mj_step` loop doing the
-//! same physics: the raw baseline replays each episode's exact per-physics-step controls on a copy
-//! of the episode's model and initial state, so the ratio is the cost of everything osms adds
-//! (policy, control mapping, observations, contact classification, metrics, record).
-//! Target ratio ≥ 0.85. Prints figures; asserts nothing about time.
+//! The rollout loop against MuJoCo alone: for three patterns, the time of osms's rollout against
+//! a bare `mj_step` replay of the very same per-physics-step controls from the same initial
+//! state, measured in the same run. The ratio (bare / osms) is the share of a rollout's time that
+//! is MuJoCo's; 1.0 means osms adds nothing.
+//!
+//! - **scripted**: the scripted catcher through `Episode::run` (setup, observations, the
+//!   catcher's interception and IK, servo targets, DR, per-physics-step evaluation, the record).
+//!   The bare side makes its `MjData` from the rollout's model and sets its initial state.
+//! - **teacher**: the PPO teacher's episode (`CatchEpisode`: the prior, the actor network of the
+//!   default profile's size, the follow-through channel's Jacobian solve, the reward).
+//! - **branch**: validation's pattern: the teacher runs to a window start shortly before its
+//!   event step, is snapshotted, and every branch restores the snapshot, perturbs the arm over
+//!   the window and runs to the end. The bare side restores MuJoCo's state (`mj_setState`) and
+//!   replays each branch. The prefix is untimed on both sides.
+//!
+//! Every rollout is timed on both sides back to back, in alternating order, `rounds` times; a
+//! rollout's time is its fastest round (interruptions only ever add time), and a pattern's ratio
+//! is the sum of bare times over the sum of osms times. The whole measurement repeats `runs`
+//! times and the figures are min / median / max over runs. Prints figures; asserts nothing about
+//! time.
+//!
+//! Settings (environment): `OSMS_BENCH_CONDITIONS` (default 48), `OSMS_BENCH_ROUNDS` (3),
+//! `OSMS_BENCH_RUNS` (3), `OSMS_BENCH_PATTERNS` (comma-separated subset of
+//! `scripted,teacher,branch`), `OSMS_BENCH_ONLY=<pattern>:<osms|bare>` (run only that side, for
+//! `perf record`).
 
 use std::time::{Duration, Instant};
 
+use mujoco_rs::mujoco_c::mjtState;
 use mujoco_rs::prelude::*;
 use osms_make::rng;
+use osms_policy::catch::{CatchEpisode, CatchTaskSpec, OBS_LEN};
+use osms_policy::{Agent, PpoConfig, TaskEpisode};
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::conditions::sample;
-use osms_sim::episode::{Episode, Hooks, NoHooks, RolloutSpec};
-use osms_sim::{ConditionSpec, World, WorldSpec};
+use osms_sim::control::DrSpec;
+use osms_sim::episode::{Episode, Hooks, RolloutSpec, initial_data};
+use osms_sim::{Action, ConditionSpec, N_ARM, TaskCondition, World, WorldSpec};
+
+const STATE: u32 = mjtState::mjSTATE_INTEGRATION as u32;
+/// Branches per condition, as validation's Q perturbed rollouts.
+const BRANCHES: usize = 4;
+/// Control steps of the perturbed window (the paper's OSW is a few steps before contact).
+const WINDOW: usize = 6;
 
 /// Records the controls of every physics step.
 #[derive(Default)]
@@ -22,29 +52,271 @@ impl Hooks for Controls {
     }
 }
 
-struct Replay {
-    model: MjModel,
-    qpos: Vec<f64>,
-    qvel: Vec<f64>,
-    controls: Vec<Vec<f64>>,
+/// Validation's hooks, cut down: a branch-specific offset on the arm channels in the window.
+struct Perturb {
+    from: usize,
+    offset: f64,
+    controls: Option<Controls>,
+}
+impl Hooks for Perturb {
+    fn perturb(&mut self, step: usize, action: &mut Action) {
+        if (self.from..self.from + WINDOW).contains(&step) {
+            for (c, a) in action[..N_ARM].iter_mut().enumerate() {
+                *a = (*a + self.offset * if c % 2 == 0 { 1.0 } else { -1.0 }).clamp(-1.0, 1.0);
+            }
+        }
+    }
+    fn after_physics_step(&mut self, data: &MjData<Box<MjModel>>) {
+        if let Some(c) = &mut self.controls {
+            c.after_physics_step(data);
+        }
+    }
 }
 
-fn best(runs: usize, mut f: impl FnMut()) -> Duration {
-    (0..runs)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed()
-        })
-        .min()
-        .unwrap_or_default()
+fn setting(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Pattern {
+    Scripted,
+    Teacher,
+    Branch,
+}
+
+impl Pattern {
+    const ALL: [Pattern; 3] = [Pattern::Scripted, Pattern::Teacher, Pattern::Branch];
+    fn name(self) -> &'static str {
+        match self {
+            Pattern::Scripted => "scripted",
+            Pattern::Teacher => "teacher",
+            Pattern::Branch => "branch",
+        }
+    }
+}
+
+/// What the bare side replays for one condition: from `start` (a model and integration state),
+/// each branch's controls.
+struct Bare {
+    model: MjModel,
+    start: Box<[f64]>,
+    branches: Vec<Vec<Vec<f64>>>,
+}
+
+impl Bare {
+    fn physics_steps(&self) -> usize {
+        self.branches.iter().map(Vec::len).sum()
+    }
+}
+
+struct Bench<'a> {
+    world: &'a World,
+    scripted_spec: RolloutSpec,
+    teacher_spec: CatchTaskSpec,
+    agent: Agent,
+    conditions: Vec<TaskCondition>,
+}
+
+impl Bench<'_> {
+    fn dr(&self, i: usize) -> rng::StreamRng {
+        rng::stream(0, "bench", "rollout", i as u64)
+    }
+
+    fn scripted(&self, i: usize, hooks: &mut dyn Hooks) -> osms_sim::RolloutRecord {
+        let mut catcher =
+            ScriptedCatcher::new(CatcherSpec::default(), self.scripted_spec.control.clone());
+        Episode::new(
+            self.world,
+            &self.scripted_spec,
+            self.conditions[i].clone(),
+            self.dr(i),
+        )
+        .run(&mut catcher, hooks)
+    }
+
+    fn teacher_episode(&self, i: usize) -> CatchEpisode<'_> {
+        CatchEpisode::new(
+            self.world,
+            &self.teacher_spec,
+            self.conditions[i].clone(),
+            self.dr(i),
+        )
+    }
+
+    fn teacher(&self, i: usize, hooks: &mut dyn Hooks) -> usize {
+        let mut ep = self.teacher_episode(i);
+        let agent = &self.agent;
+        while !ep
+            .step_with_hooks(&mut |obs| agent.act_deterministic(obs), hooks)
+            .1
+        {}
+        let steps = ep.episode().record().steps;
+        std::hint::black_box(ep.finish());
+        steps
+    }
+
+    /// The teacher run to its window start, which is a few steps before the unperturbed
+    /// rollout's event step.
+    fn prefix(&self, i: usize) -> CatchEpisode<'_> {
+        let mut probe = self.teacher_episode(i);
+        let agent = &self.agent;
+        while !probe
+            .step_with_hooks(
+                &mut |obs| agent.act_deterministic(obs),
+                &mut Controls::default(),
+            )
+            .1
+        {}
+        let from = probe
+            .episode()
+            .outcome()
+            .1
+            .event_step
+            .saturating_sub(WINDOW + 2);
+        let mut ep = self.teacher_episode(i);
+        for _ in 0..from {
+            ep.step_with_hooks(
+                &mut |obs| agent.act_deterministic(obs),
+                &mut Controls::default(),
+            );
+        }
+        ep
+    }
+
+    /// Every branch of condition `i` from the prefix's snapshot, optionally recording controls.
+    fn branches(
+        &self,
+        ep: &mut CatchEpisode<'_>,
+        snapshot: &osms_policy::catch::CatchSnapshot,
+        record: bool,
+    ) -> Vec<Vec<Vec<f64>>> {
+        let agent = &self.agent;
+        (0..BRANCHES)
+            .map(|b| {
+                ep.restore(snapshot);
+                let from = ep.episode().step_index();
+                let mut hooks = Perturb {
+                    from,
+                    offset: 0.05 * (b as f64 + 1.0),
+                    controls: record.then(Controls::default),
+                };
+                while !ep
+                    .step_with_hooks(&mut |obs| agent.act_deterministic(obs), &mut hooks)
+                    .1
+                {}
+                std::hint::black_box(ep.episode().outcome());
+                hooks.controls.map(|c| c.0).unwrap_or_default()
+            })
+            .collect()
+    }
+
+    fn bare(&self, pattern: Pattern, i: usize) -> Bare {
+        let c = &self.conditions[i];
+        match pattern {
+            Pattern::Scripted | Pattern::Teacher => {
+                let mut controls = Controls::default();
+                let (dr, data) = match pattern {
+                    Pattern::Scripted => {
+                        let r = self.scripted(i, &mut controls);
+                        (r.dr.clone(), initial_data(self.world, c, &r.dr))
+                    }
+                    _ => {
+                        let dr = self.teacher_episode(i).episode().record().dr.clone();
+                        self.teacher(i, &mut controls);
+                        let data = initial_data(self.world, c, &dr);
+                        (dr, data)
+                    }
+                };
+                std::hint::black_box(dr);
+                Bare {
+                    model: data.model().clone(),
+                    start: data.state(STATE),
+                    branches: vec![controls.0],
+                }
+            }
+            Pattern::Branch => {
+                let mut ep = self.prefix(i);
+                let snapshot = ep.snapshot();
+                let data = ep.episode().data();
+                let (model, start) = (data.model().clone(), data.state(STATE));
+                Bare {
+                    model,
+                    start,
+                    branches: self.branches(&mut ep, &snapshot, true),
+                }
+            }
+        }
+    }
+}
+
+/// One bare replay: a fresh `MjData` for a whole rollout (as osms makes one), an `mj_setState`
+/// onto a live one for branches (as osms restores one).
+fn replay(bare: &Bare, data: &mut MjData<Box<MjModel>>, fresh: bool) {
+    if fresh {
+        *data = MjData::new(Box::new(bare.model.clone()));
+    }
+    for controls in &bare.branches {
+        data.set_state(&bare.start, STATE).expect("state");
+        for ctrl in controls {
+            data.ctrl_mut().copy_from_slice(ctrl);
+            data.step();
+        }
+        std::hint::black_box(data.qpos()[0]);
+    }
+}
+
+fn time(f: impl FnOnce()) -> Duration {
+    let t = Instant::now();
+    f();
+    t.elapsed()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
 
 fn main() {
+    let n = setting("OSMS_BENCH_CONDITIONS", 48);
+    let rounds = setting("OSMS_BENCH_ROUNDS", 3).max(1);
+    let runs = setting("OSMS_BENCH_RUNS", 3).max(1);
+    let patterns: Vec<Pattern> = match std::env::var("OSMS_BENCH_PATTERNS") {
+        Ok(list) => Pattern::ALL
+            .into_iter()
+            .filter(|p| list.split(',').any(|s| s.trim() == p.name()))
+            .collect(),
+        Err(_) => Pattern::ALL.to_vec(),
+    };
+    let only = std::env::var("OSMS_BENCH_ONLY").ok();
+
     let world = World::new(WorldSpec::default()).expect("world");
-    let spec = RolloutSpec::default();
-    let n = 100u64;
-    let conditions: Vec<_> = (0..n)
+    let scripted_spec = RolloutSpec {
+        dr: DrSpec::paper(),
+        ..RolloutSpec::default()
+    };
+    let mut teacher_spec = CatchTaskSpec::default();
+    teacher_spec.rollout.dr = DrSpec::paper();
+    let config = PpoConfig::default();
+    let mut agent = Agent::new(
+        OBS_LEN,
+        teacher_spec.act_len(),
+        &config,
+        (0, "bench-teacher"),
+    );
+    // An untrained actor's follow-through output sits near zero, where the channel's Jacobian
+    // solve is skipped; a trained teacher uses it at most steps.
+    if let Some(b) = agent
+        .actor
+        .layers
+        .last_mut()
+        .and_then(|last| last.b.last_mut())
+    {
+        *b = 0.3;
+    }
+    let conditions = (0..n as u64)
         .map(|i| {
             sample(
                 &ConditionSpec::default(),
@@ -54,80 +326,151 @@ fn main() {
             .expect("ω")
         })
         .collect();
+    let bench = Bench {
+        world: &world,
+        scripted_spec,
+        teacher_spec,
+        agent,
+        conditions,
+    };
 
-    let replays: Vec<Replay> = conditions
-        .iter()
-        .enumerate()
-        .map(|(i, c)| {
-            let ep = Episode::new(
-                &world,
-                &spec,
-                c.clone(),
-                rng::stream(0, "bench", "rollout", i as u64),
-            );
-            let data = ep.data();
-            let (model, qpos, qvel) = (
-                data.model().clone(),
-                data.qpos().to_vec(),
-                data.qvel().to_vec(),
-            );
-            let mut controls = Controls::default();
-            let mut catcher = ScriptedCatcher::new(CatcherSpec::default(), spec.control.clone());
-            ep.run(&mut catcher, &mut controls);
-            Replay {
-                model,
-                qpos,
-                qvel,
-                controls: controls.0,
+    if let Some(only) = only {
+        let (pattern, side) = only
+            .split_once(':')
+            .expect("OSMS_BENCH_ONLY=<pattern>:<side>");
+        let pattern = Pattern::ALL
+            .into_iter()
+            .find(|p| p.name() == pattern)
+            .expect("a pattern");
+        profile(&bench, pattern, side == "bare", runs * rounds);
+        return;
+    }
+
+    println!(
+        "rollout loop vs bare mj_step replay: {n} conditions, paper DR, one core; {rounds} rounds per run (fastest kept), {runs} runs"
+    );
+    println!(
+        "teacher: actor {:?} hidden, follow-through channel on",
+        config.hidden
+    );
+    for pattern in patterns {
+        let bare: Vec<Bare> = (0..n).map(|i| bench.bare(pattern, i)).collect();
+        let physics_steps: usize = bare.iter().map(Bare::physics_steps).sum();
+        let mut prefixes: Vec<_> = match pattern {
+            Pattern::Branch => (0..n)
+                .map(|i| {
+                    let ep = bench.prefix(i);
+                    let s = ep.snapshot();
+                    Some((ep, s))
+                })
+                .collect(),
+            _ => (0..n).map(|_| None).collect(),
+        };
+        let mut ratios = Vec::new();
+        let mut per_step = Vec::new();
+        for _ in 0..runs {
+            let mut best_osms = vec![Duration::MAX; n];
+            let mut best_bare = vec![Duration::MAX; n];
+            for round in 0..rounds {
+                for i in 0..n {
+                    let b = &bare[i];
+                    let mut data = MjData::new(Box::new(b.model.clone()));
+                    let mut osms = || match pattern {
+                        Pattern::Scripted => {
+                            std::hint::black_box(bench.scripted(i, &mut osms_sim::NoHooks));
+                        }
+                        Pattern::Teacher => {
+                            std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
+                        }
+                        Pattern::Branch => {
+                            let (ep, s) = prefixes[i].as_mut().expect("prefix");
+                            bench.branches(ep, s, false);
+                        }
+                    };
+                    let fresh = pattern != Pattern::Branch;
+                    let (t_osms, t_bare) = if (round + i) % 2 == 0 {
+                        let a = time(&mut osms);
+                        (a, time(|| replay(b, &mut data, fresh)))
+                    } else {
+                        let b2 = time(|| replay(b, &mut data, fresh));
+                        (time(&mut osms), b2)
+                    };
+                    best_osms[i] = best_osms[i].min(t_osms);
+                    best_bare[i] = best_bare[i].min(t_bare);
+                }
             }
-        })
-        .collect();
-    let physics_steps: usize = replays.iter().map(|r| r.controls.len()).sum();
-
-    let t_episode = best(3, || {
-        for (i, c) in conditions.iter().enumerate() {
-            let mut catcher = ScriptedCatcher::new(CatcherSpec::default(), spec.control.clone());
-            let r = Episode::new(
-                &world,
-                &spec,
-                c.clone(),
-                rng::stream(0, "bench", "rollout", i as u64),
-            )
-            .run(&mut catcher, &mut NoHooks);
-            std::hint::black_box(r);
+            let osms: Duration = best_osms.iter().sum();
+            let raw: Duration = best_bare.iter().sum();
+            ratios.push(raw.as_secs_f64() / osms.as_secs_f64());
+            let us = |t: Duration| t.as_secs_f64() * 1e6 / physics_steps as f64;
+            per_step.push((us(osms), us(raw)));
         }
-    });
-    let t_bare = best(3, || {
-        for r in &replays {
-            let mut data = MjData::new(Box::new(r.model.clone()));
-            data.qpos_mut().copy_from_slice(&r.qpos);
-            data.qvel_mut().copy_from_slice(&r.qvel);
-            for ctrl in &r.controls {
-                data.ctrl_mut().copy_from_slice(ctrl);
-                data.step();
+        let (lo, mid, hi) = (
+            ratios.iter().copied().fold(f64::INFINITY, f64::min),
+            median(ratios.clone()),
+            ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        );
+        let osms_us = median(per_step.iter().map(|p| p.0).collect());
+        let bare_us = median(per_step.iter().map(|p| p.1).collect());
+        println!(
+            "  {:<9} {:>7} physics steps  osms {:6.2} us/step  bare {:6.2} us/step  ratio min {:.3}  median {:.3}  max {:.3}  (target >= 0.95)",
+            pattern.name(),
+            physics_steps,
+            osms_us,
+            bare_us,
+            lo,
+            mid,
+            hi
+        );
+    }
+}
+
+/// Runs one side of one pattern `times` over, for a profiler.
+fn profile(bench: &Bench<'_>, pattern: Pattern, bare_side: bool, times: usize) {
+    let n = bench.conditions.len();
+    let bare: Vec<Bare> = if bare_side {
+        (0..n).map(|i| bench.bare(pattern, i)).collect()
+    } else {
+        Vec::new()
+    };
+    let mut prefixes: Vec<_> = if pattern == Pattern::Branch && !bare_side {
+        (0..n)
+            .map(|i| {
+                let ep = bench.prefix(i);
+                let s = ep.snapshot();
+                (ep, s)
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let t = Instant::now();
+    for _ in 0..times {
+        for i in 0..n {
+            if bare_side {
+                let b = &bare[i];
+                let mut data = MjData::new(Box::new(b.model.clone()));
+                replay(b, &mut data, pattern != Pattern::Branch);
+            } else {
+                match pattern {
+                    Pattern::Scripted => {
+                        std::hint::black_box(bench.scripted(i, &mut osms_sim::NoHooks));
+                    }
+                    Pattern::Teacher => {
+                        std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
+                    }
+                    Pattern::Branch => {
+                        let (ep, s) = &mut prefixes[i];
+                        bench.branches(ep, s, false);
+                    }
+                }
             }
-            std::hint::black_box(data.qpos()[0]);
         }
-    });
-
-    let us = |t: Duration| t.as_secs_f64() * 1e6 / physics_steps as f64;
-    let rate = |t: Duration| n as f64 / t.as_secs_f64();
+    }
     println!(
-        "scripted-catcher rollouts: {n} conditions, one core, {} physics steps per rollout on average",
-        physics_steps as u64 / n
-    );
-    println!(
-        "  episode loop        {:8.1} rollouts/s   {:6.2} us per physics step",
-        rate(t_episode),
-        us(t_episode)
-    );
-    println!(
-        "  bare mj_step replay {:8.1} rollouts/s   {:6.2} us per physics step",
-        rate(t_bare),
-        us(t_bare)
-    );
-    println!(
-        "  ratio (episode / bare)  {:.3}   (target >= 0.85)",
-        t_bare.as_secs_f64() / t_episode.as_secs_f64()
+        "{}:{} ran {times} times in {:.1} s",
+        pattern.name(),
+        if bare_side { "bare" } else { "osms" },
+        t.elapsed().as_secs_f64()
     );
 }

@@ -265,6 +265,11 @@ impl Policy for ScriptedCatcher {
         debug_assert_eq!(action.len(), N_ACTION);
         action
     }
+
+    /// It reads the privileged contact count, never the force.
+    fn reads_contact_force(&self) -> bool {
+        false
+    }
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@
 
 use std::collections::VecDeque;
 
-use mujoco_rs::mujoco_c::mjtState;
+use mujoco_rs::mujoco_c::{mjtStage, mjtState};
 use mujoco_rs::prelude::*;
 use osms_make::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
@@ -80,11 +80,23 @@ pub struct PolicyView<'a> {
     /// step): a controller can hand control back on it, and a follow-through moves along its
     /// incoming direction.
     pub first_contact: Option<&'a FirstContact>,
+    /// The simulator at the step's start: positions, velocities, kinematics, contacts and
+    /// Jacobians are current; acceleration-stage fields only at steps with an admissible
+    /// contact and only if the policy [reads the contact force](Policy::reads_contact_force).
     pub data: &'a MjData<Box<MjModel>>,
 }
 
 pub trait Policy {
     fn act(&mut self, view: &PolicyView<'_>) -> Action;
+
+    /// Whether `act` reads the admissible normal force of the privileged frame (or the
+    /// acceleration-stage fields of `data`: `qacc`, `efc_force`, actuator forces). Observing
+    /// that force at a control step with hand–object contact costs a constraint solve beyond
+    /// the physics steps; a policy that does not read it should say so, and then sees NaN in
+    /// its place.
+    fn reads_contact_force(&self) -> bool {
+        true
+    }
 }
 
 /// Points where the method changes a rollout from outside the policy.
@@ -209,6 +221,9 @@ pub struct Episode<'w> {
     ranges: [[f64; 2]; N_ARM + 1],
     /// qvel before the current physics step (reused buffer).
     qvel_before: Vec<f64>,
+    /// The observation ran `mj_step1` on the current state, so the next physics step is
+    /// `mj_step2` alone: the control step's observation costs no extra forward pass.
+    stepped1: bool,
 }
 
 const STATE: u32 = mjtState::mjSTATE_INTEGRATION as u32;
@@ -348,6 +363,7 @@ impl<'w> Episode<'w> {
             step: 0,
             ranges: std::array::from_fn(|i| ranges[i]),
             qvel_before: vec![0.0; nv],
+            stepped1: false,
         }
     }
 
@@ -394,13 +410,28 @@ impl<'w> Episode<'w> {
     }
 
     /// The observation at the start of a control step. Kinematics are recomputed first
-    /// (`mj_step` leaves them one physics step behind the state), which leaves the integration
-    /// state untouched, so a restored episode observes exactly what an uninterrupted one does.
+    /// (`mj_step` leaves them one physics step behind the state) by `mj_step1`, the first half
+    /// of the next physics step, which leaves the integration state untouched, so a restored
+    /// episode observes exactly what an uninterrupted one does. The admissible normal force is
+    /// the constraint solve's at this state under the controls of the last physics step; it
+    /// is solved for only where it can be non-zero and someone reads it (`forces`), else NaN.
     /// A replay (`noisy = false`) leaves out the observation noise: it reads no stream, and
     /// the recorded deployable frames keep the noisy values.
-    fn observe(&mut self, noisy: bool) -> Frame {
-        self.data.forward();
+    fn observe(&mut self, noisy: bool, forces: bool) -> Frame {
+        self.data.step1();
+        self.stepped1 = true;
         let ids = &self.world.ids;
+        let mut contacts = scan(&self.data, &ids.geom_class, false);
+        if contacts.admissible_contacts > 0 {
+            if forces {
+                // The acceleration stage under the last physics step's controls; the physics
+                // step's `mj_step2` redoes it under the new ones.
+                self.data.forward_skip(mjtStage::mjSTAGE_VEL, false);
+                contacts = scan(&self.data, &ids.geom_class, true);
+            } else {
+                contacts.admissible_force_n = f64::NAN;
+            }
+        }
         let qpos = self.data.qpos();
         let qvel = self.data.qvel();
         let mut robot = Vec::with_capacity(48);
@@ -415,7 +446,6 @@ impl<'w> Episode<'w> {
         let palm_pos = self.data.site_xpos()[site];
         let normal = palm_normal(&self.data.site_xmat()[site]);
         let palm_vel = self.palm_velocity(qvel);
-        let contacts = scan(&self.data, &ids.geom_class);
 
         let mut privileged = robot.clone();
         privileged.extend(&qpos[o..o + 7]);
@@ -463,7 +493,10 @@ impl<'w> Episode<'w> {
         if self.is_done() {
             return false;
         }
-        let frame = self.observe(true);
+        let frame = self.observe(
+            true,
+            self.spec.record_privileged || policy.reads_contact_force(),
+        );
         self.controller.history.push_back(frame.deployable.clone());
         while self.controller.history.len() > self.spec.history_steps.max(1) {
             self.controller.history.pop_front();
@@ -566,7 +599,7 @@ impl<'w> Episode<'w> {
         if self.is_done() {
             return false;
         }
-        let mut frame = self.observe(false);
+        let mut frame = self.observe(false, self.spec.record_privileged);
         at_start(k, &self.data);
         let row = |v: &[f32], w: usize| -> [f64; N_ACTION] {
             std::array::from_fn(|c| f64::from(v[k * w + c]))
@@ -639,7 +672,13 @@ impl<'w> Episode<'w> {
         }
         self.qvel_before.copy_from_slice(self.data.qvel());
         let time = self.data.time();
-        self.data.step();
+        // mj_step is mj_step1 and mj_step2 (MuJoCo's engine_forward.c); the controls enter only
+        // the second half.
+        if std::mem::take(&mut self.stepped1) {
+            self.data.step2();
+        } else {
+            self.data.step();
+        }
 
         let unstable = self.data.warning().iter().any(|w| w.number > 0)
             || self
@@ -653,7 +692,7 @@ impl<'w> Episode<'w> {
             return 0.0;
         }
         // After mj_step, contacts and kinematics describe the state before integration.
-        let contacts = scan(&self.data, &ids.geom_class);
+        let contacts = scan(&self.data, &ids.geom_class, true);
         let site = ids.palm_site;
         let d = ids.object_dof;
         let qv = &self.qvel_before;
@@ -709,6 +748,7 @@ impl<'w> Episode<'w> {
             w.number = number;
             w.lastinfo = lastinfo;
         }
+        self.stepped1 = false;
         self.controller = snapshot.controller.clone();
         self.rng = snapshot.rng.clone();
         self.evaluator = snapshot.evaluator.clone();

@@ -200,8 +200,10 @@ impl ContactScan {
     }
 }
 
-/// Classifies the contacts in `data` using `classes` (one per geom).
-pub fn scan<M: ModelType>(data: &MjData<M>, classes: &[GeomClass]) -> ContactScan {
+/// Classifies the contacts in `data` using `classes` (one per geom). With `forces` it also sums
+/// the admissible normal forces, which needs the constraint solve of this state; without, the
+/// sum stays 0.
+pub fn scan<M: ModelType>(data: &MjData<M>, classes: &[GeomClass], forces: bool) -> ContactScan {
     let mut out = ContactScan::default();
     for (i, c) in data.contact().iter().enumerate() {
         let (a, b) = (classes[c.geom[0] as usize], classes[c.geom[1] as usize]);
@@ -216,8 +218,10 @@ pub fn scan<M: ModelType>(data: &MjData<M>, classes: &[GeomClass]) -> ContactSca
                 }
                 if o.is_admissible() {
                     out.admissible_contacts += 1;
-                    // The first component of the contact-frame force is the normal force.
-                    out.admissible_force_n += data.contact_force(i)[0];
+                    if forces {
+                        // The first component of the contact-frame force is the normal force.
+                        out.admissible_force_n += data.contact_force(i)[0];
+                    }
                 }
             }
             None => {
