@@ -13,7 +13,12 @@
 //!   the window and runs to the end. The bare side restores MuJoCo's state (`mj_setState`) and
 //!   replays each branch. The prefix is untimed on both sides.
 //!
-//! Every rollout is timed on both sides back to back, in alternating order, `rounds` times; a
+//! The teacher's observation includes the admissible contact force at the current state under
+//! the held controls, a constraint solve the physics steps do not share (docs/sim.md, "What the
+//! loop costs"). For the teacher and branches a third side replays the controls and also pays
+//! for those solves; the osms time against it is the share of osms's own work.
+//!
+//! Every rollout is timed on all sides back to back, in rotating order, `rounds` times; a
 //! rollout's time is its fastest round (interruptions only ever add time), and a pattern's ratio
 //! is the sum of bare times over the sum of osms times. The whole measurement repeats `runs`
 //! times and the figures are min / median / max over runs. Prints figures; asserts nothing about
@@ -26,7 +31,7 @@
 
 use std::time::{Duration, Instant};
 
-use mujoco_rs::mujoco_c::mjtState;
+use mujoco_rs::mujoco_c::{mjtStage, mjtState};
 use mujoco_rs::prelude::*;
 use osms_make::rng;
 use osms_policy::catch::{CatchEpisode, CatchTaskSpec, OBS_LEN};
@@ -35,7 +40,8 @@ use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::conditions::sample;
 use osms_sim::control::DrSpec;
 use osms_sim::episode::{Episode, Hooks, RolloutSpec, initial_data};
-use osms_sim::{Action, ConditionSpec, N_ARM, TaskCondition, World, WorldSpec};
+use osms_sim::metrics::scan;
+use osms_sim::{Action, ConditionSpec, GeomClass, N_ARM, TaskCondition, World, WorldSpec};
 
 const STATE: u32 = mjtState::mjSTATE_INTEGRATION as u32;
 /// Branches per condition, as validation's Q perturbed rollouts.
@@ -43,12 +49,18 @@ const BRANCHES: usize = 4;
 /// Control steps of the perturbed window (the paper's OSW is a few steps before contact).
 const WINDOW: usize = 6;
 
-/// Records the controls of every physics step.
-#[derive(Default)]
-struct Controls(Vec<Vec<f64>>);
+/// Records the controls of every physics step and where each control step starts.
+#[derive(Default, Clone)]
+struct Controls {
+    ctrl: Vec<Vec<f64>>,
+    control_starts: Vec<usize>,
+}
 impl Hooks for Controls {
+    fn override_arm(&mut self, _step: usize, _action: &mut Action) {
+        self.control_starts.push(self.ctrl.len());
+    }
     fn after_physics_step(&mut self, data: &MjData<Box<MjModel>>) {
-        self.0.push(data.ctrl().to_vec());
+        self.ctrl.push(data.ctrl().to_vec());
     }
 }
 
@@ -59,6 +71,11 @@ struct Perturb {
     controls: Option<Controls>,
 }
 impl Hooks for Perturb {
+    fn override_arm(&mut self, step: usize, action: &mut Action) {
+        if let Some(c) = &mut self.controls {
+            c.override_arm(step, action);
+        }
+    }
     fn perturb(&mut self, step: usize, action: &mut Action) {
         if (self.from..self.from + WINDOW).contains(&step) {
             for (c, a) in action[..N_ARM].iter_mut().enumerate() {
@@ -103,12 +120,12 @@ impl Pattern {
 struct Bare {
     model: MjModel,
     start: Box<[f64]>,
-    branches: Vec<Vec<Vec<f64>>>,
+    branches: Vec<Controls>,
 }
 
 impl Bare {
     fn physics_steps(&self) -> usize {
-        self.branches.iter().map(Vec::len).sum()
+        self.branches.iter().map(|b| b.ctrl.len()).sum()
     }
 }
 
@@ -192,7 +209,7 @@ impl Bench<'_> {
         ep: &mut CatchEpisode<'_>,
         snapshot: &osms_policy::catch::CatchSnapshot,
         record: bool,
-    ) -> Vec<Vec<Vec<f64>>> {
+    ) -> Vec<Controls> {
         let agent = &self.agent;
         (0..BRANCHES)
             .map(|b| {
@@ -208,7 +225,7 @@ impl Bench<'_> {
                     .1
                 {}
                 std::hint::black_box(ep.episode().outcome());
-                hooks.controls.map(|c| c.0).unwrap_or_default()
+                hooks.controls.unwrap_or_default()
             })
             .collect()
     }
@@ -234,7 +251,7 @@ impl Bench<'_> {
                 Bare {
                     model: data.model().clone(),
                     start: data.state(STATE),
-                    branches: vec![controls.0],
+                    branches: vec![controls],
                 }
             }
             Pattern::Branch => {
@@ -253,16 +270,35 @@ impl Bench<'_> {
 }
 
 /// One bare replay: a fresh `MjData` for a whole rollout (as osms makes one), an `mj_setState`
-/// onto a live one for branches (as osms restores one).
-fn replay(bare: &Bare, data: &mut MjData<Box<MjModel>>, fresh: bool) {
+/// onto a live one for branches (as osms restores one). With `classes`, it also pays for what
+/// the teacher's observation must cost on top of the physics: at every control step that
+/// starts with an admissible hand–object contact, the constraint solve of the observed contact
+/// force under the held controls (`Episode::observe`).
+fn replay(
+    bare: &Bare,
+    data: &mut MjData<Box<MjModel>>,
+    fresh: bool,
+    classes: Option<&[GeomClass]>,
+) {
     if fresh {
         *data = MjData::new(Box::new(bare.model.clone()));
     }
-    for controls in &bare.branches {
+    for branch in &bare.branches {
         data.set_state(&bare.start, STATE).expect("state");
-        for ctrl in controls {
-            data.ctrl_mut().copy_from_slice(ctrl);
-            data.step();
+        let mut starts = branch.control_starts.iter().peekable();
+        for (j, ctrl) in branch.ctrl.iter().enumerate() {
+            let observe = classes.filter(|_| starts.next_if_eq(&&j).is_some());
+            if let Some(classes) = observe {
+                data.step1();
+                if scan(data, classes, false).admissible_contacts > 0 {
+                    data.forward_skip(mjtStage::mjSTAGE_VEL, false);
+                }
+                data.ctrl_mut().copy_from_slice(ctrl);
+                data.step2();
+            } else {
+                data.ctrl_mut().copy_from_slice(ctrl);
+                data.step();
+            }
         }
         std::hint::black_box(data.qpos()[0]);
     }
@@ -366,62 +402,75 @@ fn main() {
                 .collect(),
             _ => (0..n).map(|_| None).collect(),
         };
-        let mut ratios = Vec::new();
-        let mut per_step = Vec::new();
+        // The scripted catcher does not read the contact force, so its observation solves
+        // nothing: its third side would be its second.
+        let classes = (pattern != Pattern::Scripted).then_some(world.ids.geom_class.as_slice());
+        let mut figures: Vec<[f64; 3]> = Vec::new();
         for _ in 0..runs {
-            let mut best_osms = vec![Duration::MAX; n];
-            let mut best_bare = vec![Duration::MAX; n];
+            let mut best = vec![[Duration::MAX; 3]; n];
             for round in 0..rounds {
-                for i in 0..n {
+                for (i, best) in best.iter_mut().enumerate() {
                     let b = &bare[i];
                     let mut data = MjData::new(Box::new(b.model.clone()));
-                    let mut osms = || match pattern {
-                        Pattern::Scripted => {
-                            std::hint::black_box(bench.scripted(i, &mut osms_sim::NoHooks));
-                        }
-                        Pattern::Teacher => {
-                            std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
-                        }
-                        Pattern::Branch => {
-                            let (ep, s) = prefixes[i].as_mut().expect("prefix");
-                            bench.branches(ep, s, false);
-                        }
-                    };
                     let fresh = pattern != Pattern::Branch;
-                    let (t_osms, t_bare) = if (round + i) % 2 == 0 {
-                        let a = time(&mut osms);
-                        (a, time(|| replay(b, &mut data, fresh)))
-                    } else {
-                        let b2 = time(|| replay(b, &mut data, fresh));
-                        (time(&mut osms), b2)
-                    };
-                    best_osms[i] = best_osms[i].min(t_osms);
-                    best_bare[i] = best_bare[i].min(t_bare);
+                    // Rotate the order of the sides so that none always runs first.
+                    for k in 0..3 {
+                        let side = (k + round + i) % 3;
+                        let t = match side {
+                            0 => time(|| match pattern {
+                                Pattern::Scripted => {
+                                    std::hint::black_box(bench.scripted(i, &mut osms_sim::NoHooks));
+                                }
+                                Pattern::Teacher => {
+                                    std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
+                                }
+                                Pattern::Branch => {
+                                    let (ep, s) = prefixes[i].as_mut().expect("prefix");
+                                    bench.branches(ep, s, false);
+                                }
+                            }),
+                            1 => time(|| replay(b, &mut data, fresh, None)),
+                            _ => match classes {
+                                Some(_) => time(|| replay(b, &mut data, fresh, classes)),
+                                None => continue,
+                            },
+                        };
+                        best[side] = best[side].min(t);
+                    }
                 }
             }
-            let osms: Duration = best_osms.iter().sum();
-            let raw: Duration = best_bare.iter().sum();
-            ratios.push(raw.as_secs_f64() / osms.as_secs_f64());
-            let us = |t: Duration| t.as_secs_f64() * 1e6 / physics_steps as f64;
-            per_step.push((us(osms), us(raw)));
+            let sum = |side: usize| -> f64 {
+                best.iter().map(|b| b[side]).sum::<Duration>().as_secs_f64()
+            };
+            let (osms, raw) = (sum(0), sum(1));
+            let solves = if classes.is_some() { sum(2) } else { raw };
+            figures.push([raw / osms, solves / osms, osms]);
         }
-        let (lo, mid, hi) = (
-            ratios.iter().copied().fold(f64::INFINITY, f64::min),
-            median(ratios.clone()),
-            ratios.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-        );
-        let osms_us = median(per_step.iter().map(|p| p.0).collect());
-        let bare_us = median(per_step.iter().map(|p| p.1).collect());
+        let column = |c: usize| figures.iter().map(|f| f[c]).collect::<Vec<_>>();
+        let spread = |v: Vec<f64>| {
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            (lo, median(v), hi)
+        };
+        let (lo, mid, hi) = spread(column(0));
+        let (_, solves_mid, _) = spread(column(1));
+        let osms_us = median(column(2)) * 1e6 / physics_steps as f64;
         println!(
-            "  {:<9} {:>7} physics steps  osms {:6.2} us/step  bare {:6.2} us/step  ratio min {:.3}  median {:.3}  max {:.3}  (target >= 0.95)",
+            "  {:<9} {:>6} physics steps  osms {:6.2} us/step  bare {:6.2} us/step  ratio min {:.3}  median {:.3}  max {:.3}  (target >= 0.95)",
             pattern.name(),
             physics_steps,
             osms_us,
-            bare_us,
+            osms_us * mid,
             lo,
             mid,
             hi
         );
+        if classes.is_some() {
+            println!(
+                "  {:<9} against bare + the observed contact-force solves: median {:.3} (the rest is osms's own work)",
+                "", solves_mid
+            );
+        }
     }
 }
 
@@ -450,7 +499,7 @@ fn profile(bench: &Bench<'_>, pattern: Pattern, bare_side: bool, times: usize) {
             if bare_side {
                 let b = &bare[i];
                 let mut data = MjData::new(Box::new(b.model.clone()));
-                replay(b, &mut data, pattern != Pattern::Branch);
+                replay(b, &mut data, pattern != Pattern::Branch, None);
             } else {
                 match pattern {
                     Pattern::Scripted => {

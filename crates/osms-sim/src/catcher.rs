@@ -130,21 +130,6 @@ pub fn dls_step(jac: &[[f64; N_ARM]; 6], err: [f64; 6], damping: f64) -> [f64; N
     std::array::from_fn(|k| (0..6).map(|r| jac[r][k] * y[r]).sum())
 }
 
-/// The palm site's 6 × 7 Jacobian (linear rows, then angular) over the arm joints.
-pub fn palm_jacobian(view: &PolicyView<'_>) -> [[f64; N_ARM]; 6] {
-    let ids = &view.world.ids;
-    let (jacp, jacr) = view.data.jac_site(true, true, ids.palm_site);
-    let nv = view.data.qvel().len();
-    let mut jac = [[0.0; N_ARM]; 6];
-    for (k, &dof) in ids.arm_dof.iter().enumerate() {
-        for r in 0..3 {
-            jac[r][k] = jacp[r * nv + dof];
-            jac[r + 3][k] = jacr[r * nv + dof];
-        }
-    }
-    jac
-}
-
 /// Arm action channels that move the palm along the unit vector `dir`, scaled so that the
 /// largest channel has magnitude 1 (the fastest such motion one control step allows). The
 /// angular rows of the Jacobian are weighted by `orientation_weight`: 1 holds the palm's
@@ -155,7 +140,7 @@ pub fn palm_motion_channels(
     orientation_weight: f64,
     damping: f64,
 ) -> [f64; N_ARM] {
-    let mut jac = palm_jacobian(view);
+    let mut jac = view.palm_jacobian;
     for row in &mut jac[3..] {
         for x in row.iter_mut() {
             *x *= orientation_weight;
@@ -238,7 +223,7 @@ impl Policy for ScriptedCatcher {
             g * e_rot[1],
             g * e_rot[2],
         ];
-        let dq = dls_step(&palm_jacobian(view), err, self.spec.ik_damping);
+        let dq = dls_step(&view.palm_jacobian, err, self.spec.ik_damping);
 
         let dist = norm(sub(p, palm));
         let touching = view

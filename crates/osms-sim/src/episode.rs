@@ -80,6 +80,9 @@ pub struct PolicyView<'a> {
     /// step): a controller can hand control back on it, and a follow-through moves along its
     /// incoming direction.
     pub first_contact: Option<&'a FirstContact>,
+    /// The palm site's 6 × 7 Jacobian over the arm joints (linear rows, then angular), computed
+    /// once per step for the palm velocity and shared by every controller that needs it.
+    pub palm_jacobian: [[f64; N_ARM]; 6],
     /// The simulator at the step's start: positions, velocities, kinematics, contacts and
     /// Jacobians are current; acceleration-stage fields only at steps with an admissible
     /// contact and only if the policy [reads the contact force](Policy::reads_contact_force).
@@ -405,10 +408,6 @@ impl<'w> Episode<'w> {
         self.world.spec.timestep_secs * f64::from(self.world.spec.substeps)
     }
 
-    fn palm_velocity(&self, qvel: &[f64]) -> [f64; 3] {
-        site_velocity(&self.data, self.world.ids.palm_site, qvel)
-    }
-
     /// The observation at the start of a control step. Kinematics are recomputed first
     /// (`mj_step` leaves them one physics step behind the state) by `mj_step1`, the first half
     /// of the next physics step, which leaves the integration state untouched, so a restored
@@ -434,7 +433,7 @@ impl<'w> Episode<'w> {
         }
         let qpos = self.data.qpos();
         let qvel = self.data.qvel();
-        let mut robot = Vec::with_capacity(48);
+        let mut robot = Vec::with_capacity(DEPLOYABLE_LEN);
         robot.extend(ids.arm_qpos.iter().map(|&a| qpos[a]));
         robot.extend(ids.arm_dof.iter().map(|&a| qvel[a]));
         robot.extend(ids.hand_qpos.iter().map(|&a| qpos[a]));
@@ -445,9 +444,15 @@ impl<'w> Episode<'w> {
         let site = ids.palm_site;
         let palm_pos = self.data.site_xpos()[site];
         let normal = palm_normal(&self.data.site_xmat()[site]);
-        let palm_vel = self.palm_velocity(qvel);
+        let (jacp, jacr) = self.data.jac_site(true, true, site);
+        let palm_vel = jacobian_times(&jacp, qvel);
+        let palm_jacobian = std::array::from_fn(|r| {
+            let (rows, r) = if r < 3 { (&jacp, r) } else { (&jacr, r - 3) };
+            ids.arm_dof.map(|dof| rows[r * qvel.len() + dof])
+        });
 
-        let mut privileged = robot.clone();
+        let mut privileged = Vec::with_capacity(PRIVILEGED_LEN);
+        privileged.extend_from_slice(&robot);
         privileged.extend(&qpos[o..o + 7]);
         privileged.extend(&qvel[d..d + 6]);
         privileged.extend(palm_pos);
@@ -485,6 +490,7 @@ impl<'w> Episode<'w> {
             object_pos,
             object_vel,
             arm_targets: std::array::from_fn(|i| self.controller.targets[i]),
+            palm_jacobian,
         }
     }
 
@@ -497,10 +503,14 @@ impl<'w> Episode<'w> {
             true,
             self.spec.record_privileged || policy.reads_contact_force(),
         );
-        self.controller.history.push_back(frame.deployable.clone());
-        while self.controller.history.len() > self.spec.history_steps.max(1) {
-            self.controller.history.pop_front();
+        // The evicted frame's buffer carries the new one: no allocation once the history is full.
+        let mut kept = None;
+        while self.controller.history.len() >= self.spec.history_steps.max(1) {
+            kept = self.controller.history.pop_front();
         }
+        let mut slot = kept.unwrap_or_default();
+        slot.clone_from(&frame.deployable);
+        self.controller.history.push_back(slot);
         let view = PolicyView {
             step: self.step,
             time_secs: self.data.time(),
@@ -510,6 +520,7 @@ impl<'w> Episode<'w> {
             world: self.world,
             condition: &self.condition,
             first_contact: self.evaluator.first_contact(),
+            palm_jacobian: frame.palm_jacobian,
             data: &self.data,
         };
         let mut intended = policy.act(&view);
@@ -666,9 +677,22 @@ impl<'w> Episode<'w> {
         // Gain variation: a servo with gain g·kp toward target c acts like one with gain kp
         // toward q + g (c - q), recomputed every physics step.
         let g = self.dr.gain_scale;
-        for (i, &adr) in ids.arm_qpos.iter().chain(ids.hand_qpos.iter()).enumerate() {
-            let q = self.data.qpos()[adr];
-            self.data.ctrl_mut()[i] = q + g * (self.controller.targets[i] - q);
+        let qpos = self.data.qpos();
+        let q: [f64; N_ACTION] = std::array::from_fn(|i| {
+            qpos[if i < N_ARM {
+                ids.arm_qpos[i]
+            } else {
+                ids.hand_qpos[i - N_ARM]
+            }]
+        });
+        for ((c, q), t) in self
+            .data
+            .ctrl_mut()
+            .iter_mut()
+            .zip(q)
+            .zip(self.controller.targets)
+        {
+            *c = q + g * (t - q);
         }
         self.qvel_before.copy_from_slice(self.data.qvel());
         let time = self.data.time();
@@ -800,7 +824,11 @@ impl<'w> Episode<'w> {
 
 /// The linear velocity of a site from its Jacobian and `qvel`.
 fn site_velocity(data: &MjData<Box<MjModel>>, site: usize, qvel: &[f64]) -> [f64; 3] {
-    let (jacp, _) = data.jac_site(true, false, site);
+    jacobian_times(&data.jac_site(true, false, site).0, qvel)
+}
+
+/// A 3 × nv Jacobian times `qvel`.
+fn jacobian_times(jacp: &[f64], qvel: &[f64]) -> [f64; 3] {
     let nv = qvel.len();
     std::array::from_fn(|r| (0..nv).map(|c| jacp[r * nv + c] * qvel[c]).sum())
 }
@@ -815,6 +843,7 @@ struct Frame {
     object_vel: [f64; 3],
     /// The arm's servo targets in force when the step starts, before its action moves them.
     arm_targets: [f64; N_ARM],
+    palm_jacobian: [[f64; N_ARM]; 6],
 }
 
 #[cfg(test)]

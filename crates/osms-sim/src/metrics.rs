@@ -183,10 +183,11 @@ impl Phase {
 }
 
 /// The contacts of one physics step, classified.
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct ContactScan {
-    /// Classes of the geoms the object touches.
-    pub object_touches: Vec<GeomClass>,
+    /// Classes of the geoms the object touches, one bit per `GeomClass as u8` (a set that
+    /// needs no allocation at physics rate).
+    object_touches: u8,
     /// Summed normal force over admissible (palm, finger) contacts with the object (N).
     pub admissible_force_n: f64,
     pub admissible_contacts: usize,
@@ -196,7 +197,9 @@ pub struct ContactScan {
 
 impl ContactScan {
     pub fn touches(&self, pred: impl Fn(GeomClass) -> bool) -> bool {
-        self.object_touches.iter().any(|c| pred(*c))
+        GeomClass::ALL
+            .into_iter()
+            .any(|c| self.object_touches & (1 << c as u8) != 0 && pred(c))
     }
 }
 
@@ -213,9 +216,7 @@ pub fn scan<M: ModelType>(data: &MjData<M>, classes: &[GeomClass], forces: bool)
         };
         match other {
             Some(o) => {
-                if !out.object_touches.contains(&o) {
-                    out.object_touches.push(o);
-                }
+                out.object_touches |= 1 << o as u8;
                 if o.is_admissible() {
                     out.admissible_contacts += 1;
                     if forces {

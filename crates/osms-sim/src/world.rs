@@ -24,6 +24,15 @@ pub enum GeomClass {
 }
 
 impl GeomClass {
+    pub const ALL: [GeomClass; 6] = [
+        GeomClass::World,
+        GeomClass::Arm,
+        GeomClass::Mount,
+        GeomClass::Palm,
+        GeomClass::Finger,
+        GeomClass::Object,
+    ];
+
     /// Palm and fingers: the surfaces a catch may start on.
     pub fn is_admissible(self) -> bool {
         matches!(self, GeomClass::Palm | GeomClass::Finger)

@@ -489,3 +489,115 @@ fn every_world_variant_loads_from_a_file_with_mujocos_own_parser() {
         assert_eq!(model.ffi().nu, 24);
     }
 }
+
+/// The scripted catcher, reading the privileged contact force or saying it does not.
+struct Catcher {
+    inner: osms_sim::catcher::ScriptedCatcher,
+    reads: bool,
+    /// (admissible contact count, admissible normal force) observed at every step.
+    seen: Vec<(f64, f64)>,
+}
+impl Policy for Catcher {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        let count = osms_sim::episode::PRIVILEGED_CONTACT_COUNT;
+        self.seen
+            .push((view.privileged[count], view.privileged[count - 1]));
+        self.inner.act(view)
+    }
+    fn reads_contact_force(&self) -> bool {
+        self.reads
+    }
+}
+
+/// The controls of every physics step and where each control step starts.
+#[derive(Default)]
+struct Controls {
+    ctrl: Vec<Vec<f64>>,
+    starts: Vec<usize>,
+}
+impl Hooks for Controls {
+    fn override_arm(&mut self, _: usize, _: &mut Action) {
+        self.starts.push(self.ctrl.len());
+    }
+    fn after_physics_step(&mut self, data: &MjData<Box<MjModel>>) {
+        self.ctrl.push(data.ctrl().to_vec());
+    }
+}
+
+/// The loop splits the control step's first physics step into the observation's `mj_step1` and
+/// a later `mj_step2`, and solves for the observed contact force only where it can be non-zero
+/// and is read. Against a plain replay that calls `mj_forward` at every control step's start
+/// and `mj_step` for every physics step: the same observed counts and forces, bit for bit, the
+/// same final state, and the same record whether or not the policy reads the force.
+#[test]
+fn the_observed_contact_force_matches_a_full_forward_pass_and_skipping_it_changes_nothing() {
+    let w = world();
+    let spec = RolloutSpec {
+        dr: osms_sim::control::DrSpec::paper(),
+        ..RolloutSpec::default()
+    };
+    let catcher = |reads| Catcher {
+        inner: osms_sim::catcher::ScriptedCatcher::new(
+            osms_sim::catcher::CatcherSpec::default(),
+            spec.control.clone(),
+        ),
+        reads,
+        seen: Vec::new(),
+    };
+    let mut contact_steps = 0;
+    for i in 0..6 {
+        let cond = sampled(i, &w);
+        let stream = || rng::stream(0, "t", "force", i);
+        let mut reading = catcher(true);
+        let mut controls = Controls::default();
+        let mut ep = Episode::new(&w, &spec, cond.clone(), stream());
+        while ep.step(&mut reading, &mut controls) {}
+        let final_qpos = ep.data().qpos().to_vec();
+        let record = ep.finish();
+
+        let mut blind = catcher(false);
+        let blind_record =
+            Episode::new(&w, &spec, cond.clone(), stream()).run(&mut blind, &mut NoHooks);
+        let bytes = |r: &osms_sim::RolloutRecord| postcard::to_stdvec(r).expect("encode");
+        assert_eq!(bytes(&record), bytes(&blind_record), "condition {i}");
+
+        let mut data = osms_sim::episode::initial_data(&w, &cond, &record.dr);
+        let ends = controls
+            .starts
+            .iter()
+            .skip(1)
+            .copied()
+            .chain([controls.ctrl.len()]);
+        for (k, (&start, end)) in controls.starts.iter().zip(ends).enumerate() {
+            data.forward();
+            let scan = osms_sim::metrics::scan(&data, &w.ids.geom_class, true);
+            let (count, force) = reading.seen[k];
+            assert_eq!(
+                count, scan.admissible_contacts as f64,
+                "condition {i} step {k}"
+            );
+            assert_eq!(
+                force.to_bits(),
+                scan.admissible_force_n.to_bits(),
+                "condition {i} step {k}"
+            );
+            let (blind_count, blind_force) = blind.seen[k];
+            assert_eq!(blind_count, count);
+            if count > 0.0 {
+                contact_steps += 1;
+                assert!(
+                    blind_force.is_nan(),
+                    "condition {i} step {k}: {blind_force}"
+                );
+            } else {
+                assert_eq!(blind_force.to_bits(), force.to_bits());
+            }
+            for ctrl in &controls.ctrl[start..end] {
+                data.ctrl_mut().copy_from_slice(ctrl);
+                data.step();
+            }
+        }
+        assert_eq!(data.qpos(), final_qpos.as_slice(), "condition {i}");
+    }
+    assert!(contact_steps > 10, "{contact_steps} steps with contact");
+}
