@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Shares of a rollout's time by part of the loop, from `perf script` output of the rollout
-bench (scripts/profile-rollout). Each sample goes to the first part whose frames appear on its
-call stack (innermost frame first); "a|b" means frame b called from inside frame a."""
+bench (scripts/profile-rollout). Only samples under the bench's `profiled_loop` count as the
+loop; each goes to the first part whose frames appear on its call stack (innermost frame
+first); "a|b" means frame b called from inside frame a."""
 import re
 import sys
 
@@ -22,10 +23,12 @@ PARTS = [
     ("record", ["push_record"]),
     ("control step: reward, history, noise, delays, targets", ["step_with_hooks", "Episode::step"]),
 ]
-OUTSIDE = "bench setup (outside the timed loop)"
+OUTSIDE = "outside"
 
 
 def part(frames):
+    if not any("profiled_loop" in f for f in frames):
+        return OUTSIDE
     for name, keys in PARTS:
         for key in keys:
             if "|" in key:
@@ -54,12 +57,14 @@ def main():
             counts[name] = counts.get(name, 0) + 1
             total += 1
         block = []
-    if not total:
-        sys.exit("no samples")
-    for name in [p[0] for p in PARTS] + [OUTSIDE]:
+    outside = counts.pop(OUTSIDE, 0)
+    inside = total - outside
+    if not inside:
+        sys.exit("no samples inside the bench's profiled_loop")
+    for name in [p[0] for p in PARTS]:
         if counts.get(name):
-            print(f"{100 * counts[name] / total:6.2f}%  {name}")
-    print(f"{total} samples")
+            print(f"{100 * counts[name] / inside:6.2f}%  {name}")
+    print(f"{inside} samples in the loop ({outside} outside it, in the bench's own set-up, left out)")
 
 
 main()

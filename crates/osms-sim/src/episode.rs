@@ -85,18 +85,20 @@ pub struct PolicyView<'a> {
     pub palm_jacobian: [[f64; N_ARM]; 6],
     /// The simulator at the step's start: positions, velocities, kinematics, contacts and
     /// Jacobians are current; acceleration-stage fields only at steps with an admissible
-    /// contact and only if the policy [reads the contact force](Policy::reads_contact_force).
+    /// contact and only if the policy [reads the contact force](Policy::reads_contact_force)
+    /// (elsewhere they are left from the last physics step and do not match the contacts).
     pub data: &'a MjData<Box<MjModel>>,
 }
 
 pub trait Policy {
     fn act(&mut self, view: &PolicyView<'_>) -> Action;
 
-    /// Whether `act` reads the admissible normal force of the privileged frame (or the
-    /// acceleration-stage fields of `data`: `qacc`, `efc_force`, actuator forces). Observing
-    /// that force at a control step with hand–object contact costs a constraint solve beyond
-    /// the physics steps; a policy that does not read it should say so, and then sees NaN in
-    /// its place.
+    /// Whether `act` reads the admissible normal force of the privileged frame. Observing that
+    /// force at a control step with hand–object contact costs a constraint solve beyond the
+    /// physics steps; a policy that does not read it should say so, and then sees NaN in its
+    /// place. (The acceleration-stage fields of `data` — `qacc`, `efc_force`, actuator forces,
+    /// `mj_contactForce` — are current only where that solve ran; elsewhere they are the last
+    /// physics step's.)
     fn reads_contact_force(&self) -> bool {
         true
     }

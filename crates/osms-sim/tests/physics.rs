@@ -601,3 +601,45 @@ fn the_observed_contact_force_matches_a_full_forward_pass_and_skipping_it_change
     }
     assert!(contact_steps > 10, "{contact_steps} steps with contact");
 }
+
+/// A record that keeps privileged frames gets the solved force even from a policy that does
+/// not read it.
+#[test]
+fn recorded_privileged_frames_carry_the_force_whatever_the_policy_reads() {
+    let w = world();
+    let spec = RolloutSpec {
+        dr: osms_sim::control::DrSpec::paper(),
+        record_privileged: true,
+        ..RolloutSpec::default()
+    };
+    let run = |reads| {
+        let mut policy = Catcher {
+            inner: osms_sim::catcher::ScriptedCatcher::new(
+                osms_sim::catcher::CatcherSpec::default(),
+                spec.control.clone(),
+            ),
+            reads,
+            seen: Vec::new(),
+        };
+        let record = Episode::new(&w, &spec, sampled(2, &w), rng::stream(0, "t", "force", 2))
+            .run(&mut policy, &mut NoHooks);
+        (record, policy.seen)
+    };
+    let (reading, seen) = run(true);
+    let (blind, blind_seen) = run(false);
+    assert_eq!(reading, blind);
+    assert_eq!(seen.len(), reading.steps);
+    let count = osms_sim::episode::PRIVILEGED_CONTACT_COUNT;
+    let len = osms_sim::episode::PRIVILEGED_LEN;
+    let mut touching = 0;
+    for (k, ((_, force), (_, blind_force))) in seen.iter().zip(&blind_seen).enumerate() {
+        assert_eq!(force.to_bits(), blind_force.to_bits(), "step {k}");
+        assert_eq!(
+            reading.privileged[k * len + count - 1],
+            *force as f32,
+            "step {k}"
+        );
+        touching += usize::from(reading.privileged[k * len + count] > 0.0);
+    }
+    assert!(touching > 3, "{touching} steps with contact");
+}
