@@ -509,6 +509,17 @@ impl Policy for Catcher {
     }
 }
 
+fn catcher(spec: &RolloutSpec, reads: bool) -> Catcher {
+    Catcher {
+        inner: osms_sim::catcher::ScriptedCatcher::new(
+            osms_sim::catcher::CatcherSpec::default(),
+            spec.control.clone(),
+        ),
+        reads,
+        seen: Vec::new(),
+    }
+}
+
 /// The controls of every physics step and where each control step starts.
 #[derive(Default)]
 struct Controls {
@@ -536,26 +547,18 @@ fn the_observed_contact_force_matches_a_full_forward_pass_and_skipping_it_change
         dr: osms_sim::control::DrSpec::paper(),
         ..RolloutSpec::default()
     };
-    let catcher = |reads| Catcher {
-        inner: osms_sim::catcher::ScriptedCatcher::new(
-            osms_sim::catcher::CatcherSpec::default(),
-            spec.control.clone(),
-        ),
-        reads,
-        seen: Vec::new(),
-    };
     let mut contact_steps = 0;
     for i in 0..6 {
         let cond = sampled(i, &w);
         let stream = || rng::stream(0, "t", "force", i);
-        let mut reading = catcher(true);
+        let mut reading = catcher(&spec, true);
         let mut controls = Controls::default();
         let mut ep = Episode::new(&w, &spec, cond.clone(), stream());
         while ep.step(&mut reading, &mut controls) {}
         let final_qpos = ep.data().qpos().to_vec();
         let record = ep.finish();
 
-        let mut blind = catcher(false);
+        let mut blind = catcher(&spec, false);
         let blind_record =
             Episode::new(&w, &spec, cond.clone(), stream()).run(&mut blind, &mut NoHooks);
         let bytes = |r: &osms_sim::RolloutRecord| postcard::to_stdvec(r).expect("encode");
@@ -613,14 +616,7 @@ fn recorded_privileged_frames_carry_the_force_whatever_the_policy_reads() {
         ..RolloutSpec::default()
     };
     let run = |reads| {
-        let mut policy = Catcher {
-            inner: osms_sim::catcher::ScriptedCatcher::new(
-                osms_sim::catcher::CatcherSpec::default(),
-                spec.control.clone(),
-            ),
-            reads,
-            seen: Vec::new(),
-        };
+        let mut policy = catcher(&spec, reads);
         let record = Episode::new(&w, &spec, sampled(2, &w), rng::stream(0, "t", "force", 2))
             .run(&mut policy, &mut NoHooks);
         (record, policy.seen)
