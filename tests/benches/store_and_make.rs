@@ -18,8 +18,10 @@ use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use osms_make::{MakeOptions, Outcome, Pipeline, Plan, State, rng};
-use osms_store::{Hash, Store, decode, encode};
+use osms_core::rng;
+use osms_core::{decode, encode};
+use osms_make::{MakeOptions, Outcome, Pipeline, Plan, State};
+use osms_store::{Hash, Store};
 use osms_tests::Project;
 use osms_tests::kinds::Numbers;
 use osms_tests::project::Silent;

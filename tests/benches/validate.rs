@@ -64,11 +64,11 @@ fn main() {
     let h = hashes(&report);
     let bytes = |name: &str| store.get(&h[name]).expect("object");
     let sharded = |name: &str| bytes(name);
-    let world = osms_store::decode::<WorldArtifact>(&bytes("world"))
+    let world = osms_core::decode::<WorldArtifact>(&bytes("world"))
         .expect("world")
         .world()
         .expect("world");
-    let teacher: Teacher = osms_store::decode(&bytes("teacher@0")).expect("teacher");
+    let teacher: Teacher = osms_core::decode(&bytes("teacher@0")).expect("teacher");
     let d_r: Dataset =
         osms_make::assemble(&sharded("d_r@0"), &osms_make::StoreObjects(&store)).expect("D_R");
     let sets: CandidateSets = osms_make::assemble(
@@ -76,7 +76,7 @@ fn main() {
         &osms_make::StoreObjects(&store),
     )
     .expect("candidates");
-    let model = osms_store::decode::<ErrorModelArtifact>(&bytes("error_model@0"))
+    let model = osms_core::decode::<ErrorModelArtifact>(&bytes("error_model@0"))
         .expect("error model")
         .model;
     let mut task = d_r.task.clone();

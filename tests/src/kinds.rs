@@ -3,11 +3,11 @@
 use std::time::Duration;
 
 use mujoco_rs::prelude::MjModel;
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
+use osms_core::{Artifact, NoParams};
 use osms_make::{
     Ctx, ItemStage, Numerics, Registry, Scale, Sharded, Slot, Stage, StageError, Summarize,
 };
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 /// All test kinds.
@@ -143,10 +143,6 @@ impl ItemStage for NumbersKind {
         Ok(Numbers { rows: items })
     }
 }
-
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NoParams {}
 
 /// Signs of the values: many inputs map to one output, which makes early cutoff observable.
 pub struct SignsKind;

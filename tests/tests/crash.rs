@@ -335,8 +335,8 @@ fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashe
     let mut killed = 0;
     let mut mid_build = 0;
     for i in 0..KILLS {
-        let mut rng = osms_make::rng::stream(0, "crash test", "kill delay", i);
-        let delay = osms_make::rng::uniform(&mut rng, 0.0, 1.2);
+        let mut rng = osms_core::rng::stream(0, "crash test", "kill delay", i);
+        let delay = osms_core::rng::uniform(&mut rng, 0.0, 1.2);
         let seed = seed_of(i).to_string();
         let records_before = index_len(&p.store);
         let mut child = command(&p, &["make", "--jobs", "2", "--seed", &seed])

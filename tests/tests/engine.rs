@@ -198,7 +198,7 @@ impl ItemStage for NumbersV2 {
         ctx: &osms_make::Ctx<'_, NumbersParams>,
         p: &(),
         i: usize,
-        rng: &mut osms_make::rng::StreamRng,
+        rng: &mut osms_core::rng::StreamRng,
     ) -> Result<Vec<f64>, osms_make::StageError> {
         NumbersKind.run_item(ctx, p, i, rng)
     }

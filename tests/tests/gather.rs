@@ -4,8 +4,9 @@
 
 use std::collections::BTreeMap;
 
+use osms_core::{Artifact, decode};
 use osms_make::{Outcome, State};
-use osms_store::{Artifact, Hash, decode};
+use osms_store::Hash;
 use osms_tests::Project;
 use osms_tests::kinds::{Gathered, Numbers, Total};
 use osms_tests::project::{hashes, outcomes};

@@ -2,8 +2,8 @@
 //! a manifest of them (the same for any shard count), the record lists them as its parts;
 //! consumers assemble or stream it; gc, verify, status and make follow the parts.
 
+use osms_core::decode;
 use osms_make::{Manifest, State, StoreObjects, assemble};
-use osms_store::decode;
 use osms_tests::Project;
 use osms_tests::kinds::{Numbers, Total};
 use osms_tests::project::{hashes, outcomes};

@@ -96,8 +96,8 @@ fn remake_seeds(made: &Made, text: &str, seeds: &[u64]) -> (BTreeMap<String, Has
     (hashes(&report), built)
 }
 
-fn load<A: osms_store::Artifact>(made: &Made, instance: &str) -> A {
-    osms_store::decode(&object(made, instance)).expect("decode")
+fn load<A: osms_core::Artifact>(made: &Made, instance: &str) -> A {
+    osms_core::decode(&object(made, instance)).expect("decode")
 }
 
 fn object(made: &Made, instance: &str) -> Vec<u8> {
@@ -201,9 +201,9 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
 
 /// The tables and figures hold what their source artifacts say, and every file renders.
 fn the_report_shows_its_sources(made: &Made) {
+    use osms_core::table::{Table, Value};
     use osms_report::figure::Figure;
     use osms_report::report::Report;
-    use osms_report::table::{Table, Value};
     use osms_sim::stages::Evaluation;
 
     let ours: Evaluation = load_sharded(made, "eval_ours@0");
@@ -346,12 +346,12 @@ fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
         built.is_empty(),
         "every instance for seed 0 is cached: {built:?}"
     );
-    let table2: osms_report::table::Table =
-        osms_store::decode(&made.store.get(&hashes["table2"]).expect("object")).expect("table2");
+    let table2: osms_core::table::Table =
+        osms_core::decode(&made.store.get(&hashes["table2"]).expect("object")).expect("table2");
     let cell = table2
         .cell("Our method / Ours-IL", "task success")
         .expect("cell");
-    let osms_report::table::Value::Seeds(v) = &cell.ours else {
+    let osms_core::table::Value::Seeds(v) = &cell.ours else {
         panic!("per-seed values: {:?}", cell.ours)
     };
     assert_eq!(v.len(), 2, "two run seeds aggregated");
@@ -481,7 +481,7 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
         let d: Dataset = load_sharded(made, name);
         for item in &d.items {
             let r = &item.rollout;
-            let stream = osms_make::rng::stream(
+            let stream = osms_core::rng::stream(
                 0,
                 name,
                 "attempt",
@@ -772,7 +772,7 @@ fn teacher_queries_reproduce_the_teacher(made: &Made) {
     teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
     let d_e: Dataset = load_sharded(made, "d_e");
     for r in d_e.rollouts().take(3) {
-        let stream = osms_make::rng::stream(0, "test", "query", u64::from(r.item));
+        let stream = osms_core::rng::stream(0, "test", "query", u64::from(r.item));
         let own = rollout(
             &world,
             &teacher.task,
@@ -829,8 +829,8 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
         .record
         .condition
         .clone();
-    let dr = || osms_make::rng::stream(0, "test", "dr", 0);
-    let policy = |i: u64| osms_make::rng::stream(0, "test", "policy", i);
+    let dr = || osms_core::rng::stream(0, "test", "dr", 0);
+    let policy = |i: u64| osms_core::rng::stream(0, "test", "policy", i);
     let once = rollout(&world, &spec, &student, condition.clone(), dr(), policy(0));
     let twice = rollout(&world, &spec, &student, condition.clone(), dr(), policy(0));
     assert_eq!(once, twice, "same streams, same record");
@@ -907,7 +907,7 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
     for r in d_r.rollouts().filter(|r| r.osw.complete) {
         assert_eq!(
             r.dr_stream,
-            osms_make::rng::StreamId {
+            osms_core::rng::StreamId {
                 seed: 0,
                 stage: "d_r".into(),
                 name: "attempt".into(),
@@ -969,7 +969,7 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
         // Common random numbers: the same candidate twice, and another candidate, on stream q.
         let errors = || Errors {
             perturber: Perturber::new(&model),
-            rng: osms_make::rng::stream(0, "test", "errors", u64::from(r.item)),
+            rng: osms_core::rng::stream(0, "test", "errors", u64::from(r.item)),
         };
         let a = run(Some(original), Some(errors()));
         assert_eq!(

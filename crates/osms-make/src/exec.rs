@@ -8,7 +8,8 @@ use std::panic::{self, AssertUnwindSafe};
 use std::sync::Arc;
 use std::time::Instant;
 
-use osms_store::{Hash, ObjectState, Record, ShardOf, Store, read_header};
+use osms_core::read_header;
+use osms_store::{Hash, ObjectState, Record, ShardOf, Store};
 use serde::Serialize;
 
 use crate::error::{Error, Result};

@@ -12,12 +12,13 @@ use std::ops::Range;
 use std::sync::Arc;
 use std::time::Instant;
 
-use osms_store::{Artifact, Hash, decode, encode};
+use osms_core::{Artifact, decode, encode};
+use osms_store::Hash;
 use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use crate::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 
 /// What a stage's `run` returns on failure; any error type converts into it.
 pub type StageError = Box<dyn std::error::Error + Send + Sync>;
@@ -46,6 +47,20 @@ pub trait Summarize {
     /// CSV and JSON.
     fn files(&self) -> Vec<(String, Vec<u8>)> {
         Vec::new()
+    }
+}
+
+/// The one table model of osms-core shows itself: its JSON, its Markdown under its title, and
+/// its Markdown, CSV and JSON files.
+impl Summarize for osms_core::table::Table {
+    fn summary(&self) -> serde_json::Value {
+        self.json()
+    }
+    fn text(&self) -> Option<String> {
+        Some(format!("{}\n\n{}", self.title, self.markdown()))
+    }
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        osms_core::table::Table::files(self)
     }
 }
 

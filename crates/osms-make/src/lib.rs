@@ -11,7 +11,6 @@ mod heads;
 mod kind;
 mod pipeline;
 mod plan;
-pub mod rng;
 pub mod slurm;
 mod status;
 

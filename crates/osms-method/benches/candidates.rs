@@ -8,7 +8,7 @@
 use std::cell::Cell;
 use std::time::{Duration, Instant};
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_method::candidates::{DecoderChart, Generator, SearchParams, candidate_set};
 use osms_method::cvae::{ManifoldParams, Window, train};
 use osms_method::geodesic::{Chart, PullbackMetric, ShootSpec, shoot, shoot_fd};

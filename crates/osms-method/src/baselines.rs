@@ -13,7 +13,7 @@
 //! no extension shares a condition draw with D_M, D_E, D_R, the held-out set or the other
 //! baseline.
 
-use osms_make::rng::StreamRng;
+use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
 use osms_policy::catch::rollout;
 use osms_policy::dataset::{Dataset, DemoRollout, OswWindow};
@@ -516,7 +516,7 @@ pub struct ConstructionTable {
     pub rows: Vec<ConstructionRow>,
 }
 
-impl osms_store::Artifact for ConstructionTable {
+impl osms_core::Artifact for ConstructionTable {
     const TYPE_TAG: &'static str = "method.construction_table";
     const SCHEMA_VERSION: u16 = 1;
 }
@@ -614,7 +614,7 @@ impl osms_make::Stage for ConstructionTableStage {
         Slot::one::<DemoSet>("ours"),
     ];
     const DOC: &'static str = "Table II's demonstration-construction columns for Naive, Normal and ours, with the paper's values";
-    type Params = osms_policy::stages::NoParams;
+    type Params = osms_core::NoParams;
     type Output = ConstructionTable;
 
     fn run(&self, ctx: &Ctx<'_, Self::Params>) -> Result<ConstructionTable, StageError> {
@@ -647,7 +647,7 @@ mod tests {
             condition: osms_sim::conditions::sample(
                 &osms_sim::ConditionSpec::default(),
                 [0.0, 0.0, 1.0],
-                &mut osms_make::rng::stream(0, "test", "omega", 0),
+                &mut osms_core::rng::stream(0, "test", "omega", 0),
             )
             .expect("ω"),
             original_success: true,

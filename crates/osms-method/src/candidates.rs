@@ -12,7 +12,7 @@
 //! |η| = 2K + 1, and the scale s is chosen so that the set's largest ‖ζ − ζ_org‖_{W_a} equals
 //! the geodesic set's.
 
-use osms_make::rng::StreamRng;
+use osms_core::rng::StreamRng;
 use osms_nn::Matrix;
 use serde::{Deserialize, Serialize};
 
@@ -561,7 +561,7 @@ mod tests {
     use super::*;
     use crate::cvae::testing;
     use crate::geodesic::PullbackMetric;
-    use osms_make::rng;
+    use osms_core::rng;
 
     fn params(generator: Generator) -> SearchParams {
         SearchParams {

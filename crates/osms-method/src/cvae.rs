@@ -7,7 +7,7 @@
 //! The unconditional variant (an ablation, paper 6.4) drops ω̄ everywhere and uses the prior
 //! N(0, I).
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use osms_nn::{Activation, Adam, AdamConfig, Matrix, Mlp, Schedule, flatten_grads};
 use serde::{Deserialize, Serialize};
 
@@ -172,7 +172,7 @@ impl Cvae {
     }
 }
 
-impl osms_store::Artifact for Cvae {
+impl osms_core::Artifact for Cvae {
     const TYPE_TAG: &'static str = "method.manifold";
     const SCHEMA_VERSION: u16 = 1;
 }

@@ -34,7 +34,7 @@
 // zips would obscure the formulas.
 #![allow(clippy::needless_range_loop)]
 
-use osms_make::rng::{StreamRng, normal};
+use osms_core::rng::{StreamRng, normal};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
@@ -1069,7 +1069,7 @@ fn cell_stats(devs: &[Vec<f64>], sequences: &[PairSequence<'_>], c: usize) -> Ce
 #[cfg(test)]
 mod tests {
     use super::*;
-    use osms_make::rng::stream;
+    use osms_core::rng::stream;
 
     const C: usize = 3;
 

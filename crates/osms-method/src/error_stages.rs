@@ -3,10 +3,10 @@
 
 use std::fmt::Write;
 
+use osms_core::Artifact;
 use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
 use osms_policy::student_stages::ErrorPairs;
 use osms_sim::{N_ACTION, N_ARM, Phase};
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::error_model::{

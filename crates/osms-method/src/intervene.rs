@@ -10,7 +10,7 @@
 //! (`Perturber::step`, phase known online: the one the previous step ended in), e₀ drawn from
 //! the first phase's stationary distribution.
 
-use osms_make::rng::StreamRng;
+use osms_core::rng::StreamRng;
 use osms_policy::Agent;
 use osms_policy::catch::{CatchEpisode, CatchSnapshot, CatchTaskSpec};
 use osms_sim::conditions::TaskCondition;

@@ -17,13 +17,13 @@
 
 use std::fmt::Write;
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::Artifact;
+use osms_core::rng::{self, StreamRng};
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError, Summarize};
 use osms_policy::dataset::Dataset;
 use osms_policy::stages::{Teacher, policy_numerics};
 use osms_sim::stages::WorldArtifact;
 use osms_sim::{N_ACTION, N_ARM, World};
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::intervene::{Intervention, Snippet};

@@ -2,7 +2,7 @@
 //! z⁰ ∈ argmin_{z ∈ Z} ‖G(z, ω̄) − ζ_org‖²_{W_a} − λ_p log p(z | ω̄), from a fixed multi-start set
 //! by projected Adam, gradients from osms-nn's reverse pass.
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use osms_nn::Matrix;
 use serde::{Deserialize, Serialize};
 

@@ -3,10 +3,10 @@
 
 use std::fmt::Write;
 
-use osms_make::rng::StreamRng;
+use osms_core::Artifact;
+use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Slot, Stage, StageError, Summarize};
 use osms_policy::stages::OswSet;
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::candidates::{CandidateSet, Generator, SearchParams, candidate_set};
@@ -574,13 +574,10 @@ impl Stage for CandidateTableStage {
     ];
     const DOC: &'static str =
         "the candidate generators side by side: sets, deviations, shrunk directions, matching";
-    type Params = osms_policy::stages::NoParams;
+    type Params = osms_core::NoParams;
     type Output = CandidateTable;
 
-    fn run(
-        &self,
-        ctx: &Ctx<'_, osms_policy::stages::NoParams>,
-    ) -> Result<CandidateTable, StageError> {
+    fn run(&self, ctx: &Ctx<'_, osms_core::NoParams>) -> Result<CandidateTable, StageError> {
         let mut rows = Vec::new();
         for (slot, generator) in [
             ("geodesic", Generator::Geodesic),

@@ -17,7 +17,7 @@
 //! where it was needed in full, and otherwise the prefix of perturbed rollouts after which the
 //! threshold was out of reach ([`Robustness`]).
 
-use osms_make::rng::StreamRng;
+use osms_core::rng::StreamRng;
 use osms_policy::Agent;
 use osms_policy::catch::CatchTaskSpec;
 use osms_policy::dataset::DemoRollout;

@@ -5,7 +5,8 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use osms_make::rng::StreamRng;
+use osms_core::Artifact;
+use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError, Summarize};
 use osms_policy::Agent;
 use osms_policy::catch::CatchTaskSpec;
@@ -15,7 +16,6 @@ use osms_policy::stages::{Teacher, policy_numerics};
 use osms_policy::student::Demo;
 use osms_sim::World;
 use osms_sim::stages::WorldArtifact;
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::candidates::Candidate;
@@ -51,7 +51,7 @@ pub struct ErrorStreams {
 
 impl ErrorStreams {
     pub fn rng(&self, item: u32, q: usize) -> StreamRng {
-        osms_make::rng::stream(
+        osms_core::rng::stream(
             self.seed,
             &self.stage,
             &format!("errors-{q}"),

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_nn::kernels::{Level, matmul, matmul_reference};
 use osms_nn::{Activation, Adam, AdamConfig, Matrix, Mlp, Schedule, flatten_grads, mse};
 

@@ -345,9 +345,9 @@ mod tests {
     use super::*;
 
     fn random(rows: usize, cols: usize, seed: u64) -> Matrix {
-        let mut rng = osms_make::rng::stream(seed, "kernels", "test", (rows * 1000 + cols) as u64);
+        let mut rng = osms_core::rng::stream(seed, "kernels", "test", (rows * 1000 + cols) as u64);
         Matrix::from_fn(rows, cols, |_, _| {
-            osms_make::rng::uniform(&mut rng, -1.0, 1.0) as f32
+            osms_core::rng::uniform(&mut rng, -1.0, 1.0) as f32
         })
     }
 

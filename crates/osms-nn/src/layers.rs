@@ -1,6 +1,6 @@
 //! Linear layers, activations and MLPs with hand-derived reverse-mode gradients.
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
 use crate::Matrix;

@@ -26,7 +26,7 @@ pub use optim::{Adam, AdamConfig, Schedule, global_norm};
 /// keys. 2: products accumulate with fused multiply-add; reductions use 8 partial sums.
 pub const NUMERICS_VERSION: u32 = 2;
 
-impl osms_store::Artifact for Mlp {
+impl osms_core::Artifact for Mlp {
     const TYPE_TAG: &'static str = "nn.mlp";
     const SCHEMA_VERSION: u16 = 1;
 }

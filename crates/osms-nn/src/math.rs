@@ -139,9 +139,9 @@ mod tests {
 
     #[test]
     fn every_level_gives_the_scalar_bits() {
-        let mut r = osms_make::rng::stream(5, "math", "test", 0);
+        let mut r = osms_core::rng::stream(5, "math", "test", 0);
         let z: Vec<f32> = (0..1003)
-            .map(|_| osms_make::rng::uniform(&mut r, -30.0, 30.0) as f32)
+            .map(|_| osms_core::rng::uniform(&mut r, -30.0, 30.0) as f32)
             .chain([0.0, -0.0, 1e-30, -1e-30, 95.0, -95.0])
             .collect();
         let scalar: Vec<(u32, u32)> = z

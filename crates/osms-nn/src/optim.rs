@@ -173,10 +173,10 @@ mod tests {
     /// Every level's update gives the scalar update's bits (ragged lengths exercise the tails).
     #[test]
     fn adam_updates_are_identical_on_every_level() {
-        let mut r = osms_make::rng::stream(0, "optim", "test", 0);
+        let mut r = osms_core::rng::stream(0, "optim", "test", 0);
         let mut draw = |n: usize| -> Vec<f32> {
             (0..n)
-                .map(|_| osms_make::rng::uniform(&mut r, -1.0, 1.0) as f32)
+                .map(|_| osms_core::rng::uniform(&mut r, -1.0, 1.0) as f32)
                 .collect()
         };
         let step = AdamStep {

@@ -1,7 +1,7 @@
 //! LayerNorm, the embedding, the Gaussian head, cross-entropy and input Jacobians against finite
 //! differences and closed forms; a small classification trained to a known loss.
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_nn::{
     Activation, Adam, AdamConfig, DiagGaussian, LayerNorm, Matrix, Mlp, Schedule, flatten_grads,
     sinusoidal_embedding, sinusoidal_embedding_backward, softmax_cross_entropy,

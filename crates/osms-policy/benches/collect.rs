@@ -12,7 +12,7 @@
 
 use std::time::Instant;
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_policy::catch::{CatchTask, CatchTaskSpec, rollout};
 use osms_policy::{Agent, PpoConfig, Task, train};
 use osms_sim::catcher::ScriptedCatcher;

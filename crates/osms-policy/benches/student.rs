@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
 use osms_policy::catch::{CatchTask, CatchTaskSpec, rollout};
 use osms_policy::flow::{FlowBatch, normals};

@@ -7,7 +7,7 @@
 //! prior unless `residual_hand`. With a zero-initialised actor the first policy's mean is the
 //! prior. `from_scratch` drops the prior (r covers all 24 channels).
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
 use osms_sim::episode::{PRIVILEGED_LEN, Snapshot};
 use osms_sim::vec3::{norm, sub};

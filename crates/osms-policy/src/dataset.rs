@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use osms_make::rng::StreamId;
+use osms_core::rng::StreamId;
 use osms_sim::Phase;
 use osms_sim::control::DrDraw;
 use osms_sim::{N_ACTION, N_ARM, RolloutRecord, conditions::TaskCondition, spec::ObjectVariant};
@@ -185,7 +185,7 @@ pub struct Dataset {
     pub items: Vec<DatasetItem>,
 }
 
-impl osms_store::Artifact for Dataset {
+impl osms_core::Artifact for Dataset {
     const TYPE_TAG: &'static str = "policy.dataset";
     /// 3: stored as a manifest of its shards (the rollouts are stored once); 4: records keep
     /// the arm's servo targets and ω̄ ends with them; 5: each rollout names its DR stream and

@@ -85,7 +85,7 @@ pub struct DemoSet {
     pub groups: Vec<DemoGroup>,
 }
 
-impl osms_store::Artifact for DemoSet {
+impl osms_core::Artifact for DemoSet {
     const TYPE_TAG: &'static str = "policy.demo_set";
     const SCHEMA_VERSION: u16 = 1;
 }

@@ -7,7 +7,7 @@
 //! embedding of t, then the noisy sample. Nothing here knows about robots; the students of
 //! [`crate::student`] put an observation history in c and an action chunk in x.
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use osms_nn::{Activation, LinearGrad, Matrix, Mlp, sinusoidal_embedding};
 use serde::{Deserialize, Serialize};
 

@@ -9,7 +9,7 @@
 //! [-1, 1]. Probability ratios use the density of u; the tanh Jacobian is the same for the old
 //! and the new policy at a stored u and cancels. The entropy bonus is the Gaussian's.
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use osms_nn::{Activation, Adam, AdamConfig, DiagGaussian, Matrix, Mlp, Schedule, flatten_grads};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

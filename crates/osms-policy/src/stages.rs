@@ -4,13 +4,13 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use osms_make::rng::StreamRng;
+use osms_core::rng::StreamRng;
+use osms_core::{Artifact, NoParams};
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, Stage, StageError, Summarize};
 use osms_sim::World;
 use osms_sim::conditions::sample;
 use osms_sim::control::DrSpec;
 use osms_sim::stages::{Conditions, EvalRow, Evaluation, TableLine, WorldArtifact};
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::catch::{CatchTask, CatchTaskSpec, rollout};
@@ -27,11 +27,6 @@ pub fn policy_numerics() -> Vec<Numerics> {
     });
     n
 }
-
-/// Params of kinds that take none (any given is an error).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NoParams {}
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -16,7 +16,7 @@
 //! Observations and actions are standardised per feature with statistics of the training
 //! demonstrations, frozen into the artifact.
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::episode::DEPLOYABLE_LEN;

@@ -7,13 +7,13 @@
 use std::collections::BTreeSet;
 use std::fmt::Write;
 
-use osms_make::rng::StreamRng;
+use osms_core::Artifact;
+use osms_core::rng::StreamRng;
 use osms_make::{Ctx, Fold, ItemStage, Numerics, Scale, Slot, Stage, StageError, Summarize};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::DrSpec;
 use osms_sim::stages::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::{N_ACTION, Phase, RolloutSpec, World};
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;

@@ -1,7 +1,7 @@
 //! The teacher's catching task: the residual starts exactly at the scripted prior, and a short
 //! teacher training gives the same bytes on a rerun and on 1 or 2 threads.
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_policy::catch::{CatchTask, CatchTaskSpec};
 use osms_policy::{Agent, PpoConfig, Task, TaskEpisode, train};
 use osms_sim::catcher::ScriptedCatcher;

@@ -2,7 +2,7 @@
 //! the initial policy and the optimum within a fixed budget, and train to the same bytes on a
 //! rerun and on 1 or 2 threads.
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_policy::{Agent, EpisodeStats, PpoConfig, Task, TaskEpisode, train};
 
 /// x' = x + 0.1·a, a ∈ [-1, 1] (a velocity command), reward −|x'| for 20 steps.

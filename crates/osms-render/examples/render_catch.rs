@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_render::{RenderOptions, render_rollout};
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::control::DrSpec;

@@ -1,7 +1,7 @@
 //! Tests. Those that render need `libOSMesa.so.8`: they fail (not skip) without it, with the
 //! hint to run `scripts/setup-render`, since the test command installs it first.
 
-use osms_make::rng;
+use osms_core::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::control::{DrDraw, DrSpec, hold_action};
 use osms_sim::{

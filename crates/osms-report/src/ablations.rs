@@ -4,18 +4,18 @@
 
 use std::fmt::Write;
 
+use osms_core::Artifact;
+use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
 use osms_policy::demos::{ConstructionStats, DemoSet};
-use osms_policy::stages::NoParams;
 use osms_sim::stages::Evaluation;
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::claims::{self, Claim, Verdict};
-use crate::table::{Cell, Column, Row, Table, Unit, Value, format_value};
 use crate::tables::{
     POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed, seed_evals,
 };
+use osms_core::table::{Cell, Column, Row, Table, Unit, Value, format_value};
 
 /// Rows of the refinement-and-repair ablation with the paper's task success and f_max.
 const PAPER_REFINE_REPAIR: [(&str, &str, &str); 4] = [

@@ -4,8 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::table::{Table, Unit, Value, format_value};
 use crate::tables::{COVERAGE, POLICY_F_MAX, REPAIR_RATE, TABLE2_ROWS, TABLE3_ROWS, TASK_SUCCESS};
+use osms_core::table::{Table, Unit, Value, format_value};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -297,7 +297,7 @@ pub fn markdown(claims: &[Claim]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::table::{Cell, Column, Row};
+    use osms_core::table::{Cell, Column, Row};
 
     fn t2(ours: Vec<f64>, naive: Vec<f64>) -> Table {
         let cols = [

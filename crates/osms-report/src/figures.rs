@@ -3,17 +3,18 @@
 
 use std::collections::BTreeMap;
 
+use osms_core::Artifact;
+use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
 use osms_method::ios::IosProfile;
-use osms_policy::stages::{NoParams, Teacher};
+use osms_policy::stages::Teacher;
 use osms_policy::student_stages::StudentArtifact;
 use osms_sim::spec::ObjectVariant;
 use osms_sim::stages::{EvalRow, Evaluation, ImpactTrace};
-use osms_store::Artifact;
 
 use crate::figure::{Figure, Mark, Panel, Point, Series};
-use crate::stats::MeanSd;
 use crate::tables::seed_evals;
+use osms_core::stats::MeanSd;
 
 impl Artifact for Figure {
     const TYPE_TAG: &'static str = "report.figure";

@@ -8,8 +8,6 @@ pub mod claims;
 pub mod figure;
 pub mod figures;
 pub mod report;
-pub mod stats;
-pub mod table;
 pub mod tables;
 
 /// Registers the report's stage kinds.

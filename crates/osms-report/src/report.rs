@@ -5,16 +5,17 @@
 
 use std::fmt::Write;
 
+use osms_core::Artifact;
+use osms_core::NoParams;
 use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
 use osms_method::baselines::ConstructionTable;
 use osms_method::stages::CandidateTable;
-use osms_policy::stages::{NoParams, TeacherTable};
-use osms_store::Artifact;
+use osms_policy::stages::TeacherTable;
 use serde::{Deserialize, Serialize};
 
 use crate::claims::{self, Claim};
 use crate::figure::Figure;
-use crate::table::Table;
+use osms_core::table::Table;
 
 /// A table of another stage kind, kept as its own Markdown and export files.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

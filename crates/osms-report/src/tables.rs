@@ -1,32 +1,14 @@
 //! Table II (demonstration construction and closed-loop policy performance) and Table III
 //! (action-error models) as stages, aggregated over the run seeds.
 
-use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
+use osms_core::NoParams;
+use osms_make::{Ctx, Member, Slot, Stage, StageError};
 use osms_method::error_model::ErrorVariant;
 use osms_method::error_stages::{ErrorModelArtifact, TABLE3_VARIANTS};
 use osms_policy::demos::{ConstructionStats, DemoSet};
-use osms_policy::stages::NoParams;
 use osms_sim::stages::{Evaluation, TableLine};
-use osms_store::Artifact;
 
-use crate::table::{Cell, Column, Row, Table, Unit, Value};
-
-impl Artifact for Table {
-    const TYPE_TAG: &'static str = "report.table";
-    const SCHEMA_VERSION: u16 = 1;
-}
-
-impl Summarize for Table {
-    fn summary(&self) -> serde_json::Value {
-        self.json()
-    }
-    fn text(&self) -> Option<String> {
-        Some(format!("{}\n\n{}", self.title, self.markdown()))
-    }
-    fn files(&self) -> Vec<(String, Vec<u8>)> {
-        Table::files(self)
-    }
-}
+use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
 
 /// The "all" line of an evaluation: success, completion and the impact means.
 pub fn overall(eval: &Evaluation) -> Option<TableLine> {

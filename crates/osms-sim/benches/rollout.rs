@@ -33,7 +33,7 @@ use std::time::{Duration, Instant};
 
 use mujoco_rs::mujoco_c::{mjtStage, mjtState};
 use mujoco_rs::prelude::*;
-use osms_make::rng;
+use osms_core::rng;
 use osms_policy::catch::{CatchEpisode, CatchTaskSpec, OBS_LEN};
 use osms_policy::{Agent, PpoConfig, TaskEpisode};
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};

@@ -2,7 +2,7 @@
 //! the initial posture perturbation. The sampler aims every throw so that the object crosses the
 //! palm's horizontal plane, descending, within a configured lateral offset of the palm centre.
 
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SimError};

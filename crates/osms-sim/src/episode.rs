@@ -10,7 +10,7 @@ use std::collections::VecDeque;
 
 use mujoco_rs::mujoco_c::{mjtStage, mjtState};
 use mujoco_rs::prelude::*;
-use osms_make::rng::{self, StreamRng};
+use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
 use crate::conditions::TaskCondition;

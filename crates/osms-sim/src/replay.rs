@@ -5,7 +5,7 @@
 
 use mujoco_rs::mujoco_c::mjtState;
 use mujoco_rs::prelude::*;
-use osms_make::rng;
+use osms_core::rng;
 use serde::Serialize;
 
 use crate::episode::{DEPLOYABLE_LEN, Episode, RolloutRecord, RolloutSpec};
@@ -225,7 +225,7 @@ mod tests {
     use crate::control::{Action, DrSpec, N_ARM, hold_action};
     use crate::episode::{NoHooks, Policy, PolicyView};
     use crate::{ConditionSpec, WorldSpec, conditions};
-    use osms_make::rng;
+    use osms_core::rng;
 
     /// Moves the arm with a different increment every step, so the controls vary.
     struct Sweep(Action);

@@ -4,9 +4,9 @@
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
-use osms_make::rng::StreamRng;
+use osms_core::Artifact;
+use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Sharded, Slot, Stage, StageError, Summarize};
-use osms_store::Artifact;
 use serde::{Deserialize, Serialize};
 
 use crate::catcher::{CatcherSpec, ScriptedCatcher};

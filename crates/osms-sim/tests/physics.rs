@@ -3,7 +3,7 @@
 //! thread-count independence.
 
 use mujoco_rs::prelude::*;
-use osms_make::rng;
+use osms_core::rng;
 use osms_sim::conditions::{GRAVITY_MPS2, launch_velocity, sample};
 use osms_sim::control::{N_ARM, N_HAND, hold_action};
 use osms_sim::episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutSpec};

@@ -1,17 +1,15 @@
 //! Content-addressed artifact store: blake3 hashes, a versioned postcard+zstd codec, atomic
 //! verified reads and writes, an index of stage records, locks, verify and gc.
 //!
-//! Entry points: [`Store`] (objects, records, lock, verify, gc), [`encode`]/[`decode`] (the
-//! artifact codec), [`Hash`] (content hashes and stage keys).
+//! Entry points: [`Store`] (objects, records, lock, verify, gc), [`Hash`] (content hashes and
+//! stage keys). The artifact codec the objects are written in is `osms_core`'s.
 
-mod codec;
 mod error;
 mod fscheck;
 mod hash;
 mod statcache;
 mod store;
 
-pub use codec::{Artifact, FORMAT_VERSION, Header, MAGIC, decode, encode, read_header};
 pub use error::{Error, Result};
 pub use fscheck::{FsCheck, FsClass, classify};
 pub use hash::Hash;

@@ -25,10 +25,11 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
+use osms_core::read_header;
 use serde::{Deserialize, Serialize};
 
 use crate::statcache::{Stamp, StatCache};
-use crate::{Error, Hash, Result, read_header};
+use crate::{Error, Hash, Result};
 
 const MARKER: &str = "OSMS_STORE";
 const MARKER_TEXT: &str = "osms store, layout 1\n";
@@ -719,7 +720,7 @@ fn sorted_files(dir: &Path) -> Result<Vec<PathBuf>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Artifact, encode};
+    use osms_core::{Artifact, encode};
 
     #[derive(Serialize, Deserialize)]
     struct Blob(Vec<u32>);

@@ -123,7 +123,7 @@ fn load(ctx: &Context, target: &str, selection: &Selection) -> Result<Source> {
         ),
     };
     let world_record = world_of(store, record)?;
-    let world: WorldArtifact = osms_store::decode(&store.get(&world_record.content_hash)?)
+    let world: WorldArtifact = osms_core::decode(&store.get(&world_record.content_hash)?)
         .with_context(|| format!("cannot read the world of {}", record.instance()))?;
     Ok(Source {
         resolved,

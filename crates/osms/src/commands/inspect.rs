@@ -1,9 +1,10 @@
 use std::process::ExitCode;
 
 use anyhow::{Context as _, Result, bail};
+use osms_core::read_header;
 use osms_make::Registry;
 use osms_make::{State, StoreObjects};
-use osms_store::{Record, Store, read_header};
+use osms_store::{Record, Store};
 use serde::Serialize;
 
 use crate::cli::{ExportArgs, Selection, ShowArgs};

@@ -5,6 +5,7 @@ use std::fmt::Write;
 
 use serde::{Deserialize, Serialize};
 
+use crate::Artifact;
 use crate::stats::MeanSd;
 
 /// How a column's numbers read.
@@ -90,6 +91,12 @@ pub struct Table {
     pub columns: Vec<Column>,
     pub rows: Vec<Row>,
     pub notes: Vec<String>,
+}
+
+/// A table is stored as itself: Tables II and III are stage outputs.
+impl Artifact for Table {
+    const TYPE_TAG: &'static str = "report.table";
+    const SCHEMA_VERSION: u16 = 1;
 }
 
 fn number(v: f64, unit: Unit) -> String {

@@ -1,0 +1,6 @@
+use serde::{Deserialize, Serialize};
+
+/// Params of kinds that take none (any given is an error).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoParams {}
