@@ -17,7 +17,7 @@ use osms_method::validate::{Case, Cost, ValidateParams, validate};
 use osms_method::validate_stages::ErrorStreams;
 use osms_policy::dataset::Dataset;
 use osms_policy::stages::Teacher;
-use osms_sim::stages::WorldArtifact;
+use osms_sim::artifacts::WorldArtifact;
 use osms_store::Store;
 use osms_tests::project::{Silent, hashes};
 

@@ -204,7 +204,7 @@ fn the_report_shows_its_sources(made: &Made) {
     use osms_core::table::{Table, Value};
     use osms_report::figure::Figure;
     use osms_report::report::Report;
-    use osms_sim::stages::Evaluation;
+    use osms_sim::artifacts::Evaluation;
 
     let ours: Evaluation = load_sharded(made, "eval_ours@0");
     let teacher: Evaluation = load_sharded(made, "eval_teacher");
@@ -362,7 +362,7 @@ fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
 fn datasets_are_disjoint_successes_and_aligned(made: &Made) {
     use osms_policy::dataset::Dataset;
     use osms_sim::N_ARM;
-    use osms_sim::stages::Conditions;
+    use osms_sim::artifacts::Conditions;
 
     let heldout: Conditions = load_sharded(made, "heldout");
     let mut seen: Vec<(String, String)> = heldout
@@ -462,7 +462,7 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
     use osms_policy::catch::CatchEpisode;
     use osms_policy::dataset::Dataset;
     use osms_policy::stages::Teacher;
-    use osms_sim::stages::WorldArtifact;
+    use osms_sim::artifacts::WorldArtifact;
     use osms_sim::{N_ACTION, N_ARM};
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
@@ -568,7 +568,7 @@ fn successful_rollouts_pass_through_all_five_phases(made: &Made) {
 }
 
 fn the_tiny_teacher_beats_the_scripted_prior(made: &Made) {
-    use osms_sim::stages::Evaluation;
+    use osms_sim::artifacts::Evaluation;
     let success = |name: &str| {
         let e: Evaluation = load_sharded(made, name);
         e.table().pop().map_or(0.0, |l| l.success_rate)
@@ -759,7 +759,7 @@ fn teacher_queries_reproduce_the_teacher(made: &Made) {
     use osms_policy::catch::{TeacherQuery, rollout};
     use osms_policy::dataset::Dataset;
     use osms_policy::stages::Teacher;
-    use osms_sim::stages::WorldArtifact;
+    use osms_sim::artifacts::WorldArtifact;
 
     struct Query<'a>(TeacherQuery<'a>);
     impl osms_sim::Policy for Query<'_> {
@@ -804,7 +804,7 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     use osms_policy::stages::Teacher;
     use osms_policy::student::{Demo, Student, StudentPolicy, paired_rollout, rollout};
     use osms_policy::student_stages::StudentArtifact;
-    use osms_sim::stages::WorldArtifact;
+    use osms_sim::artifacts::WorldArtifact;
 
     struct Watch<'s> {
         inner: StudentPolicy<'s>,
@@ -893,7 +893,7 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
     use osms_method::intervene::{Errors, Snippet, execute};
     use osms_policy::dataset::Dataset;
     use osms_policy::stages::Teacher;
-    use osms_sim::stages::WorldArtifact;
+    use osms_sim::artifacts::WorldArtifact;
     use osms_sim::{N_ACTION, N_ARM, Phase};
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
@@ -1023,8 +1023,8 @@ fn validation_is_exact_when_fast_and_dstar_repeats_it(made: &Made) {
     use osms_policy::dataset::Dataset;
     use osms_policy::demos::{DemoSet, Execution, Origin};
     use osms_policy::stages::Teacher;
+    use osms_sim::artifacts::WorldArtifact;
     use osms_sim::episode::DEPLOYABLE_LEN;
-    use osms_sim::stages::WorldArtifact;
     use osms_sim::{N_ACTION, N_ARM};
 
     let extra = r#"
@@ -1218,7 +1218,7 @@ shards = 3
 fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMap<String, Hash>) {
     use osms_policy::dataset::Dataset;
     use osms_policy::demos::{DemoSet, Execution, Origin};
-    use osms_sim::stages::Conditions;
+    use osms_sim::artifacts::Conditions;
 
     let set = |name: &str| -> DemoSet {
         osms_make::assemble(
@@ -1337,7 +1337,7 @@ fn datasets_export_replay_and_render(made: &Made) {
     let p = |d: &Path| d.to_str().expect("utf-8 path").to_string();
 
     // Every tiny D_R episode replays bit for bit in Rust (the library; the CLI for two).
-    let world: osms_sim::stages::WorldArtifact = load(made, "world");
+    let world: osms_sim::artifacts::WorldArtifact = load(made, "world");
     let world = world.world().expect("world");
     for (i, item) in d_r.items.iter().enumerate() {
         let (_, report) = osms_sim::replay::replay(

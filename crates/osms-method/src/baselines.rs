@@ -19,8 +19,8 @@ use osms_policy::catch::rollout;
 use osms_policy::dataset::{Dataset, DemoRollout, OswWindow};
 use osms_policy::demos::{DemoGroup, DemoSet, Execution, Origin};
 use osms_policy::stages::{Teacher, policy_numerics};
+use osms_sim::artifacts::WorldArtifact;
 use osms_sim::conditions::sample;
-use osms_sim::stages::WorldArtifact;
 use serde::{Deserialize, Serialize};
 
 use crate::candidates::{Candidate, SearchParams, candidate_set};

@@ -22,7 +22,7 @@ use osms_core::rng::{self, StreamRng};
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError, Summarize};
 use osms_policy::dataset::Dataset;
 use osms_policy::stages::{Teacher, policy_numerics};
-use osms_sim::stages::WorldArtifact;
+use osms_sim::artifacts::WorldArtifact;
 use osms_sim::{N_ACTION, N_ARM, World};
 use serde::{Deserialize, Serialize};
 

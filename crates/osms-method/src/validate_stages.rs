@@ -15,7 +15,7 @@ use osms_policy::demos::{DemoEntry, DemoGroup, DemoSet, Execution, Origin};
 use osms_policy::stages::{Teacher, policy_numerics};
 use osms_policy::student::Demo;
 use osms_sim::World;
-use osms_sim::stages::WorldArtifact;
+use osms_sim::artifacts::WorldArtifact;
 use serde::{Deserialize, Serialize};
 
 use crate::candidates::Candidate;

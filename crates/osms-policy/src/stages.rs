@@ -8,9 +8,9 @@ use osms_core::rng::StreamRng;
 use osms_core::{Artifact, NoParams};
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, Stage, StageError, Summarize};
 use osms_sim::World;
+use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, TableLine, WorldArtifact};
 use osms_sim::conditions::sample;
 use osms_sim::control::DrSpec;
-use osms_sim::stages::{Conditions, EvalRow, Evaluation, TableLine, WorldArtifact};
 use serde::{Deserialize, Serialize};
 
 use crate::catch::{CatchTask, CatchTaskSpec, rollout};
@@ -20,7 +20,7 @@ use crate::ppo::{Agent, IterationStats, PpoConfig, Task, train};
 /// What a kind that rolls out or trains networks depends on beyond its inputs: MuJoCo,
 /// osms-sim's and osms-nn's numerics.
 pub fn policy_numerics() -> Vec<Numerics> {
-    let mut n = osms_sim::numerics();
+    let mut n = osms_sim::stages::numerics();
     n.push(Numerics {
         name: "osms-nn",
         version: osms_nn::NUMERICS_VERSION.to_string(),

@@ -10,9 +10,9 @@ use std::fmt::Write;
 use osms_core::Artifact;
 use osms_core::rng::StreamRng;
 use osms_make::{Ctx, Fold, ItemStage, Numerics, Scale, Slot, Stage, StageError, Summarize};
+use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::DrSpec;
-use osms_sim::stages::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::{N_ACTION, Phase, RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 

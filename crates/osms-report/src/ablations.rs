@@ -8,7 +8,7 @@ use osms_core::Artifact;
 use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
 use osms_policy::demos::{ConstructionStats, DemoSet};
-use osms_sim::stages::Evaluation;
+use osms_sim::artifacts::Evaluation;
 use serde::{Deserialize, Serialize};
 
 use crate::claims::{self, Claim, Verdict};

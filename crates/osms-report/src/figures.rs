@@ -9,8 +9,8 @@ use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
 use osms_method::ios::IosProfile;
 use osms_policy::stages::Teacher;
 use osms_policy::student_stages::StudentArtifact;
+use osms_sim::artifacts::{EvalRow, Evaluation, ImpactTrace};
 use osms_sim::spec::ObjectVariant;
-use osms_sim::stages::{EvalRow, Evaluation, ImpactTrace};
 
 use crate::figure::{Figure, Mark, Panel, Point, Series};
 use crate::tables::seed_evals;

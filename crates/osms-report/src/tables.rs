@@ -6,7 +6,7 @@ use osms_make::{Ctx, Member, Slot, Stage, StageError};
 use osms_method::error_model::ErrorVariant;
 use osms_method::error_stages::{ErrorModelArtifact, TABLE3_VARIANTS};
 use osms_policy::demos::{ConstructionStats, DemoSet};
-use osms_sim::stages::{Evaluation, TableLine};
+use osms_sim::artifacts::{Evaluation, TableLine};
 
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
 
@@ -364,9 +364,9 @@ impl Stage for Table3Stage {
 pub(crate) mod testing {
     use osms_make::Member;
     use osms_policy::demos::ConstructionStats;
+    use osms_sim::artifacts::{EvalRow, Evaluation};
     use osms_sim::metrics::{Failure, Metrics, Outcome};
     use osms_sim::spec::ObjectVariant;
-    use osms_sim::stages::{EvalRow, Evaluation};
 
     pub(crate) fn stats(repair: f64, refine: f64) -> ConstructionStats {
         ConstructionStats {

@@ -1,6 +1,7 @@
 //! The MuJoCo catching world: xArm7 + ORCA-like hand + ten objects as MJCF, task conditions,
 //! domain randomisation, control loop, contacts, metrics and success, scripted catcher.
 
+pub mod artifacts;
 pub mod catcher;
 pub mod conditions;
 pub mod control;
@@ -35,21 +36,6 @@ pub const MUJOCO_PINNED: &str = "3.17.0";
 /// The version of the MuJoCo library actually loaded (its own `mj_versionString`).
 pub fn mujoco_version() -> String {
     mujoco_rs::mujoco_version().to_string()
-}
-
-/// What the output of a kind that steps MuJoCo through osms-sim depends on beyond its inputs:
-/// the loaded MuJoCo and osms-sim's numerics.
-pub fn numerics() -> Vec<osms_make::Numerics> {
-    vec![
-        osms_make::Numerics {
-            name: "mujoco",
-            version: mujoco_version(),
-        },
-        osms_make::Numerics {
-            name: "osms-sim",
-            version: NUMERICS_VERSION.to_string(),
-        },
-    ]
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@ use osms_export::{ExportSet, Provenance};
 use osms_make::StoreObjects;
 use osms_policy::dataset::Dataset;
 use osms_policy::demos::DemoSet;
-use osms_sim::stages::WorldArtifact;
+use osms_sim::artifacts::WorldArtifact;
 use osms_store::{Record, Store};
 
 use super::inspect::{Resolved, resolve};

@@ -1,17 +1,16 @@
-//! The simulator's stage kinds: `world`, `conditions` (e.g. the held-out evaluation set) and
-//! `eval_scripted` (the scripted catcher's evaluation table).
+//! The simulator's artifact types: the world, a condition set and an evaluation, with what
+//! `osms show` and `osms export` print of each.
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_core::Artifact;
-use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Sharded, Slot, Stage, StageError, Summarize};
+use osms_make::{Sharded, Summarize};
 use serde::{Deserialize, Serialize};
 
-use crate::catcher::{CatcherSpec, ScriptedCatcher};
-use crate::conditions::{ConditionSpec, TaskCondition, sample};
-use crate::episode::{Episode, NoHooks, RolloutRecord, RolloutSpec};
+use crate::Result;
+use crate::conditions::TaskCondition;
+use crate::episode::RolloutRecord;
 use crate::metrics::{Failure, Metrics, Outcome};
 use crate::spec::{ObjectVariant, WorldSpec};
 use crate::world::World;
@@ -45,45 +44,10 @@ impl Summarize for WorldArtifact {
 }
 
 impl WorldArtifact {
-    pub fn world(&self) -> Result<World, StageError> {
-        Ok(World::from_xml(self.spec.clone(), self.xml.clone())?)
+    /// The world this artifact describes, compiled by MuJoCo from its stored MJCF.
+    pub fn world(&self) -> Result<World> {
+        World::from_xml(self.spec.clone(), self.xml.clone())
     }
-}
-
-/// Builds the MJCF of the ten variants and checks that MuJoCo compiles each.
-pub struct WorldStage;
-impl Stage for WorldStage {
-    const KIND: &'static str = "world";
-    const CODE_VERSION: u32 = 2;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[];
-    const DOC: &'static str =
-        "the MuJoCo catching world: xArm7 + ORCA-like hand + ten objects (MJCF per object)";
-    type Params = WorldSpec;
-    type Output = WorldArtifact;
-
-    fn numerics() -> Vec<Numerics> {
-        crate::numerics()
-    }
-
-    fn run(&self, ctx: &Ctx<'_, WorldSpec>) -> Result<WorldArtifact, StageError> {
-        let world = World::new(ctx.params.clone())?;
-        Ok(WorldArtifact {
-            spec: world.spec.clone(),
-            xml: world.all_xml().to_vec(),
-            home_palm_pos: world.home_palm_pos,
-            home_palm_normal: world.home_palm_normal,
-        })
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ConditionsParams {
-    /// How many conditions.
-    pub n: u32,
-    #[serde(default)]
-    pub sampler: ConditionSpec,
 }
 
 /// A list of task conditions ω.
@@ -122,62 +86,6 @@ impl Summarize for Conditions {
             "per_variant": per_variant,
         })
     }
-}
-
-/// Samples task conditions; condition `i` draws from stream ("item", i).
-pub struct ConditionsStage;
-impl ItemStage for ConditionsStage {
-    const KIND: &'static str = "conditions";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = true;
-    const INPUTS: &'static [Slot] = &[Slot::one::<WorldArtifact>("world")];
-    const DOC: &'static str = "task conditions ω (object, mass, launch, posture perturbation)";
-    type Params = ConditionsParams;
-    type Prepared = [f64; 3];
-    type Item = TaskCondition;
-    type Output = Conditions;
-
-    fn numerics() -> Vec<Numerics> {
-        vec![Numerics {
-            name: "osms-sim",
-            version: crate::NUMERICS_VERSION.to_string(),
-        }]
-    }
-
-    /// `n` conditions.
-    fn scale(params: &ConditionsParams, _: &[(&str, f64)]) -> Scale {
-        Scale::items(params.n as f64)
-    }
-    fn prepare(&self, ctx: &Ctx<'_, ConditionsParams>) -> Result<[f64; 3], StageError> {
-        Ok(ctx.input::<WorldArtifact>("world")?.home_palm_pos)
-    }
-    fn n_items(&self, ctx: &Ctx<'_, ConditionsParams>, _: &[f64; 3]) -> usize {
-        ctx.params.n as usize
-    }
-    fn run_item(
-        &self,
-        ctx: &Ctx<'_, ConditionsParams>,
-        palm: &[f64; 3],
-        _: usize,
-        rng: &mut StreamRng,
-    ) -> Result<TaskCondition, StageError> {
-        Ok(sample(&ctx.params.sampler, *palm, rng)?)
-    }
-    fn merge(
-        &self,
-        _: &Ctx<'_, ConditionsParams>,
-        _: [f64; 3],
-        items: Vec<TaskCondition>,
-    ) -> Result<Conditions, StageError> {
-        Ok(Conditions { items })
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct EvalParams {
-    pub rollout: RolloutSpec,
-    pub catcher: CatcherSpec,
 }
 
 /// What an evaluation keeps of one rollout.
@@ -393,69 +301,4 @@ impl Summarize for Evaluation {
         }
         Some(out)
     }
-}
-
-/// Rolls the scripted catcher out on every condition; rollout `i` draws from ("item", i).
-pub struct EvalScriptedStage;
-impl ItemStage for EvalScriptedStage {
-    const KIND: &'static str = "eval_scripted";
-    const CODE_VERSION: u32 = 4;
-    const USES_RNG: bool = true;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<WorldArtifact>("world"),
-        Slot::one::<Conditions>("conditions"),
-    ];
-    const DOC: &'static str =
-        "the scripted privileged catcher evaluated on a condition set (table per family x size)";
-    type Params = EvalParams;
-    type Prepared = (World, Conditions);
-    type Item = EvalRow;
-    type Output = Evaluation;
-
-    fn numerics() -> Vec<Numerics> {
-        crate::numerics()
-    }
-    /// Without domain randomisation a scripted rollout draws nothing: shared by a sweep.
-    fn draws_randomness(params: &EvalParams) -> bool {
-        params.rollout.draws_randomness()
-    }
-    fn prepare(&self, ctx: &Ctx<'_, EvalParams>) -> Result<(World, Conditions), StageError> {
-        Ok((
-            ctx.input::<WorldArtifact>("world")?.world()?,
-            ctx.sharded("conditions")?,
-        ))
-    }
-    fn n_items(&self, _: &Ctx<'_, EvalParams>, (_, conditions): &(World, Conditions)) -> usize {
-        conditions.items.len()
-    }
-    fn run_item(
-        &self,
-        ctx: &Ctx<'_, EvalParams>,
-        (world, conditions): &(World, Conditions),
-        index: usize,
-        rng: &mut StreamRng,
-    ) -> Result<EvalRow, StageError> {
-        let p = ctx.params;
-        let condition = conditions.items[index].clone();
-        let mut catcher = ScriptedCatcher::new(p.catcher.clone(), p.rollout.control.clone());
-        let record =
-            Episode::new(world, &p.rollout, condition, rng.clone()).run(&mut catcher, &mut NoHooks);
-        Ok(EvalRow::of(record))
-    }
-    fn merge(
-        &self,
-        _: &Ctx<'_, EvalParams>,
-        _: (World, Conditions),
-        rows: Vec<EvalRow>,
-    ) -> Result<Evaluation, StageError> {
-        Ok(Evaluation { rows })
-    }
-}
-
-/// Registers the simulator's stage kinds.
-pub fn register(registry: &mut osms_make::Registry) {
-    registry
-        .register(WorldStage)
-        .register_itemised(ConditionsStage)
-        .register_itemised(EvalScriptedStage);
 }
