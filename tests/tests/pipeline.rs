@@ -360,7 +360,7 @@ fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
 /// D_M and D_E hold successes only; no ω is shared between D_M, D_E, D_R and the held-out set;
 /// every OSW window is the teacher's arm actions of the H_OS steps before k_e.
 fn datasets_are_disjoint_successes_and_aligned(made: &Made) {
-    use osms_policy::dataset::Dataset;
+    use osms_policy::artifacts::Dataset;
     use osms_sim::N_ARM;
     use osms_sim::artifacts::Conditions;
 
@@ -459,9 +459,9 @@ impl osms_sim::Hooks for Witness {
 /// contact the witness saw (or its closest approach when there was none), and all H_OS × 7
 /// values of ζ_org are the teacher's intended arm actions of the steps before k_e.
 fn osw_alignment_holds_in_independent_replays(made: &Made) {
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::Teacher;
     use osms_policy::catch::CatchEpisode;
-    use osms_policy::dataset::Dataset;
-    use osms_policy::stages::Teacher;
     use osms_sim::artifacts::WorldArtifact;
     use osms_sim::{N_ACTION, N_ARM};
 
@@ -534,7 +534,7 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
 /// A successful catch passes through approach, velocity matching, one contact step, the
 /// follow-through window and grasping, in that order.
 fn successful_rollouts_pass_through_all_five_phases(made: &Made) {
-    use osms_policy::dataset::Dataset;
+    use osms_policy::artifacts::Dataset;
     use osms_sim::Phase;
 
     let d: Dataset = load_sharded(made, "d_m");
@@ -584,8 +584,8 @@ fn the_tiny_teacher_beats_the_scripted_prior(made: &Made) {
 /// recomputes the shard and rebuilds D_M to the same bytes.
 /// The projection holds exactly the OSW windows and ω̄ of D_M's rollouts, in order.
 fn the_osw_projection_is_its_datasets_windows(made: &Made) {
-    use osms_policy::dataset::Dataset;
-    use osms_policy::stages::OswSet;
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::OswSet;
 
     let d: Dataset = load_sharded(made, "d_m");
     let p: OswSet = load(made, "d_m_osw");
@@ -606,7 +606,7 @@ fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
     use osms_method::candidates::Generator;
     use osms_method::cvae::Cvae;
     use osms_method::stages::CandidateSets;
-    use osms_policy::stages::OswSet;
+    use osms_policy::artifacts::OswSet;
 
     let windows: OswSet = load(made, "d_r_osw");
     let manifold: Cvae = load(made, "manifold");
@@ -710,8 +710,8 @@ fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
 /// come from exactly the items of fold f: no student is scored on a condition it saw, and
 /// every D_E condition is scored once.
 fn cross_fitting_never_scores_a_student_on_its_training_conditions(made: &Made) {
-    use osms_policy::dataset::Dataset;
-    use osms_policy::student_stages::{ErrorPairs, StudentArtifact};
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::{ErrorPairs, StudentArtifact};
     use osms_sim::N_ACTION;
 
     let d_e: Dataset = load_sharded(made, "d_e");
@@ -756,9 +756,9 @@ fn cross_fitting_never_scores_a_student_on_its_training_conditions(made: &Made) 
 /// The teacher as a query (its own prior and phase input following the visited states) is the
 /// teacher: acting with its answers reproduces the teacher's own rollout bit for bit.
 fn teacher_queries_reproduce_the_teacher(made: &Made) {
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::Teacher;
     use osms_policy::catch::{TeacherQuery, rollout};
-    use osms_policy::dataset::Dataset;
-    use osms_policy::stages::Teacher;
     use osms_sim::artifacts::WorldArtifact;
 
     struct Query<'a>(TeacherQuery<'a>);
@@ -800,10 +800,10 @@ fn teacher_queries_reproduce_the_teacher(made: &Made) {
 /// stream, another record), and the observation the policy sees online is the one training
 /// builds from the record.
 fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Made) {
-    use osms_policy::dataset::Dataset;
-    use osms_policy::stages::Teacher;
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::StudentArtifact;
+    use osms_policy::artifacts::Teacher;
     use osms_policy::student::{Demo, Student, StudentPolicy, paired_rollout, rollout};
-    use osms_policy::student_stages::StudentArtifact;
     use osms_sim::artifacts::WorldArtifact;
 
     struct Watch<'s> {
@@ -891,8 +891,8 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
     use osms_method::error_model::Perturber;
     use osms_method::error_stages::ErrorModelArtifact;
     use osms_method::intervene::{Errors, Snippet, execute};
-    use osms_policy::dataset::Dataset;
-    use osms_policy::stages::Teacher;
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::Teacher;
     use osms_sim::artifacts::WorldArtifact;
     use osms_sim::{N_ACTION, N_ARM, Phase};
 
@@ -1020,9 +1020,9 @@ fn validation_is_exact_when_fast_and_dstar_repeats_it(made: &Made) {
     use osms_method::stages::CandidateSets;
     use osms_method::validate::{Case, Robustness, ValidateParams, validate};
     use osms_method::validate_stages::Validation;
-    use osms_policy::dataset::Dataset;
-    use osms_policy::demos::{DemoSet, Execution, Origin};
-    use osms_policy::stages::Teacher;
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::Teacher;
+    use osms_policy::artifacts::{DemoSet, Execution, Origin};
     use osms_sim::artifacts::WorldArtifact;
     use osms_sim::episode::DEPLOYABLE_LEN;
     use osms_sim::{N_ACTION, N_ARM};
@@ -1216,8 +1216,8 @@ shards = 3
 /// Naive reaches D_*'s count exactly, Normal at least (its extension runs with a margin and
 /// keeps the first groups that reach it); their extensions draw conditions no other set has.
 fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMap<String, Hash>) {
-    use osms_policy::dataset::Dataset;
-    use osms_policy::demos::{DemoSet, Execution, Origin};
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::{DemoSet, Execution, Origin};
     use osms_sim::artifacts::Conditions;
 
     let set = |name: &str| -> DemoSet {
@@ -1299,8 +1299,8 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
 /// `osms export-dataset`, `replay` and `render` on the tiny datasets through the real command
 /// line, with pyarrow, h5py and MuJoCo's own Python bindings as independent readers.
 fn datasets_export_replay_and_render(made: &Made) {
-    use osms_policy::dataset::Dataset;
-    use osms_policy::demos::DemoSet;
+    use osms_policy::artifacts::Dataset;
+    use osms_policy::artifacts::DemoSet;
     let bin = env!("CARGO_BIN_EXE_osms-shipped");
     let pipeline = made._dir.path().join("pipeline.toml");
     let store = made.store.root().to_path_buf();

@@ -23,7 +23,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use osms_policy::dataset::OMEGA_LEN;
+use osms_policy::osw::OMEGA_LEN;
 use osms_sim::N_ACTION;
 use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
@@ -68,7 +68,7 @@ pub fn task_name(variant: &str) -> String {
     format!("catch the {variant}")
 }
 
-/// Names of ω's features (`osms_policy::dataset::omega_features`'s order).
+/// Names of ω's features (`osms_policy::osw::omega_features`'s order).
 pub fn omega_names() -> Vec<String> {
     let mut n: Vec<String> = osms_sim::ObjectVariant::all()
         .iter()

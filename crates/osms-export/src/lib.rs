@@ -9,8 +9,9 @@ pub mod robomimic;
 
 use std::path::{Path, PathBuf};
 
-use osms_policy::dataset::{Dataset, omega_features};
-use osms_policy::demos::DemoSet;
+use osms_policy::artifacts::Dataset;
+use osms_policy::artifacts::DemoSet;
+use osms_policy::osw::omega_features;
 use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN, RolloutSpec};
 use osms_sim::replay::{self, ReplayReport};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
@@ -74,7 +75,7 @@ pub struct ExportEpisode {
     /// through 3, grasping 4), for rollout datasets.
     pub phase: Option<Vec<u8>>,
     pub success: bool,
-    /// ω's features (`osms_policy::dataset::OMEGA_LEN`).
+    /// ω's features (`osms_policy::osw::OMEGA_LEN`).
     pub omega: Vec<f32>,
     /// k_e: the event step (first contact, or closest approach), if known.
     pub event_step: Option<u32>,
@@ -345,8 +346,8 @@ pub fn from_demo_set(
     })
 }
 
-fn execution_name(e: osms_policy::demos::Execution) -> String {
-    use osms_policy::demos::Execution;
+fn execution_name(e: osms_policy::artifacts::Execution) -> String {
+    use osms_policy::artifacts::Execution;
     match e {
         Execution::Original => "original".into(),
         Execution::Unperturbed => "unperturbed".into(),

@@ -32,7 +32,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use osms_policy::dataset::OMEGA_LEN;
+use osms_policy::osw::OMEGA_LEN;
 use osms_sim::N_ACTION;
 use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};

@@ -14,7 +14,7 @@ use osms_method::cvae::{ManifoldParams, Window, train};
 use osms_method::geodesic::{Chart, PullbackMetric, ShootSpec, shoot, shoot_fd};
 use osms_method::project::project;
 use osms_method::sobol;
-use osms_policy::dataset::OMEGA_BAR_LEN;
+use osms_policy::osw::OMEGA_BAR_LEN;
 
 const SETS: usize = 40;
 

@@ -15,10 +15,12 @@
 
 use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_policy::artifacts::Teacher;
+use osms_policy::artifacts::{Dataset, DemoRollout};
+use osms_policy::artifacts::{DemoGroup, DemoSet, Execution, Origin};
 use osms_policy::catch::rollout;
-use osms_policy::dataset::{Dataset, DemoRollout, OswWindow};
-use osms_policy::demos::{DemoGroup, DemoSet, Execution, Origin};
-use osms_policy::stages::{Teacher, policy_numerics};
+use osms_policy::osw::OswWindow;
+use osms_policy::stages::numerics as policy_numerics;
 use osms_sim::artifacts::WorldArtifact;
 use osms_sim::conditions::sample;
 use serde::{Deserialize, Serialize};
@@ -484,8 +486,8 @@ impl ItemStage for NormalStage {
 }
 
 impl NormalInputs {
-    fn validation_osw(&self) -> osms_policy::dataset::OswSpec {
-        osms_policy::dataset::OswSpec {
+    fn validation_osw(&self) -> osms_policy::osw::OswSpec {
+        osms_policy::osw::OswSpec {
             h_os: self.manifold.h_os,
         }
     }
@@ -503,7 +505,7 @@ const PAPER_TABLE2: [(&str, f64, f64, f64, f64); 3] = [
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ConstructionRow {
     pub construction: String,
-    pub stats: osms_policy::demos::ConstructionStats,
+    pub stats: osms_policy::artifacts::ConstructionStats,
     pub paper_coverage: f64,
     pub paper_repair_rate: f64,
     pub paper_refinement_rate: f64,
@@ -653,7 +655,7 @@ mod tests {
             original_success: true,
             origin: Origin::Kept,
             demos: (0..demos)
-                .map(|_| osms_policy::demos::DemoEntry {
+                .map(|_| osms_policy::artifacts::DemoEntry {
                     execution: Execution::Original,
                     max_force_n: 0.0,
                     demo: Demo {

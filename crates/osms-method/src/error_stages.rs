@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use osms_core::Artifact;
 use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
-use osms_policy::student_stages::ErrorPairs;
+use osms_policy::artifacts::ErrorPairs;
 use osms_sim::{N_ACTION, N_ARM, Phase};
 use serde::{Deserialize, Serialize};
 

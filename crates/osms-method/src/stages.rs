@@ -6,7 +6,7 @@ use std::fmt::Write;
 use osms_core::Artifact;
 use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Slot, Stage, StageError, Summarize};
-use osms_policy::stages::OswSet;
+use osms_policy::artifacts::OswSet;
 use serde::{Deserialize, Serialize};
 
 use crate::candidates::{CandidateSet, Generator, SearchParams, candidate_set};

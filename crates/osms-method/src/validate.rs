@@ -19,8 +19,8 @@
 
 use osms_core::rng::StreamRng;
 use osms_policy::Agent;
+use osms_policy::artifacts::DemoRollout;
 use osms_policy::catch::CatchTaskSpec;
-use osms_policy::dataset::DemoRollout;
 use osms_sim::{N_ACTION, World};
 use serde::{Deserialize, Serialize};
 

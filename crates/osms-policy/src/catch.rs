@@ -9,6 +9,7 @@
 
 use osms_core::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
+use osms_sim::control::DrSpec;
 use osms_sim::episode::{PRIVILEGED_LEN, Snapshot};
 use osms_sim::vec3::{norm, sub};
 use osms_sim::{
@@ -106,6 +107,16 @@ impl Default for CatchTaskSpec {
 }
 
 impl CatchTaskSpec {
+    /// This task with the rollouts' domain randomisation replaced when `dr` is given (an
+    /// evaluation or a dataset under another DR setting than the teacher trained with).
+    pub fn with_dr(&self, dr: &Option<DrSpec>) -> CatchTaskSpec {
+        let mut task = self.clone();
+        if let Some(dr) = dr {
+            task.rollout.dr = dr.clone();
+        }
+        task
+    }
+
     /// How many action channels get a residual: the arm's, and the hand's if `residual_hand`
     /// (always all of them from scratch).
     pub fn residual_channels(&self) -> usize {

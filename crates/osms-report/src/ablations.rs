@@ -7,7 +7,7 @@ use std::fmt::Write;
 use osms_core::Artifact;
 use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
-use osms_policy::demos::{ConstructionStats, DemoSet};
+use osms_policy::artifacts::{ConstructionStats, DemoSet};
 use osms_sim::artifacts::Evaluation;
 use serde::{Deserialize, Serialize};
 

@@ -7,8 +7,8 @@ use osms_core::Artifact;
 use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
 use osms_method::ios::IosProfile;
-use osms_policy::stages::Teacher;
-use osms_policy::student_stages::StudentArtifact;
+use osms_policy::artifacts::StudentArtifact;
+use osms_policy::artifacts::Teacher;
 use osms_sim::artifacts::{EvalRow, Evaluation, ImpactTrace};
 use osms_sim::spec::ObjectVariant;
 

@@ -10,7 +10,7 @@ use osms_core::NoParams;
 use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
 use osms_method::baselines::ConstructionTable;
 use osms_method::stages::CandidateTable;
-use osms_policy::stages::TeacherTable;
+use osms_policy::artifacts::TeacherTable;
 use serde::{Deserialize, Serialize};
 
 use crate::claims::{self, Claim};

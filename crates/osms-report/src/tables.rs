@@ -5,7 +5,7 @@ use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError};
 use osms_method::error_model::ErrorVariant;
 use osms_method::error_stages::{ErrorModelArtifact, TABLE3_VARIANTS};
-use osms_policy::demos::{ConstructionStats, DemoSet};
+use osms_policy::artifacts::{ConstructionStats, DemoSet};
 use osms_sim::artifacts::{Evaluation, TableLine};
 
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
@@ -363,7 +363,7 @@ impl Stage for Table3Stage {
 #[cfg(test)]
 pub(crate) mod testing {
     use osms_make::Member;
-    use osms_policy::demos::ConstructionStats;
+    use osms_policy::artifacts::ConstructionStats;
     use osms_sim::artifacts::{EvalRow, Evaluation};
     use osms_sim::metrics::{Failure, Metrics, Outcome};
     use osms_sim::spec::ObjectVariant;

@@ -9,8 +9,8 @@ use std::process::ExitCode;
 use anyhow::{Context as _, Result, bail};
 use osms_export::{ExportSet, Provenance};
 use osms_make::StoreObjects;
-use osms_policy::dataset::Dataset;
-use osms_policy::demos::DemoSet;
+use osms_policy::artifacts::Dataset;
+use osms_policy::artifacts::DemoSet;
 use osms_sim::artifacts::WorldArtifact;
 use osms_store::{Record, Store};
 

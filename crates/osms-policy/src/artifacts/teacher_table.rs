@@ -1,0 +1,176 @@
+//! Table I's analog: the scripted prior, the catching-only teacher and the teacher.
+
+use std::fmt::Write;
+
+use osms_core::Artifact;
+use osms_make::Summarize;
+use osms_sim::artifacts::{Evaluation, TableLine};
+use serde::{Deserialize, Serialize};
+
+/// One row of the Table I analog.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TeacherTableRow {
+    pub policy: String,
+    pub rollouts: usize,
+    pub completion_rate: f64,
+    pub success_rate: f64,
+    /// Means over catch completions, as in the paper.
+    pub contact_speed_mps: Option<f64>,
+    pub max_force_n: Option<f64>,
+    pub follow_through_m: Option<f64>,
+}
+
+/// Table I analog: the scripted prior, the catching-only teacher and the teacher on the same
+/// held-out conditions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TeacherTable {
+    pub rows: Vec<TeacherTableRow>,
+}
+
+impl Artifact for TeacherTable {
+    const TYPE_TAG: &'static str = "policy.teacher_table";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map(|x| format!("{x:.digits$}"))
+        .unwrap_or_else(|| "-".into())
+}
+
+impl TeacherTable {
+    pub fn markdown(&self) -> String {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "| policy | n | catch completion | task success | v_rel (m/s) | f_max (N) | l_max (m) |"
+        );
+        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+        for r in &self.rows {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {:.1}% | {:.1}% | {} | {} | {} |",
+                r.policy,
+                r.rollouts,
+                100.0 * r.completion_rate,
+                100.0 * r.success_rate,
+                opt(r.contact_speed_mps, 2),
+                opt(r.max_force_n, 1),
+                opt(r.follow_through_m, 3)
+            );
+        }
+        let _ = writeln!(
+            out,
+            "\nImpact metrics are means over catch completions. Paper (Table I): catching-only \
+             92.5% / 0.4% / 160 N; teacher 90.7% / 85.2% / 40.8 N."
+        );
+        out
+    }
+
+    pub fn csv(&self) -> String {
+        let mut out = String::from(
+            "policy,rollouts,completion_rate,success_rate,contact_speed_mps,max_force_n,follow_through_m\n",
+        );
+        let o = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
+        for r in &self.rows {
+            let _ = writeln!(
+                out,
+                "{},{},{},{},{},{},{}",
+                r.policy,
+                r.rollouts,
+                r.completion_rate,
+                r.success_rate,
+                o(r.contact_speed_mps),
+                o(r.max_force_n),
+                o(r.follow_through_m)
+            );
+        }
+        out
+    }
+}
+
+impl Summarize for TeacherTable {
+    fn summary(&self) -> serde_json::Value {
+        serde_json::to_value(&self.rows).unwrap_or_default()
+    }
+    fn text(&self) -> Option<String> {
+        Some(self.markdown())
+    }
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        let json = serde_json::to_string_pretty(&self.rows).unwrap_or_default() + "\n";
+        vec![
+            ("table1.md".into(), self.markdown().into_bytes()),
+            ("table1.csv".into(), self.csv().into_bytes()),
+            ("table1.json".into(), json.into_bytes()),
+        ]
+    }
+}
+
+impl TeacherTableRow {
+    /// The row of `policy` from its evaluation's "all" line.
+    pub fn of(policy: &str, eval: &Evaluation) -> TeacherTableRow {
+        let all: Option<TableLine> = eval.table().pop();
+        TeacherTableRow {
+            policy: policy.to_string(),
+            rollouts: eval.rows.len(),
+            completion_rate: all.as_ref().map_or(0.0, |l| l.completion_rate),
+            success_rate: all.as_ref().map_or(0.0, |l| l.success_rate),
+            contact_speed_mps: all.as_ref().and_then(|l| l.contact_speed_mps),
+            max_force_n: all.as_ref().and_then(|l| l.max_force_n),
+            follow_through_m: all.as_ref().and_then(|l| l.follow_through_m),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+
+    #[test]
+    fn table1_files_agree_with_the_rows() {
+        let table = TeacherTable {
+            rows: vec![
+                TeacherTableRow {
+                    policy: "teacher".into(),
+                    rollouts: 40,
+                    completion_rate: 0.7,
+                    success_rate: 0.475,
+                    contact_speed_mps: Some(3.9),
+                    max_force_n: Some(33.72),
+                    follow_through_m: Some(0.215),
+                },
+                TeacherTableRow {
+                    policy: "nothing caught".into(),
+                    rollouts: 3,
+                    completion_rate: 0.0,
+                    success_rate: 0.0,
+                    contact_speed_mps: None,
+                    max_force_n: None,
+                    follow_through_m: None,
+                },
+            ],
+        };
+        let files: BTreeMap<String, Vec<u8>> = table.files().into_iter().collect();
+        let names: Vec<&str> = files.keys().map(String::as_str).collect();
+        assert_eq!(names, ["table1.csv", "table1.json", "table1.md"]);
+        let md = String::from_utf8_lossy(&files["table1.md"]).to_string();
+        assert!(
+            md.contains("| teacher | 40 | 70.0% | 47.5% | 3.90 | 33.7 | 0.215 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| nothing caught | 3 | 0.0% | 0.0% | - | - | - |"),
+            "{md}"
+        );
+        let csv = String::from_utf8_lossy(&files["table1.csv"]).to_string();
+        assert_eq!(
+            csv.lines().nth(1),
+            Some("teacher,40,0.7,0.475,3.9,33.72,0.215")
+        );
+        assert_eq!(csv.lines().nth(2), Some("nothing caught,3,0,0,,,"));
+        let back: Vec<TeacherTableRow> =
+            serde_json::from_slice(&files["table1.json"]).expect("json");
+        assert_eq!(back, table.rows);
+    }
+}

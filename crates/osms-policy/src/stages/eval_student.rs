@@ -1,0 +1,78 @@
+//! `eval_student`: a student on a condition set.
+
+use osms_core::rng::StreamRng;
+use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
+use osms_sim::{RolloutSpec, World};
+use serde::{Deserialize, Serialize};
+
+use crate::artifacts::StudentArtifact;
+use crate::student::{Student, rollout};
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalStudentParams {
+    /// How the evaluation rollouts run (control, domain randomisation, success criteria); the
+    /// history the student reads is its own.
+    pub rollout: RolloutSpec,
+}
+
+/// A student on every condition of a set; rollout `i` draws its domain randomisation from
+/// ("item", i) and the policy's noise from ("policy", i).
+pub struct EvalStudentStage;
+impl ItemStage for EvalStudentStage {
+    const KIND: &'static str = "eval_student";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<WorldArtifact>("world"),
+        Slot::one::<Conditions>("conditions"),
+        Slot::one::<StudentArtifact>("student"),
+    ];
+    const DOC: &'static str = "a student evaluated on a condition set (table per family x size)";
+    type Params = EvalStudentParams;
+    type Prepared = (World, Conditions, Student, RolloutSpec);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
+    fn numerics() -> Vec<Numerics> {
+        super::numerics()
+    }
+    fn prepare(&self, ctx: &Ctx<'_, EvalStudentParams>) -> Result<Self::Prepared, StageError> {
+        let student = ctx.input::<StudentArtifact>("student")?.student;
+        let spec = student.rollout_spec(&ctx.params.rollout);
+        Ok((
+            ctx.input::<WorldArtifact>("world")?.world()?,
+            ctx.sharded("conditions")?,
+            student,
+            spec,
+        ))
+    }
+    fn n_items(&self, _: &Ctx<'_, EvalStudentParams>, p: &Self::Prepared) -> usize {
+        p.1.items.len()
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, EvalStudentParams>,
+        (world, conditions, student, spec): &Self::Prepared,
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<EvalRow, StageError> {
+        Ok(EvalRow::of(rollout(
+            world,
+            spec,
+            student,
+            conditions.items[index].clone(),
+            rng.clone(),
+            ctx.rng("policy", index as u64),
+        )))
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, EvalStudentParams>,
+        _: Self::Prepared,
+        rows: Vec<EvalRow>,
+    ) -> Result<Evaluation, StageError> {
+        Ok(Evaluation { rows })
+    }
+}

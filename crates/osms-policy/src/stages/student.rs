@@ -1,0 +1,97 @@
+//! `student`: a flow-matching student, cross-fitted when the stage has folds.
+
+use osms_make::{Ctx, Numerics, Scale, Slot, Stage, StageError};
+
+use super::in_fold;
+use crate::artifacts::{Dataset, DemoSet, StudentArtifact};
+use crate::student::{Demo, Student, StudentParams};
+
+/// A flow-matching student trained on a dataset's rollouts. With `folds = F` instance `#f`
+/// trains on the items outside fold f (item index mod F ≠ f): the cross-fitted IL students π̄.
+pub struct StudentStage;
+impl Stage for StudentStage {
+    const KIND: &'static str = "student";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<Dataset>("data").optional(),
+        Slot::one::<DemoSet>("demos").optional(),
+        Slot::one::<DemoSet>("size_match").optional(),
+    ];
+    const DOC: &'static str = "a flow-matching student on a rollout dataset (`data`) or a constructed demonstration set (`demos`, optionally cut to the size of `size_match`); cross-fitted with folds";
+    type Params = StudentParams;
+    type Output = StudentArtifact;
+
+    fn numerics() -> Vec<Numerics> {
+        super::numerics()
+    }
+
+    /// Training steps times batch size (the network's width is not counted).
+    fn scale(params: &StudentParams, _: &[(&str, f64)]) -> Scale {
+        Scale {
+            work: f64::from(params.steps) * params.batch as f64,
+            size: 1.0,
+        }
+    }
+
+    fn run(&self, ctx: &Ctx<'_, StudentParams>) -> Result<StudentArtifact, StageError> {
+        ctx.params.check()?;
+        let fold = ctx.fold();
+        let mut demos = Vec::new();
+        let mut items = Vec::new();
+        let slot = match (ctx.has_input("data"), ctx.has_input("demos")) {
+            (true, false) => "data",
+            (false, true) => "demos",
+            _ => {
+                return Err("a student trains on exactly one of `data` (a rollout dataset) and `demos` (a demonstration set)\nhint: wire one of them in the stage's inputs".into());
+            }
+        };
+        if slot == "data" && ctx.has_input("size_match") {
+            return Err("`size_match` cuts a demonstration set; it needs `demos`, not `data`\nhint: remove `size_match` or train on `demos`".into());
+        }
+        if slot == "data" {
+            for item in ctx.items::<Dataset>("data")? {
+                let r = item?.rollout;
+                if fold.is_some_and(|f| in_fold(r.item, f)) {
+                    continue;
+                }
+                items.push(r.item);
+                demos.push(Demo::from_record(&r.record));
+            }
+        } else {
+            let used = ctx.head::<DemoSet>("demos")?.used.unwrap_or(usize::MAX);
+            // Matched dataset size (paper 6.4): the leading groups that hold at most the other
+            // set's number of demonstrations.
+            let cap = if ctx.has_input("size_match") {
+                ctx.sharded::<DemoSet>("size_match")?.len()
+            } else {
+                usize::MAX
+            };
+            for group in ctx.items::<DemoSet>("demos")?.take(used) {
+                let g = group?;
+                if g.demos.is_empty() || fold.is_some_and(|f| in_fold(g.item, f)) {
+                    continue;
+                }
+                if demos.len() + g.demos.len() > cap {
+                    break;
+                }
+                items.push(g.item);
+                demos.extend(g.demos.into_iter().map(|e| e.demo));
+            }
+        }
+        let progress = ctx.progress();
+        progress.set_total(u64::from(ctx.params.steps));
+        let student = Student::train(
+            &demos,
+            ctx.params,
+            (ctx.seed().unwrap_or_default(), ctx.stage()),
+            &|| progress.inc(1),
+        )
+        .map_err(|e| format!("input `data`: {e}"))?;
+        Ok(StudentArtifact {
+            student,
+            fold: fold.map(|f| (f.index, f.count)),
+            items,
+        })
+    }
+}

@@ -1,0 +1,64 @@
+//! `teacher`: the privileged PPO teacher, a residual on the scripted catcher (paper 5.1).
+
+use osms_make::{Ctx, Numerics, Scale, Slot, Stage, StageError};
+use osms_sim::artifacts::WorldArtifact;
+use serde::{Deserialize, Serialize};
+
+use crate::artifacts::Teacher;
+use crate::catch::{CatchTask, CatchTaskSpec};
+use crate::ppo::{Agent, PpoConfig, Task, train};
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TeacherParams {
+    /// The catching task: rollout settings, condition sampler, prior, reward weights.
+    pub task: CatchTaskSpec,
+    pub ppo: PpoConfig,
+}
+
+/// PPO on the catching task; episode i of iteration t draws ω from stream ("train", t·E + i).
+pub struct TeacherStage;
+impl Stage for TeacherStage {
+    const KIND: &'static str = "teacher";
+    const CODE_VERSION: u32 = 2;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = &[Slot::one::<WorldArtifact>("world")];
+    const DOC: &'static str =
+        "the privileged PPO teacher: a residual on the scripted catcher, rewarded by paper 5.1";
+    type Params = TeacherParams;
+    type Output = Teacher;
+
+    fn numerics() -> Vec<Numerics> {
+        super::numerics()
+    }
+
+    /// PPO's episodes (their rollouts dominate; the network's width is not counted).
+    fn scale(params: &TeacherParams, _: &[(&str, f64)]) -> Scale {
+        Scale {
+            work: f64::from(params.ppo.iterations) * f64::from(params.ppo.episodes_per_iteration),
+            size: 1.0,
+        }
+    }
+
+    fn run(&self, ctx: &Ctx<'_, TeacherParams>) -> Result<Teacher, StageError> {
+        let world = ctx.input::<WorldArtifact>("world")?.world()?;
+        let seed = ctx.seed().unwrap_or_default();
+        let p = ctx.params;
+        if p.ppo.episodes_per_iteration == 0 || p.ppo.minibatch == 0 {
+            return Err(
+                "params.ppo: episodes_per_iteration and minibatch must be at least 1".into(),
+            );
+        }
+        let task = CatchTask::new(&world, p.task.clone(), seed, ctx.stage(), "train")?;
+        let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, (seed, ctx.stage()));
+        let progress = ctx.progress();
+        progress.set_total(u64::from(p.ppo.iterations));
+        train(&task, &mut agent, &p.ppo, (seed, ctx.stage()), &|_| {
+            progress.inc(1)
+        })?;
+        Ok(Teacher {
+            task: p.task.clone(),
+            agent,
+        })
+    }
+}
