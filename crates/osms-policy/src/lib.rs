@@ -4,6 +4,7 @@
 
 pub mod artifacts;
 pub mod catch;
+mod error;
 pub mod flow;
 pub mod norm;
 pub mod osw;
@@ -11,5 +12,6 @@ pub mod ppo;
 pub mod stages;
 pub mod student;
 
+pub use error::{Error, Result};
 pub use norm::RunningNorm;
 pub use ppo::{Agent, EpisodeStats, IterationStats, PpoConfig, Task, TaskEpisode, train};

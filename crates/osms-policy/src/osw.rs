@@ -6,6 +6,8 @@ use osms_sim::control::DrDraw;
 use osms_sim::{N_ACTION, N_ARM, RolloutRecord, conditions::TaskCondition, spec::ObjectVariant};
 use serde::{Deserialize, Serialize};
 
+use crate::{Error, Result};
+
 /// How the outcome-sensitive window is cut. Every default lives here.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -78,16 +80,16 @@ pub const OMEGA_BAR_LEN: usize =
 impl OswWindow {
     /// Cuts the window out of a record that kept its privileged frames. Fails if the record
     /// has none or is shorter than its event step says.
-    pub fn extract(record: &RolloutRecord, spec: &OswSpec) -> Result<OswWindow, String> {
+    pub fn extract(record: &RolloutRecord, spec: &OswSpec) -> Result<OswWindow> {
         let k_e = record.metrics.event_step;
         if k_e > record.steps {
-            return Err(format!(
-                "event step {k_e} is past the rollout's {} steps",
-                record.steps
-            ));
+            return Err(Error::EventPastEnd {
+                event_step: k_e,
+                steps: record.steps,
+            });
         }
         if record.steps == 0 || record.privileged.is_empty() {
-            return Err("the rollout kept no privileged frames (record_privileged = false)".into());
+            return Err(Error::NoPrivilegedFrames);
         }
         let frame = record.privileged.len() / record.steps;
         let start = k_e.saturating_sub(spec.h_os);
@@ -103,7 +105,7 @@ impl OswWindow {
         // Arm actions are target increments: without the targets they start from, one ζ would
         // stand for different motions.
         if record.arm_targets.len() != record.steps * N_ARM {
-            return Err("the rollout kept no arm servo targets".into());
+            return Err(Error::NoArmTargets);
         }
         omega_bar.extend_from_slice(&record.arm_targets[at * N_ARM..(at + 1) * N_ARM]);
         Ok(OswWindow {

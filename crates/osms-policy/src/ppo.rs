@@ -82,16 +82,6 @@ pub trait Task: Sync {
     fn start(&self, index: u64) -> Result<Self::Episode<'_>, Self::Error>;
 }
 
-/// Training stopped because an episode could not start.
-#[derive(Debug, thiserror::Error)]
-#[error("PPO iteration {iteration}: episode {episode} could not start: {source}")]
-pub struct TrainError {
-    pub iteration: u32,
-    pub episode: u64,
-    #[source]
-    pub source: Box<dyn std::error::Error + Send + Sync>,
-}
-
 /// One running episode of a [`Task`].
 pub trait TaskEpisode {
     /// Runs one control step: calls `act` once with the observation, applies the action it
@@ -292,7 +282,7 @@ pub fn train<T: Task>(
     config: &PpoConfig,
     streams: (u64, &str),
     progress: &dyn Fn(&IterationStats),
-) -> Result<(), TrainError> {
+) -> crate::Result<()> {
     let (seed, stage) = streams;
     let (obs_len, act_len) = (task.obs_len(), task.act_len());
     let mut actor_opt = Adam::new(
@@ -318,7 +308,7 @@ pub fn train<T: Task>(
         // The first failure in episode order, whichever thread met it first.
         let mut trajectories = Vec::with_capacity(runs.len());
         for (e, run) in (base..).zip(runs) {
-            trajectories.push(run.map_err(|source| TrainError {
+            trajectories.push(run.map_err(|source| crate::Error::EpisodeStart {
                 iteration,
                 episode: e,
                 source: Box::new(source),

@@ -25,10 +25,10 @@ use osms_sim::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::RunningNorm;
 use crate::catch::{CatchTaskSpec, TeacherQuery};
 use crate::flow::{FlowBatch, FlowNet, normals};
 use crate::ppo::Agent;
+use crate::{Error, Result, RunningNorm};
 
 /// A student's architecture and training protocol. Every default lives here.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -93,7 +93,7 @@ impl Default for StudentParams {
 
 impl StudentParams {
     /// Refuses params no student can be trained with.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<()> {
         for (v, name) in [
             (self.history, "history"),
             (self.chunk, "chunk"),
@@ -103,29 +103,31 @@ impl StudentParams {
             (self.log_every as usize, "log_every"),
         ] {
             if v == 0 {
-                return Err(format!("params.{name} must be at least 1"));
+                return Err(Error::Params(format!("params.{name} must be at least 1")));
             }
         }
         if self.time_embedding == 0 || !self.time_embedding.is_multiple_of(2) {
-            return Err(format!(
+            return Err(Error::Params(format!(
                 "params.time_embedding must be even and positive, got {}",
                 self.time_embedding
-            ));
+            )));
         }
         if self.hidden.contains(&0) {
-            return Err("params.hidden: every layer needs at least one unit".into());
+            return Err(Error::Params(
+                "params.hidden: every layer needs at least one unit".into(),
+            ));
         }
         if !(self.noise_scale >= 0.0 && self.noise_scale.is_finite()) {
-            return Err(format!(
+            return Err(Error::Params(format!(
                 "params.noise_scale must be finite and non-negative, got {}",
                 self.noise_scale
-            ));
+            )));
         }
         if !(self.lr > 0.0 && self.min_lr >= 0.0 && self.min_lr <= self.lr) {
-            return Err(format!(
+            return Err(Error::Params(format!(
                 "params: need 0 <= min_lr <= lr and lr > 0, got lr {} and min_lr {}",
                 self.lr, self.min_lr
-            ));
+            )));
         }
         Ok(())
     }
@@ -163,18 +165,21 @@ impl Demo {
         }
     }
 
-    fn check(&self) -> Result<(), String> {
+    fn check(&self, index: usize) -> Result<()> {
         if self.deployable.len() != self.steps * DEPLOYABLE_LEN
             || self.actions.len() != self.steps * N_ACTION
         {
-            return Err(format!(
-                "a demonstration of {} steps has {} deployable values and {} action values (expected {} and {})",
-                self.steps,
-                self.deployable.len(),
-                self.actions.len(),
-                self.steps * DEPLOYABLE_LEN,
-                self.steps * N_ACTION
-            ));
+            return Err(Error::Demo {
+                index,
+                why: format!(
+                    "a demonstration of {} steps has {} deployable values and {} action values (expected {} and {})",
+                    self.steps,
+                    self.deployable.len(),
+                    self.actions.len(),
+                    self.steps * DEPLOYABLE_LEN,
+                    self.steps * N_ACTION
+                ),
+            });
         }
         Ok(())
     }
@@ -253,19 +258,6 @@ pub struct Student {
     pub heldout_rollouts: usize,
 }
 
-/// Why a student could not be trained.
-#[derive(Debug, thiserror::Error)]
-pub enum StudentError {
-    #[error("{0}")]
-    Params(String),
-    #[error("demonstration {index}: {why}")]
-    Demo { index: usize, why: String },
-    #[error(
-        "no demonstrations to train on ({given} given, {heldout} held out)\nhint: give the student more rollouts or set params.holdout_every = 0"
-    )]
-    NoDemos { given: usize, heldout: usize },
-}
-
 /// Fixed rows of the validation loss: (demo, step) pairs with their noise and times.
 struct Validation {
     obs: Matrix,
@@ -287,11 +279,11 @@ impl Student {
         params: &StudentParams,
         (seed, stage): (u64, &str),
         progress: &dyn Fn(),
-    ) -> Result<Student, StudentError> {
+    ) -> Result<Student> {
         let p = params;
-        p.check().map_err(StudentError::Params)?;
+        p.check()?;
         for (index, d) in demos.iter().enumerate() {
-            d.check().map_err(|why| StudentError::Demo { index, why })?;
+            d.check(index)?;
         }
         let held = |i: usize| p.holdout_every > 1 && i % p.holdout_every == p.holdout_every - 1;
         let nonempty = |i: &usize| demos[*i].steps > 0;
@@ -304,7 +296,7 @@ impl Student {
             .filter(nonempty)
             .collect();
         if train_idx.is_empty() {
-            return Err(StudentError::NoDemos {
+            return Err(Error::NoDemos {
                 given: demos.len(),
                 heldout: held_idx.len(),
             });
@@ -667,7 +659,7 @@ mod tests {
         };
         assert!(Student::train(&[numbered(3)], &bad, (0, "t"), &|| {}).is_err());
         let none = Student::train(&[], &StudentParams::default(), (0, "t"), &|| {});
-        assert!(matches!(none, Err(StudentError::NoDemos { .. })));
+        assert!(matches!(none, Err(Error::NoDemos { .. })));
     }
 
     /// Demonstrations whose every action channel is a fixed function of the current frame's

@@ -191,7 +191,17 @@ fn a_condition_that_cannot_be_drawn_is_an_error_not_condition_zero() {
     };
     let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "t"));
     let err = train(&task, &mut agent, &config, (0, "t"), &|_| {}).expect_err("training stops");
-    assert_eq!((err.iteration, err.episode), (0, 0));
+    assert!(
+        matches!(
+            err,
+            osms_policy::Error::EpisodeStart {
+                iteration: 0,
+                episode: 0,
+                ..
+            }
+        ),
+        "{err}"
+    );
     assert!(
         err.to_string().contains("no launch reaches the palm"),
         "{err}"
