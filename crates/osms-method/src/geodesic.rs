@@ -9,6 +9,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::linalg::solve_spd;
+
 /// A smooth map z ↦ ζ with the derivatives the geodesic equation needs.
 pub trait Chart {
     /// Latent dimension d.
@@ -451,55 +453,6 @@ fn bilinear(m: &[f64], a: &[f64], b: &[f64]) -> f64 {
         s += a[i] * row;
     }
     s
-}
-
-/// Lower Cholesky factor L (M = L Lᵀ) of a symmetric d × d matrix, reading its lower triangle;
-/// None if a pivot is not positive and finite.
-fn cholesky(m: &[f64], d: usize) -> Option<Vec<f64>> {
-    let mut l = vec![0.0; d * d];
-    for j in 0..d {
-        let mut s = m[j * d + j];
-        for k in 0..j {
-            s -= l[j * d + k] * l[j * d + k];
-        }
-        if !s.is_finite() || s <= 0.0 {
-            return None;
-        }
-        let ljj = s.sqrt();
-        l[j * d + j] = ljj;
-        for i in j + 1..d {
-            let mut s = m[i * d + j];
-            for k in 0..j {
-                s -= l[i * d + k] * l[j * d + k];
-            }
-            l[i * d + j] = s / ljj;
-        }
-    }
-    Some(l)
-}
-
-/// M x = b for symmetric positive definite M; all NaN if the factorisation fails.
-fn solve_spd(m: &[f64], d: usize, b: &[f64]) -> Vec<f64> {
-    let Some(l) = cholesky(m, d) else {
-        return vec![f64::NAN; d];
-    };
-    let mut y = vec![0.0; d];
-    for i in 0..d {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= l[i * d + k] * y[k];
-        }
-        y[i] = s / l[i * d + i];
-    }
-    let mut x = vec![0.0; d];
-    for i in (0..d).rev() {
-        let mut s = y[i];
-        for k in i + 1..d {
-            s -= l[k * d + i] * x[k];
-        }
-        x[i] = s / l[i * d + i];
-    }
-    x
 }
 
 #[cfg(test)]

@@ -10,6 +10,7 @@ pub mod error_stages;
 pub mod geodesic;
 pub mod intervene;
 pub mod ios;
+mod linalg;
 pub mod project;
 pub mod select;
 pub mod sobol;

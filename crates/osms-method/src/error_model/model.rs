@@ -1,0 +1,226 @@
+//! The model's types: the four variants of Table III, the fit settings, paired sequences, and a
+//! fitted model with its per-phase parameters.
+
+use serde::{Deserialize, Serialize};
+
+/// Catching phases: approach, velocity matching, contact, follow-through, grasping.
+pub const N_PHASES: usize = 5;
+
+/// Deviations of the three calibrated models of Table III, plus unperturbed-only validation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorVariant {
+    /// No action error: validation by the unperturbed rollout only.
+    Unperturbed,
+    /// One Gaussian for the deviation `a − ā`, ignoring phase and temporal correlation.
+    GlobalIid,
+    /// Per-phase delay, gain, bias and Gaussian residual, without temporal correlation.
+    PhaseIndependent,
+    /// The full model of Eq. 7.
+    PhaseCorrelated,
+}
+
+/// Settings of [`fit`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ErrorFitParams {
+    pub variant: ErrorVariant,
+    /// The delay grid is `0..=max_delay` control steps.
+    pub max_delay: usize,
+    /// κ_ε of Eq. 7, the factor applied to the modeled deviation.
+    pub kappa: f64,
+    /// The AR coefficients are clamped to `[−max_ar, max_ar]` so that the process is stable
+    /// and has a stationary distribution to start from; must lie in `[0, 1)`.
+    pub max_ar: f64,
+}
+
+impl Default for ErrorFitParams {
+    fn default() -> Self {
+        Self {
+            variant: ErrorVariant::PhaseCorrelated,
+            max_delay: 4,
+            kappa: 1.5,
+            max_ar: 0.99,
+        }
+    }
+}
+
+/// One rollout's pairs, step-major: `student[n*c + k]`, `teacher[n*c + k]`, `phase[n]`.
+///
+/// `student` is the IL student's executed action, `teacher` the frozen teacher's action
+/// queried at the same state.
+#[derive(Debug, Clone, Copy)]
+pub struct PairSequence<'a> {
+    pub student: &'a [f32],
+    pub teacher: &'a [f32],
+    pub phase: &'a [u8],
+}
+
+impl PairSequence<'_> {
+    /// Control steps in the rollout.
+    pub fn steps(&self) -> usize {
+        self.phase.len()
+    }
+}
+
+/// The parameters of Eq. 7 for one phase.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhaseModel {
+    /// d_φ in control steps.
+    pub delay: usize,
+    /// Diagonal of S_φ.
+    pub gain: Vec<f64>,
+    /// μ_φ.
+    pub bias: Vec<f64>,
+    /// diagonal AR(1) coefficients (A = diag(ar))
+    pub ar: Vec<f64>,
+    /// lower-triangular L (c×c row-major), L Lᵀ = innovation covariance
+    pub l: Vec<f64>,
+    /// stationary covariance Σ solving Σ = A Σ Aᵀ + L Lᵀ (c×c)
+    pub stationary: Vec<f64>,
+    /// max |ar_k|, below 1 by construction.
+    pub spectral_radius: f64,
+    /// Regression samples of this phase (its own, also when it fell back to the pooled fit).
+    pub samples: usize,
+    /// Consecutive same-phase pairs the AR fit used; 0 means A = 0 (not correlated, or a
+    /// phase whose runs never last two steps, like contact).
+    pub ar_pairs: usize,
+    /// The phase had too few samples of its own and uses the fit over all phases.
+    pub pooled: bool,
+}
+
+/// A fitted action-error model (Eq. 7).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ErrorModel {
+    pub variant: ErrorVariant,
+    pub channels: usize,
+    /// κ_ε.
+    pub kappa: f64,
+    /// N_PHASES entries (GlobalIid: the same model repeated; Unperturbed: empty)
+    pub phases: Vec<PhaseModel>,
+}
+
+/// Why [`fit`] refused its input.
+#[derive(Debug, thiserror::Error)]
+pub enum FitError {
+    #[error("the model needs at least one action channel")]
+    NoChannels,
+    #[error("no sequences to fit")]
+    NoSequences,
+    #[error("invalid fit parameters: {0}")]
+    InvalidParams(String),
+    #[error(
+        "sequence {sequence}: student has {student} values and teacher {teacher}, \
+         but {steps} phases × {channels} channels need {expected}"
+    )]
+    LengthMismatch {
+        sequence: usize,
+        student: usize,
+        teacher: usize,
+        steps: usize,
+        channels: usize,
+        expected: usize,
+    },
+    #[error("sequence {sequence}, step {step}: phase {phase} is out of range (phases are 0..=4)")]
+    PhaseOutOfRange {
+        sequence: usize,
+        step: usize,
+        phase: u8,
+    },
+    #[error("sequence {sequence}, step {step}: an action is not finite")]
+    NonFinite { sequence: usize, step: usize },
+    #[error("all phases pooled: {samples} {what}, at least {needed} needed")]
+    TooFewPooledSamples {
+        samples: usize,
+        needed: usize,
+        what: &'static str,
+    },
+}
+
+/// An [`ErrorModel`] whose shapes do not fit together (e.g. hand-edited or deserialized).
+#[derive(Debug, thiserror::Error)]
+#[error("malformed action-error model: {0}")]
+pub struct MalformedModel(pub String);
+
+impl ErrorModel {
+    /// The model of unperturbed-only validation.
+    pub fn unperturbed(channels: usize) -> Self {
+        Self {
+            variant: ErrorVariant::Unperturbed,
+            channels,
+            kappa: 1.0,
+            phases: Vec::new(),
+        }
+    }
+
+    /// Checks that every phase carries vectors and matrices of `channels` entries and a stable
+    /// AR process.
+    pub fn validate(&self) -> Result<(), MalformedModel> {
+        let c = self.channels;
+        if self.variant == ErrorVariant::Unperturbed {
+            return if self.phases.is_empty() {
+                Ok(())
+            } else {
+                Err(MalformedModel("an unperturbed model has no phases".into()))
+            };
+        }
+        if self.phases.len() != N_PHASES {
+            return Err(MalformedModel(format!(
+                "{} phases instead of {N_PHASES}",
+                self.phases.len()
+            )));
+        }
+        if !self.kappa.is_finite() {
+            return Err(MalformedModel("kappa is not finite".into()));
+        }
+        for (i, p) in self.phases.iter().enumerate() {
+            let shapes_ok = p.gain.len() == c
+                && p.bias.len() == c
+                && p.ar.len() == c
+                && p.l.len() == c * c
+                && p.stationary.len() == c * c;
+            if !shapes_ok {
+                return Err(MalformedModel(format!(
+                    "phase {i}: parameter shapes do not match {c} channels"
+                )));
+            }
+            let upper_zero = (0..c).all(|i| (i + 1..c).all(|j| p.l[i * c + j] == 0.0));
+            if !upper_zero {
+                return Err(MalformedModel(format!(
+                    "phase {i}: L is not lower-triangular"
+                )));
+            }
+            if p.ar.iter().any(|a| a.is_nan() || a.abs() >= 1.0) {
+                return Err(MalformedModel(format!(
+                    "phase {i}: an AR coefficient is not inside (−1, 1)"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn max_delay(&self) -> usize {
+        self.phases.iter().map(|p| p.delay).max().unwrap_or(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::error_model::testdata::*;
+
+    #[test]
+    fn serde_round_trip_and_defaults() {
+        let params: ErrorFitParams = serde_json::from_str("{}").expect("defaults");
+        assert_eq!(params, ErrorFitParams::default());
+        let params: ErrorFitParams =
+            serde_json::from_str(r#"{"variant":"global_iid","kappa":2.0}"#).expect("partial");
+        assert_eq!(params.variant, ErrorVariant::GlobalIid);
+        assert_eq!(params.max_delay, 4);
+        assert!(serde_json::from_str::<ErrorFitParams>(r#"{"kapa":2.0}"#).is_err());
+        let model = hand_model(ErrorVariant::PhaseCorrelated, 1.5, hand_phase());
+        let text = serde_json::to_string(&model).expect("serialize");
+        let back: ErrorModel = serde_json::from_str(&text).expect("deserialize");
+        assert_eq!(back, model);
+    }
+}
