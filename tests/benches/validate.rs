@@ -11,10 +11,10 @@ use std::path::Path;
 use std::time::Instant;
 
 use osms_make::{MakeOptions, Pipeline, Plan};
-use osms_method::error_stages::ErrorModelArtifact;
-use osms_method::stages::CandidateSets;
+use osms_method::artifacts::CandidateSets;
+use osms_method::artifacts::ErrorModelArtifact;
+use osms_method::artifacts::ErrorStreams;
 use osms_method::validate::{Case, Cost, ValidateParams, validate};
-use osms_method::validate_stages::ErrorStreams;
 use osms_policy::artifacts::Dataset;
 use osms_policy::artifacts::Teacher;
 use osms_sim::artifacts::WorldArtifact;

@@ -603,9 +603,9 @@ fn the_osw_projection_is_its_datasets_windows(made: &Made) {
 /// Every complete D_R window gets |η| = 2K + 1 candidates inside Z from each generator; the
 /// ablations share the geodesic sets' rollouts and are matched to their largest deviation.
 fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
+    use osms_method::artifacts::CandidateSets;
     use osms_method::candidates::Generator;
     use osms_method::cvae::Cvae;
-    use osms_method::stages::CandidateSets;
     use osms_policy::artifacts::OswSet;
 
     let windows: OswSet = load(made, "d_r_osw");
@@ -662,7 +662,7 @@ fn candidate_sets_cover_d_r_and_are_matched(made: &Made) {
             }
         }
     }
-    let table: osms_method::stages::CandidateTable = load(made, "candidates");
+    let table: osms_method::artifacts::CandidateTable = load(made, "candidates");
     let names: Vec<&str> = table.rows.iter().map(|r| r.generator.as_str()).collect();
     assert_eq!(names, ["geodesic", "euclidean", "unconditional", "direct"]);
     assert_eq!(table.rows[0], geo.stats());
@@ -888,8 +888,8 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
 /// snippet's later rows never run); with the error model, two runs of one candidate on the same
 /// stream are identical, and two candidates share the rollout up to the window's start.
 fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
+    use osms_method::artifacts::ErrorModelArtifact;
     use osms_method::error_model::Perturber;
-    use osms_method::error_stages::ErrorModelArtifact;
     use osms_method::intervene::{Errors, Snippet, execute};
     use osms_policy::artifacts::Dataset;
     use osms_policy::artifacts::Teacher;
@@ -1016,10 +1016,10 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
 /// rollouts and keeps successes only; a duplicated candidate gets identical outcomes (common
 /// random numbers).
 fn validation_is_exact_when_fast_and_dstar_repeats_it(made: &Made) {
-    use osms_method::error_stages::ErrorModelArtifact;
-    use osms_method::stages::CandidateSets;
+    use osms_method::artifacts::CandidateSets;
+    use osms_method::artifacts::ErrorModelArtifact;
+    use osms_method::artifacts::Validation;
     use osms_method::validate::{Case, Robustness, ValidateParams, validate};
-    use osms_method::validate_stages::Validation;
     use osms_policy::artifacts::Dataset;
     use osms_policy::artifacts::Teacher;
     use osms_policy::artifacts::{DemoSet, Execution, Origin};

@@ -172,11 +172,6 @@ impl Cvae {
     }
 }
 
-impl osms_core::Artifact for Cvae {
-    const TYPE_TAG: &'static str = "method.manifold";
-    const SCHEMA_VERSION: u16 = 1;
-}
-
 /// ‖a − b‖²_W for a diagonal W, summed in index order in f64.
 pub fn weighted_sq(w: &[f32], a: &[f32], b: &[f32]) -> f64 {
     let mut s = 0.0f64;

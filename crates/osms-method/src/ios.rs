@@ -15,15 +15,10 @@
 //!
 //! with a normal-approximation 95 % interval. f_max is 0 for a rollout without contact.
 
-use std::fmt::Write;
-
-use osms_core::Artifact;
 use osms_core::rng::{self, StreamRng};
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError, Summarize};
-use osms_policy::artifacts::Dataset;
-use osms_policy::artifacts::Teacher;
-use osms_policy::stages::numerics as policy_numerics;
-use osms_sim::artifacts::WorldArtifact;
+use osms_policy::Agent;
+use osms_policy::artifacts::DemoRollout;
+use osms_policy::catch::CatchTaskSpec;
 use osms_sim::{N_ACTION, N_ARM, World};
 use serde::{Deserialize, Serialize};
 
@@ -63,7 +58,7 @@ impl Default for IosParams {
 }
 
 impl IosParams {
-    fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), String> {
         if self.stride == 0 || self.window == 0 || self.draws == 0 {
             return Err("params.stride, params.window and params.draws must be at least 1".into());
         }
@@ -106,204 +101,6 @@ pub struct IosItem {
     pub samples: Vec<IosSample>,
 }
 
-/// S_IOS at one offset.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct IosRow {
-    pub offset: i64,
-    /// Interventions measured (windows that fit inside the rollout).
-    pub n: usize,
-    pub sensitivity: f64,
-    pub ci_low: f64,
-    pub ci_high: f64,
-    /// Fraction of interventions that flipped success.
-    pub success_change_rate: f64,
-    pub mean_abs_force_change_n: f64,
-}
-
-/// The profile.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct IosProfile {
-    pub params: IosParams,
-    /// δ_f used to normalise f_max (N).
-    pub force_scale_n: f64,
-    pub items: Vec<IosItem>,
-}
-
-impl Artifact for IosProfile {
-    const TYPE_TAG: &'static str = "method.ios_profile";
-    const SCHEMA_VERSION: u16 = 1;
-}
-
-impl osms_make::Sharded for IosProfile {
-    type Item = IosItem;
-    fn take_items(&mut self) -> Vec<IosItem> {
-        std::mem::take(&mut self.items)
-    }
-    fn set_items(&mut self, items: Vec<IosItem>) {
-        self.items = items;
-    }
-}
-
-impl IosProfile {
-    /// S_IOS per offset, in offset order.
-    pub fn rows(&self) -> Vec<IosRow> {
-        self.params
-            .offsets()
-            .into_iter()
-            .map(|offset| {
-                let s: Vec<&IosSample> = self
-                    .items
-                    .iter()
-                    .flat_map(|i| &i.samples)
-                    .filter(|s| s.offset == offset)
-                    .collect();
-                let n = s.len();
-                let v: Vec<f64> = s
-                    .iter()
-                    .map(|s| {
-                        (f64::from(u8::from(s.success_changed))
-                            + s.force_change_n.abs() / self.force_scale_n)
-                            / s.norm
-                    })
-                    .collect();
-                let nf = n.max(1) as f64;
-                let mean = v.iter().sum::<f64>() / nf;
-                let var = if n > 1 {
-                    v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1) as f64
-                } else {
-                    0.0
-                };
-                let half = 1.96 * (var / nf).sqrt();
-                IosRow {
-                    offset,
-                    n,
-                    sensitivity: mean,
-                    ci_low: mean - half,
-                    ci_high: mean + half,
-                    success_change_rate: s.iter().filter(|s| s.success_changed).count() as f64 / nf,
-                    mean_abs_force_change_n: s.iter().map(|s| s.force_change_n.abs()).sum::<f64>()
-                        / nf,
-                }
-            })
-            .collect()
-    }
-
-    /// The offset with the highest sensitivity.
-    pub fn peak(&self) -> Option<IosRow> {
-        self.rows()
-            .into_iter()
-            .filter(|r| r.n > 0)
-            .max_by(|a, b| a.sensitivity.total_cmp(&b.sensitivity))
-    }
-}
-
-impl Summarize for IosProfile {
-    fn summary(&self) -> serde_json::Value {
-        serde_json::json!({
-            "rollouts": self.items.len(),
-            "window": self.params.window,
-            "size": self.params.size,
-            "peak_offset": self.peak().map(|r| r.offset),
-            "rows": self.rows(),
-        })
-    }
-
-    fn text(&self) -> Option<String> {
-        let p = &self.params;
-        let mut out = String::new();
-        let _ = writeln!(
-            out,
-            "IOS profile (Eq. 1): {} D_R rollouts, {}-step arm windows starting at k_e + offset, {} draws of ‖Δζ‖ = {} each; d_Y = |Δ success| + |Δ f_max| / {} N\n",
-            self.items.len(),
-            p.window,
-            p.draws,
-            p.size,
-            self.force_scale_n
-        );
-        let _ = writeln!(
-            out,
-            "| offset | window | n | S_IOS | 95% CI | success flips | mean |Δ f_max| (N) |\n|---:|---|---:|---:|---|---:|---:|"
-        );
-        let peak = self.peak().map(|r| r.offset);
-        for r in self.rows() {
-            let mark = match (Some(r.offset) == peak, r.offset == -(p.window as i64)) {
-                (true, true) => " (peak, paper's OSW)",
-                (true, false) => " (peak)",
-                (false, true) => " (paper's OSW)",
-                (false, false) => "",
-            };
-            if r.n == 0 {
-                let _ = writeln!(
-                    out,
-                    "| {:+}{mark} | k_e{:+} … k_e{:+} | 0 | - | - | - | - |",
-                    r.offset,
-                    r.offset,
-                    r.offset + p.window as i64 - 1
-                );
-                continue;
-            }
-            let _ = writeln!(
-                out,
-                "| {:+}{mark} | k_e{:+} … k_e{:+} | {} | {:.3} | [{:.3}, {:.3}] | {:.1}% | {:.2} |",
-                r.offset,
-                r.offset,
-                r.offset + p.window as i64 - 1,
-                r.n,
-                r.sensitivity,
-                r.ci_low,
-                r.ci_high,
-                100.0 * r.success_change_rate,
-                r.mean_abs_force_change_n
-            );
-        }
-        if let Some(peak) = self.peak() {
-            let paper = self
-                .rows()
-                .into_iter()
-                .find(|r| r.offset == -(p.window as i64));
-            let _ = writeln!(
-                out,
-                "\nsensitivity peaks at offset {:+}; the paper's window (offset {:+}) {}",
-                peak.offset,
-                -(p.window as i64),
-                match paper {
-                    Some(w) if w.offset == peak.offset => "is the peak".to_string(),
-                    Some(w) if w.ci_high >= peak.ci_low => format!(
-                        "is not the peak but within its interval (S_IOS {:.3} vs {:.3})",
-                        w.sensitivity, peak.sensitivity
-                    ),
-                    Some(w) => format!(
-                        "is below the peak (S_IOS {:.3} vs {:.3})",
-                        w.sensitivity, peak.sensitivity
-                    ),
-                    None => "was not profiled (set the offsets to include it)".to_string(),
-                }
-            );
-        }
-        Some(out)
-    }
-
-    fn files(&self) -> Vec<(String, Vec<u8>)> {
-        let mut csv = String::from(
-            "offset,n,sensitivity,ci_low,ci_high,success_change_rate,mean_abs_force_change_n\n",
-        );
-        for r in self.rows() {
-            let _ = writeln!(
-                csv,
-                "{},{},{},{},{},{},{}",
-                r.offset,
-                r.n,
-                r.sensitivity,
-                r.ci_low,
-                r.ci_high,
-                r.success_change_rate,
-                r.mean_abs_force_change_n
-            );
-        }
-        vec![("ios_profile.csv".into(), csv.into_bytes())]
-    }
-}
-
 /// One offset's window start and its perturbed snippets with their ‖Δζ‖.
 type Plan = (i64, usize, Vec<(Vec<f32>, f64)>);
 
@@ -318,152 +115,91 @@ fn direction(rng: &mut StreamRng, len: usize, size: f64) -> Vec<f64> {
     }
 }
 
-/// The IOS profile of the first `rollouts` D_R rollouts; rollout i draws its Δζ from stream
-/// ("item", i).
-pub struct IosProfileStage;
-impl ItemStage for IosProfileStage {
-    const KIND: &'static str = "ios_profile";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = true;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<WorldArtifact>("world"),
-        Slot::one::<Teacher>("teacher"),
-        Slot::one::<Dataset>("data"),
-    ];
-    const DOC: &'static str =
-        "the interventional outcome sensitivity profile (Eq. 1) around the event step k_e";
-    type Params = IosParams;
-    type Prepared = (World, Teacher, Dataset);
-    type Item = IosItem;
-    type Output = IosProfile;
-
-    /// `rollouts` D_R rollouts profiled, each `draws` times.
-    fn scale(params: &IosParams, inputs: &[(&str, f64)]) -> Scale {
-        let n = Scale::input(inputs, "data").min(params.rollouts as f64);
-        Scale {
-            work: n * params.draws.max(1) as f64,
-            size: n,
+/// One D_R rollout's interventions at every offset of `p` (its Δζ drawn from `rng` in offset
+/// order), each branched from the teacher's replay of the rollout under its own DR stream.
+pub fn profile(
+    world: &World,
+    task: &CatchTaskSpec,
+    agent: &Agent,
+    r: &DemoRollout,
+    p: &IosParams,
+    rng: &mut StreamRng,
+) -> Result<IosItem, String> {
+    let rec = &r.record;
+    let k_e = rec.metrics.event_step as i64;
+    let success = rec.outcome.success();
+    let f0 = rec.metrics.max_force_n;
+    // Every Δζ first (in offset order), so the snippets outlive the branching rollout.
+    let len = p.window * N_ARM;
+    let mut plans: Vec<Plan> = Vec::new();
+    for offset in p.offsets() {
+        let start = k_e + offset;
+        if start < 0 || (start as usize) + p.window > rec.steps {
+            continue;
         }
+        let start = start as usize;
+        let original: Vec<f32> = (start..start + p.window)
+            .flat_map(|k| {
+                rec.intended[k * N_ACTION..k * N_ACTION + N_ARM]
+                    .iter()
+                    .copied()
+            })
+            .collect();
+        let draws = (0..p.draws)
+            .map(|_| {
+                let delta = direction(rng, len, p.size);
+                let zeta: Vec<f32> = original
+                    .iter()
+                    .zip(&delta)
+                    .map(|(&z, d)| (f64::from(z) + d).clamp(-1.0, 1.0) as f32)
+                    .collect();
+                let norm = zeta
+                    .iter()
+                    .zip(&original)
+                    .map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                (zeta, norm)
+            })
+            .collect();
+        plans.push((offset, start, draws));
     }
-
-    fn numerics() -> Vec<Numerics> {
-        policy_numerics()
-    }
-    fn prepare(&self, ctx: &Ctx<'_, IosParams>) -> Result<Self::Prepared, StageError> {
-        ctx.params.check()?;
-        let data: Dataset = ctx.sharded("data")?;
-        let mut teacher: Teacher = ctx.input("teacher")?;
-        teacher.task = data.task.clone();
-        teacher.task.rollout.record_privileged = false;
-        Ok((ctx.input::<WorldArtifact>("world")?.world()?, teacher, data))
-    }
-    fn n_items(&self, ctx: &Ctx<'_, IosParams>, p: &Self::Prepared) -> usize {
-        ctx.params.rollouts.min(p.2.items.len())
-    }
-    fn run_item(
-        &self,
-        ctx: &Ctx<'_, IosParams>,
-        (world, teacher, data): &Self::Prepared,
-        index: usize,
-        rng: &mut StreamRng,
-    ) -> Result<IosItem, StageError> {
-        let p = ctx.params;
-        let r = &data.items[index].rollout;
-        let rec = &r.record;
-        let k_e = rec.metrics.event_step as i64;
-        let success = rec.outcome.success();
-        let f0 = rec.metrics.max_force_n;
-        // Every Δζ first (in offset order), so the snippets outlive the branching rollout.
-        let len = p.window * N_ARM;
-        let mut plans: Vec<Plan> = Vec::new();
-        for offset in p.offsets() {
-            let start = k_e + offset;
-            if start < 0 || (start as usize) + p.window > rec.steps {
-                continue;
-            }
-            let start = start as usize;
-            let original: Vec<f32> = (start..start + p.window)
-                .flat_map(|k| {
-                    rec.intended[k * N_ACTION..k * N_ACTION + N_ARM]
-                        .iter()
-                        .copied()
-                })
-                .collect();
-            let draws = (0..p.draws)
-                .map(|_| {
-                    let delta = direction(rng, len, p.size);
-                    let zeta: Vec<f32> = original
-                        .iter()
-                        .zip(&delta)
-                        .map(|(&z, d)| (f64::from(z) + d).clamp(-1.0, 1.0) as f32)
-                        .collect();
-                    let norm = zeta
-                        .iter()
-                        .zip(&original)
-                        .map(|(a, b)| (f64::from(*a) - f64::from(*b)).powi(2))
-                        .sum::<f64>()
-                        .sqrt();
-                    (zeta, norm)
-                })
-                .collect();
-            plans.push((offset, start, draws));
+    let mut base = Intervention::new(world, task, rec.condition.clone(), r.dr_stream.rng(), None);
+    base.through_contact();
+    let mut samples = Vec::new();
+    for (offset, start, draws) in &plans {
+        base.run_until(agent, *start);
+        let n = start * N_ACTION;
+        if base.step_index() != *start || base.record().intended[..n] != rec.intended[..n] {
+            return Err(format!(
+                "D_R item {}: the teacher's replay up to step {start} is not the recorded rollout ({} steps)\nhint: `teacher` must be the teacher that collected `data`",
+                r.item, rec.steps
+            ));
         }
-        let mut base = Intervention::new(
-            world,
-            &teacher.task,
-            rec.condition.clone(),
-            r.dr_stream.rng(),
-            None,
-        );
-        base.through_contact();
-        let mut samples = Vec::new();
-        for (offset, start, draws) in &plans {
-            base.run_until(&teacher.agent, *start);
-            let n = start * N_ACTION;
-            if base.step_index() != *start || base.record().intended[..n] != rec.intended[..n] {
-                return Err(format!(
-                    "D_R item {}: the teacher's replay up to step {start} is not the recorded rollout ({} steps)\nhint: `teacher` must be the teacher that collected `data`",
-                    r.item, rec.steps
-                )
-                .into());
-            }
-            let snapshot = base.snapshot();
-            for (zeta, norm) in draws.iter().filter(|(_, n)| *n > 0.0) {
-                base.restore(&snapshot);
-                base.set_snippet(Some(Snippet {
-                    start: *start,
-                    zeta,
-                }));
-                base.run(&teacher.agent);
-                let (outcome, metrics) = base.outcome();
-                samples.push(IosSample {
-                    offset: *offset,
-                    norm: *norm,
-                    success_changed: outcome.success() != success,
-                    force_change_n: metrics.max_force_n - f0,
-                });
-            }
+        let snapshot = base.snapshot();
+        for (zeta, norm) in draws.iter().filter(|(_, n)| *n > 0.0) {
             base.restore(&snapshot);
+            base.set_snippet(Some(Snippet {
+                start: *start,
+                zeta,
+            }));
+            base.run(agent);
+            let (outcome, metrics) = base.outcome();
+            samples.push(IosSample {
+                offset: *offset,
+                norm: *norm,
+                success_changed: outcome.success() != success,
+                force_change_n: metrics.max_force_n - f0,
+            });
         }
-        Ok(IosItem {
-            item: r.item,
-            event_step: rec.metrics.event_step,
-            success,
-            samples,
-        })
+        base.restore(&snapshot);
     }
-    fn merge(
-        &self,
-        ctx: &Ctx<'_, IosParams>,
-        (_, teacher, _): Self::Prepared,
-        items: Vec<IosItem>,
-    ) -> Result<IosProfile, StageError> {
-        Ok(IosProfile {
-            params: ctx.params.clone(),
-            force_scale_n: teacher.task.rollout.success.max_force_n,
-            items,
-        })
-    }
+    Ok(IosItem {
+        item: r.item,
+        event_step: rec.metrics.event_step,
+        success,
+        samples,
+    })
 }
 
 #[cfg(test)]
@@ -478,45 +214,5 @@ mod tests {
             let n = d.iter().map(|x| x * x).sum::<f64>().sqrt();
             assert!((n - 0.5).abs() < 1e-12, "{n}");
         }
-    }
-
-    #[test]
-    fn rows_average_d_y_over_the_norm_per_offset() {
-        let sample = |offset, norm, flip, df| IosSample {
-            offset,
-            norm,
-            success_changed: flip,
-            force_change_n: df,
-        };
-        let profile = IosProfile {
-            params: IosParams {
-                first_offset: -8,
-                last_offset: 0,
-                stride: 8,
-                ..IosParams::default()
-            },
-            force_scale_n: 80.0,
-            items: vec![IosItem {
-                item: 0,
-                event_step: 20,
-                success: true,
-                samples: vec![
-                    // d_Y / ‖Δζ‖ = (1 + 40/80) / 0.5 = 3 and (0 + 8/80) / 0.5 = 0.2.
-                    sample(-8, 0.5, true, -40.0),
-                    sample(-8, 0.5, false, 8.0),
-                    sample(0, 0.25, false, 2.0),
-                ],
-            }],
-        };
-        let rows = profile.rows();
-        assert_eq!(rows.len(), 2);
-        assert_eq!((rows[0].offset, rows[0].n), (-8, 2));
-        assert!((rows[0].sensitivity - 1.6).abs() < 1e-12);
-        // sd of {3, 0.2} is 1.4·√2; the half-width is 1.96 · sd / √2 = 2.744.
-        assert!((rows[0].ci_high - rows[0].sensitivity - 2.744).abs() < 1e-9);
-        assert!((rows[0].success_change_rate - 0.5).abs() < 1e-12);
-        assert!((rows[0].mean_abs_force_change_n - 24.0).abs() < 1e-12);
-        assert!((rows[1].sensitivity - 0.1).abs() < 1e-12);
-        assert_eq!(profile.peak().map(|r| r.offset), Some(-8));
     }
 }

@@ -2,11 +2,11 @@
 //! an original snippet onto it (Eq. 3), the decoder's pullback metric (Eq. 4), Sobol shooting
 //! directions and geodesic shooting (Eq. 5), and the candidate sets η (Eq. 6).
 
-pub mod baselines;
+pub mod artifacts;
 pub mod candidates;
+pub mod construct;
 pub mod cvae;
 pub mod error_model;
-pub mod error_stages;
 pub mod geodesic;
 pub mod intervene;
 pub mod ios;
@@ -16,4 +16,3 @@ pub mod select;
 pub mod sobol;
 pub mod stages;
 pub mod validate;
-pub mod validate_stages;

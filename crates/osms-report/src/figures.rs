@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use osms_core::Artifact;
 use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
-use osms_method::ios::IosProfile;
+use osms_method::artifacts::IosProfile;
 use osms_policy::artifacts::StudentArtifact;
 use osms_policy::artifacts::Teacher;
 use osms_sim::artifacts::{EvalRow, Evaluation, ImpactTrace};
@@ -599,7 +599,7 @@ impl Stage for LearningCurvesStage {
 
 /// Figure (d): candidate selection, J against SR for the candidates of successful originals
 /// (refinement) and failed ones (repair), the selected candidates highlighted.
-pub fn candidate_selection(v: &osms_method::validate_stages::Validation) -> Figure {
+pub fn candidate_selection(v: &osms_method::artifacts::Validation) -> Figure {
     use osms_method::validate::Robustness;
     let q = v.params.q;
     let threshold = v.params.delta_sr;
@@ -704,7 +704,7 @@ impl Stage for CandidateSelectionStage {
     const KIND: &'static str = "candidate_selection";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[Slot::one::<osms_method::validate_stages::Validation>(
+    const INPUTS: &'static [Slot] = &[Slot::one::<osms_method::artifacts::Validation>(
         "validation",
     )];
     const DOC: &'static str =

@@ -8,8 +8,8 @@ use std::fmt::Write;
 use osms_core::Artifact;
 use osms_core::NoParams;
 use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
-use osms_method::baselines::ConstructionTable;
-use osms_method::stages::CandidateTable;
+use osms_method::artifacts::CandidateTable;
+use osms_method::artifacts::ConstructionTable;
 use osms_policy::artifacts::TeacherTable;
 use serde::{Deserialize, Serialize};
 

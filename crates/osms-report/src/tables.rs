@@ -3,8 +3,8 @@
 
 use osms_core::NoParams;
 use osms_make::{Ctx, Member, Slot, Stage, StageError};
+use osms_method::artifacts::ErrorModelArtifact;
 use osms_method::error_model::ErrorVariant;
-use osms_method::error_stages::{ErrorModelArtifact, TABLE3_VARIANTS};
 use osms_policy::artifacts::{ConstructionStats, DemoSet};
 use osms_sim::artifacts::{Evaluation, TableLine};
 
@@ -266,7 +266,7 @@ pub fn table3(
 ) -> Table {
     let mut rows = Vec::new();
     for (i, (label, paper)) in PAPER_TABLE3.iter().enumerate() {
-        let variant = TABLE3_VARIANTS[i];
+        let variant = ErrorVariant::TABLE3[i];
         let metrics = model.variants.get(i).map(|v| &v.metrics);
         let metric = |f: fn(&osms_method::error_model::Table3Metrics) -> f64| {
             if variant == ErrorVariant::Unperturbed {

@@ -20,7 +20,27 @@ pub enum ErrorVariant {
     PhaseCorrelated,
 }
 
-/// Settings of [`fit`].
+impl ErrorVariant {
+    /// The four validation models of Table III, in the table's order.
+    pub const TABLE3: [ErrorVariant; 4] = [
+        ErrorVariant::Unperturbed,
+        ErrorVariant::GlobalIid,
+        ErrorVariant::PhaseIndependent,
+        ErrorVariant::PhaseCorrelated,
+    ];
+
+    /// The name params and tables use.
+    pub fn name(self) -> &'static str {
+        match self {
+            ErrorVariant::Unperturbed => "unperturbed",
+            ErrorVariant::GlobalIid => "global_iid",
+            ErrorVariant::PhaseIndependent => "phase_independent",
+            ErrorVariant::PhaseCorrelated => "phase_correlated",
+        }
+    }
+}
+
+/// Settings of [`fit`](super::fit).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ErrorFitParams {

@@ -1,34 +1,13 @@
-//! The `error_model` stage kind: Eq. 7 fitted on the cross-fitted IL students' pairs, with the
-//! Table III comparison of all four validation models.
+//! The fitted action-error model with the Table III comparison of all four variants.
 
 use std::fmt::Write;
 
 use osms_core::Artifact;
-use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
-use osms_policy::artifacts::ErrorPairs;
-use osms_sim::{N_ACTION, N_ARM, Phase};
+use osms_make::Summarize;
+use osms_sim::{N_ARM, Phase};
 use serde::{Deserialize, Serialize};
 
-use crate::error_model::{
-    ErrorFitParams, ErrorModel, ErrorVariant, PairSequence, Table3Metrics, fit, table3_metrics,
-};
-
-/// The four validation models of Table III, in the table's order.
-pub const TABLE3_VARIANTS: [ErrorVariant; 4] = [
-    ErrorVariant::Unperturbed,
-    ErrorVariant::GlobalIid,
-    ErrorVariant::PhaseIndependent,
-    ErrorVariant::PhaseCorrelated,
-];
-
-pub fn variant_name(v: ErrorVariant) -> &'static str {
-    match v {
-        ErrorVariant::Unperturbed => "unperturbed",
-        ErrorVariant::GlobalIid => "global_iid",
-        ErrorVariant::PhaseIndependent => "phase_independent",
-        ErrorVariant::PhaseCorrelated => "phase_correlated",
-    }
-}
+use crate::error_model::{ErrorFitParams, ErrorModel, Table3Metrics};
 
 /// One model of Table III: its fit and its metrics on the pairs it was fitted on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -53,7 +32,7 @@ pub struct ErrorModelArtifact {
     pub params: ErrorFitParams,
     /// The model of `params.variant`, the one validation applies.
     pub model: ErrorModel,
-    /// All four models of Table III, fitted on the same pairs, in [`TABLE3_VARIANTS`] order.
+    /// All four models of Table III, fitted on the same pairs, in [`ErrorVariant::TABLE3`] order.
     pub variants: Vec<VariantFit>,
     pub folds: Vec<FoldStats>,
     /// Pair steps per phase (online phase, in phase order).
@@ -88,7 +67,7 @@ impl ErrorModelArtifact {
             let _ = writeln!(
                 out,
                 "| {} | {:.3} | {:.3} | {} / {} |",
-                variant_name(v.model.variant),
+                v.model.variant.name(),
                 m.moment_error,
                 m.lag1_error,
                 m.moment_cells,
@@ -113,7 +92,7 @@ impl ErrorModelArtifact {
                 let _ = writeln!(
                     out,
                     "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {} | {} | {} |",
-                    variant_name(v.model.variant),
+                    v.model.variant.name(),
                     Phase::ALL[phase].name(),
                     p.samples,
                     p.delay,
@@ -136,13 +115,13 @@ impl ErrorModelArtifact {
 impl Summarize for ErrorModelArtifact {
     fn summary(&self) -> serde_json::Value {
         serde_json::json!({
-            "variant": variant_name(self.params.variant),
+            "variant": self.params.variant.name(),
             "kappa": self.params.kappa,
             "folds": self.folds,
             "phase_steps": Phase::ALL.iter().zip(&self.phase_steps)
                 .map(|(p, n)| (p.name(), *n)).collect::<std::collections::BTreeMap<_, _>>(),
             "table3": self.variants.iter().map(|v| serde_json::json!({
-                "model": variant_name(v.model.variant),
+                "model": v.model.variant.name(),
                 "moment_error": v.metrics.moment_error,
                 "lag1_error": v.metrics.lag1_error,
             })).collect::<Vec<_>>(),
@@ -159,7 +138,7 @@ impl Summarize for ErrorModelArtifact {
             "IL-student action-error models (paper 4.3, Eq. 7) fitted on {} pair steps of {} rollouts; validation applies `{}` with κ_ε = {}\n",
             steps,
             self.folds.iter().map(|f| f.rollouts).sum::<usize>(),
-            variant_name(self.params.variant),
+            self.params.variant.name(),
             self.params.kappa
         );
         let _ = writeln!(
@@ -200,7 +179,7 @@ impl Summarize for ErrorModelArtifact {
             let _ = writeln!(
                 csv,
                 "{},{},{},{},{}",
-                variant_name(v.model.variant),
+                v.model.variant.name(),
                 m.moment_error,
                 m.lag1_error,
                 m.moment_cells,
@@ -219,80 +198,5 @@ impl Summarize for ErrorModelArtifact {
                 serde_json::to_vec_pretty(&self.variants).unwrap_or_default(),
             ),
         ]
-    }
-}
-
-/// Eq. 7 on every (π̄, teacher, phase) sequence of the gathered pairs; the model of
-/// `params.variant` is the one validation applies, and all four are fitted and scored for
-/// Table III (model `i` simulates with stream ("table3", i)).
-pub struct ErrorModelStage;
-impl Stage for ErrorModelStage {
-    const KIND: &'static str = "error_model";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = true;
-    const INPUTS: &'static [Slot] = &[Slot::gather::<ErrorPairs>("pairs")];
-    const DOC: &'static str =
-        "the IL-student action-error model (Eq. 7) and the Table III metrics of all four variants";
-    type Params = ErrorFitParams;
-    type Output = ErrorModelArtifact;
-
-    fn run(&self, ctx: &Ctx<'_, ErrorFitParams>) -> Result<ErrorModelArtifact, StageError> {
-        let gathered = ctx.gathered_sharded::<ErrorPairs>("pairs")?;
-        let mut folds = Vec::with_capacity(gathered.len());
-        let mut phase_steps = vec![0usize; Phase::ALL.len()];
-        for (_, pairs) in &gathered {
-            let eval = pairs.evaluation();
-            let all = eval.table().pop();
-            folds.push(FoldStats {
-                fold: pairs.fold,
-                rollouts: pairs.rollouts.len(),
-                steps: pairs.rollouts.iter().map(|r| r.steps()).sum(),
-                success_rate: all.as_ref().map_or(0.0, |l| l.success_rate),
-                completion_rate: all.as_ref().map_or(0.0, |l| l.completion_rate),
-            });
-            for r in &pairs.rollouts {
-                for &p in &r.phase {
-                    if let Some(n) = phase_steps.get_mut(usize::from(p)) {
-                        *n += 1;
-                    }
-                }
-            }
-        }
-        let sequences: Vec<PairSequence<'_>> = gathered
-            .iter()
-            .flat_map(|(_, pairs)| &pairs.rollouts)
-            .map(|r| PairSequence {
-                student: &r.student,
-                teacher: &r.teacher,
-                phase: &r.phase,
-            })
-            .collect();
-        let mut variants = Vec::with_capacity(TABLE3_VARIANTS.len());
-        for (i, &variant) in TABLE3_VARIANTS.iter().enumerate() {
-            let params = ErrorFitParams {
-                variant,
-                ..ctx.params.clone()
-            };
-            let model = fit(&sequences, N_ACTION, &params).map_err(|e| {
-                format!(
-                    "input `pairs`: the {} model cannot be fitted: {e}\nhint: more D_E rollouts give the students more held-out conditions",
-                    variant_name(variant)
-                )
-            })?;
-            let metrics = table3_metrics(&model, &sequences, &mut ctx.rng("table3", i as u64));
-            variants.push(VariantFit { model, metrics });
-        }
-        let model = variants
-            .iter()
-            .find(|v| v.model.variant == ctx.params.variant)
-            .map(|v| v.model.clone())
-            .ok_or("params.variant is not one of the four models")?;
-        Ok(ErrorModelArtifact {
-            params: ctx.params.clone(),
-            model,
-            variants,
-            folds,
-            phase_steps,
-        })
     }
 }

@@ -1,0 +1,185 @@
+//! The method's stage kinds, one file each: the manifold and the candidates (`manifold`,
+//! `candidates`, `candidate_table`), the error model (`error_model`), validation and D_*
+//! (`validate`, `dstar`), the baselines (`naive`, `normal`, `construction_table`) and the IOS
+//! profile (`ios_profile`).
+
+mod candidate_table;
+mod candidates;
+mod construction_table;
+mod dstar;
+mod error_model;
+mod ios_profile;
+mod manifold;
+mod naive;
+mod normal;
+mod validate;
+
+pub use candidate_table::CandidateTableStage;
+pub use candidates::CandidatesStage;
+pub use construction_table::ConstructionTableStage;
+pub use dstar::{DstarParams, DstarStage};
+pub use error_model::ErrorModelStage;
+pub use ios_profile::IosProfileStage;
+pub use manifold::ManifoldStage;
+pub use naive::NaiveStage;
+pub use normal::{NormalInputs, NormalStage};
+pub use validate::ValidateStage;
+
+use osms_make::{Ctx, Numerics, StageError};
+use osms_policy::artifacts::{Dataset, DemoSet, Teacher};
+use osms_sim::artifacts::WorldArtifact;
+use serde::{Deserialize, Serialize};
+
+use crate::artifacts::{CandidateSets, ErrorModelArtifact};
+use crate::construct::Inputs;
+use crate::validate::ValidateParams;
+
+/// The kinds that train or run networks without simulating depend on osms-nn's kernels (and
+/// nothing of MuJoCo).
+fn nn_numerics() -> Vec<Numerics> {
+    vec![Numerics {
+        name: "osms-nn",
+        version: osms_nn::NUMERICS_VERSION.to_string(),
+    }]
+}
+
+/// Settings of both baselines. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BaselineParams {
+    /// Extend to the `target` set's number of demonstrations (false: D_R only).
+    pub extend: bool,
+    /// Attempts an extension item of `naive` may take to find a teacher success.
+    pub max_attempts: u32,
+    /// `normal` runs this many times the extension conditions its D_R yield predicts, and
+    /// keeps the first ones that reach the target.
+    pub margin: f64,
+}
+
+impl Default for BaselineParams {
+    fn default() -> Self {
+        BaselineParams {
+            extend: true,
+            max_attempts: 100,
+            margin: 1.15,
+        }
+    }
+}
+
+impl BaselineParams {
+    /// `has_target`: whether the `target` input is wired.
+    fn check(&self, has_target: bool) -> Result<(), String> {
+        if self.extend && !has_target {
+            return Err("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into());
+        }
+        if self.max_attempts == 0 {
+            return Err("params.max_attempts must be at least 1".into());
+        }
+        if !(self.margin >= 1.0 && self.margin <= 10.0) {
+            return Err(format!(
+                "params.margin = {} must be within [1, 10]",
+                self.margin
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// How many demonstrations the extension has to add.
+fn deficit(
+    ctx: &Ctx<'_, BaselineParams>,
+    base: usize,
+) -> Result<(Option<usize>, usize), StageError> {
+    if !ctx.params.extend {
+        return Ok((None, 0));
+    }
+    let n = ctx.sharded::<DemoSet>("target")?.len();
+    Ok((Some(n), n.saturating_sub(base)))
+}
+
+/// What validation, D_* and the Normal baseline read from their inputs: the world, the teacher,
+/// the D_R rollouts with their task, their candidate sets and the error model.
+fn load_inputs<P>(ctx: &Ctx<'_, P>, params: &ValidateParams) -> Result<Inputs, StageError> {
+    params.check()?;
+    let teacher: Teacher = ctx.input("teacher")?;
+    let data: Dataset = ctx.sharded("data")?;
+    let candidates: CandidateSets = ctx.sharded("candidates")?;
+    if candidates.items.len() != data.items.len()
+        || candidates
+            .items
+            .iter()
+            .zip(&data.items)
+            .any(|(c, d)| (c.item, c.attempt) != (d.rollout.item, d.rollout.attempt))
+    {
+        return Err(
+            "input `candidates`: the sets were built for other rollouts than `data`\nhint: wire `candidates` to a candidates stage on the windows of the same D_R dataset".into(),
+        );
+    }
+    let errors: ErrorModelArtifact = ctx.input("error_model")?;
+    let model = match params.error_model {
+        None => errors.model,
+        Some(v) => errors
+            .variants
+            .into_iter()
+            .find(|f| f.model.variant == v)
+            .map(|f| f.model)
+            .ok_or_else(|| {
+                format!(
+                    "params.error_model = `{}`: the error-model artifact has no such fit",
+                    v.name()
+                )
+            })?,
+    };
+    model
+        .validate()
+        .map_err(|e| format!("input `error_model`: {e}"))?;
+    let mut task = data.task.clone();
+    // Validation reads outcomes and commanded actions; the privileged frames were for ω̄.
+    task.rollout.record_privileged = false;
+    let n = match params.rollouts {
+        0 => data.items.len(),
+        n if n <= data.items.len() => n,
+        n => {
+            return Err(format!(
+                "params.rollouts = {n}, but `data` holds {} rollouts\nhint: use at most {} (0 validates all)",
+                data.items.len(),
+                data.items.len()
+            )
+            .into());
+        }
+    };
+    Ok(Inputs {
+        world: ctx.input::<WorldArtifact>("world")?.world()?,
+        agent: teacher.agent,
+        task,
+        sets: candidates
+            .items
+            .iter()
+            .take(n)
+            .map(|i| {
+                i.set
+                    .as_ref()
+                    .map(|s| s.candidates.clone())
+                    .unwrap_or_default()
+            })
+            .collect(),
+        generator: candidates.params.generator.name().to_string(),
+        rollouts: data.items.into_iter().take(n).map(|i| i.rollout).collect(),
+        model,
+    })
+}
+
+/// Registers the method's stage kinds.
+pub fn register(registry: &mut osms_make::Registry) {
+    registry
+        .register(ManifoldStage)
+        .register_itemised(CandidatesStage)
+        .register(CandidateTableStage)
+        .register(ErrorModelStage)
+        .register_itemised(ValidateStage)
+        .register_itemised(DstarStage)
+        .register_itemised(NaiveStage)
+        .register_itemised(NormalStage)
+        .register(ConstructionTableStage)
+        .register_itemised(IosProfileStage);
+}
