@@ -202,8 +202,8 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
 /// The tables and figures hold what their source artifacts say, and every file renders.
 fn the_report_shows_its_sources(made: &Made) {
     use osms_core::table::{Table, Value};
-    use osms_report::figure::Figure;
-    use osms_report::report::Report;
+    use osms_report::artifacts::Report;
+    use osms_report::plot::Figure;
     use osms_sim::artifacts::Evaluation;
 
     let ours: Evaluation = load_sharded(made, "eval_ours@0");

@@ -4,17 +4,11 @@
 
 use std::fmt::Write;
 
-use osms_core::Artifact;
-use osms_core::NoParams;
-use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
-use osms_policy::artifacts::{ConstructionStats, DemoSet};
+use osms_policy::artifacts::ConstructionStats;
 use osms_sim::artifacts::Evaluation;
-use serde::{Deserialize, Serialize};
 
-use crate::claims::{self, Claim, Verdict};
-use crate::tables::{
-    POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed, seed_evals,
-};
+use crate::claims::{Claim, Verdict};
+use crate::tables::{POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed};
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value, format_value};
 
 /// Rows of the refinement-and-repair ablation with the paper's task success and f_max.
@@ -41,19 +35,16 @@ fn col(name: &str, unit: Unit) -> Column {
     }
 }
 
-fn success(evals: &[(Member, Evaluation)]) -> Value {
+fn success(evals: &[Evaluation]) -> Value {
     per_seed(evals, |l| Some(l.success_rate))
 }
 
-fn force(evals: &[(Member, Evaluation)]) -> Value {
+fn force(evals: &[Evaluation]) -> Value {
     per_seed(evals, |l| l.max_force_n)
 }
 
 /// The refinement-and-repair ablation.
-pub fn refine_repair(
-    sets: [&ConstructionStats; 4],
-    students: [&[(Member, Evaluation)]; 4],
-) -> Table {
+pub fn refine_repair(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 4]) -> Table {
     let rows = PAPER_REFINE_REPAIR
         .iter()
         .enumerate()
@@ -91,7 +82,7 @@ pub fn refine_repair(
 }
 
 /// The candidate-generation ablation.
-pub fn generators(sets: [&ConstructionStats; 4], students: [&[(Member, Evaluation)]; 4]) -> Table {
+pub fn generators(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 4]) -> Table {
     let rows = PAPER_GENERATORS
         .iter()
         .enumerate()
@@ -212,108 +203,6 @@ pub fn generator_claim(t: &Table) -> Claim {
             None => Verdict::NotChecked,
         },
         evidence: format!("direct < unconditional < Euclidean < geodesic needed: {}", parts.join("; ")),
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Ablations {
-    pub tables: Vec<Table>,
-    pub claims: Vec<Claim>,
-}
-
-impl Artifact for Ablations {
-    const TYPE_TAG: &'static str = "report.ablations";
-    const SCHEMA_VERSION: u16 = 1;
-}
-
-impl Ablations {
-    pub fn index(&self) -> String {
-        let mut s = String::from(
-            "# osms ablations\n\nThe ablations of paper 6.4 (`osms make ablations`), with the \
-             paper's values beside ours. `docs/report.md` explains how to read them.\n\n",
-        );
-        for t in &self.tables {
-            s.push_str(&t.section());
-        }
-        let _ = writeln!(s, "## Claims check\n\n{}", claims::markdown(&self.claims));
-        s
-    }
-}
-
-impl Summarize for Ablations {
-    fn summary(&self) -> serde_json::Value {
-        serde_json::json!({
-            "tables": self.tables.iter().map(Table::json).collect::<Vec<_>>(),
-            "claims": self.claims,
-        })
-    }
-    fn text(&self) -> Option<String> {
-        Some(self.index())
-    }
-    fn files(&self) -> Vec<(String, Vec<u8>)> {
-        let mut files = vec![("index.md".to_string(), self.index().into_bytes())];
-        for t in &self.tables {
-            files.extend(t.files());
-        }
-        let claims = serde_json::to_string_pretty(&self.claims).unwrap_or_default() + "\n";
-        files.push(("claims.json".into(), claims.into_bytes()));
-        files
-    }
-}
-
-const SETS: [&str; 4] = ["direct", "unconditional", "euclidean", "geodesic"];
-
-/// Each row's construction statistics and per-seed evaluations.
-type Rows = (Vec<ConstructionStats>, Vec<Vec<(Member, Evaluation)>>);
-const CONSTRUCTIONS: [&str; 4] = ["filtering", "refine_only", "repair_only", "both"];
-
-pub struct AblationsStage;
-impl Stage for AblationsStage {
-    const KIND: &'static str = "ablations";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<DemoSet>("filtering_demos"),
-        Slot::one::<DemoSet>("refine_only_demos"),
-        Slot::one::<DemoSet>("repair_only_demos"),
-        Slot::one::<DemoSet>("both_demos"),
-        Slot::gather::<Evaluation>("filtering"),
-        Slot::gather::<Evaluation>("refine_only"),
-        Slot::gather::<Evaluation>("repair_only"),
-        Slot::gather::<Evaluation>("both"),
-        Slot::one::<DemoSet>("direct_demos"),
-        Slot::one::<DemoSet>("unconditional_demos"),
-        Slot::one::<DemoSet>("euclidean_demos"),
-        Slot::one::<DemoSet>("geodesic_demos"),
-        Slot::gather::<Evaluation>("direct"),
-        Slot::gather::<Evaluation>("unconditional"),
-        Slot::gather::<Evaluation>("euclidean"),
-        Slot::gather::<Evaluation>("geodesic"),
-    ];
-    const DOC: &'static str =
-        "the ablations of paper 6.4: refinement/repair and candidate generation, with their claims";
-    type Params = NoParams;
-    type Output = Ablations;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Ablations, StageError> {
-        let load = |names: [&str; 4]| -> Result<Rows, StageError> {
-            let mut stats = Vec::new();
-            let mut evals = Vec::new();
-            for n in names {
-                stats.push(ctx.sharded::<DemoSet>(&format!("{n}_demos"))?.stats());
-                evals.push(seed_evals(ctx, n)?);
-            }
-            Ok((stats, evals))
-        };
-        let (s, e) = load(CONSTRUCTIONS)?;
-        let rr = refine_repair([&s[0], &s[1], &s[2], &s[3]], [&e[0], &e[1], &e[2], &e[3]]);
-        let (s, e) = load(SETS)?;
-        let gen_ = generators([&s[0], &s[1], &s[2], &s[3]], [&e[0], &e[1], &e[2], &e[3]]);
-        let claims = vec![refine_repair_claim(&rr), generator_claim(&gen_)];
-        Ok(Ablations {
-            tables: vec![rr, gen_],
-            claims,
-        })
     }
 }
 

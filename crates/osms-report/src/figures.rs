@@ -3,47 +3,14 @@
 
 use std::collections::BTreeMap;
 
-use osms_core::Artifact;
-use osms_core::NoParams;
-use osms_make::{Ctx, Member, Slot, Stage, StageError, Summarize};
-use osms_method::artifacts::IosProfile;
+use osms_method::artifacts::{IosProfile, Validation};
 use osms_policy::artifacts::StudentArtifact;
 use osms_policy::artifacts::Teacher;
 use osms_sim::artifacts::{EvalRow, Evaluation, ImpactTrace};
 use osms_sim::spec::ObjectVariant;
 
-use crate::figure::{Figure, Mark, Panel, Point, Series};
-use crate::tables::seed_evals;
+use crate::plot::{Figure, Mark, Panel, Point, Series};
 use osms_core::stats::MeanSd;
-
-impl Artifact for Figure {
-    const TYPE_TAG: &'static str = "report.figure";
-    const SCHEMA_VERSION: u16 = 1;
-}
-
-impl Summarize for Figure {
-    fn summary(&self) -> serde_json::Value {
-        serde_json::json!({
-            "id": self.id,
-            "title": self.title,
-            "panels": self.panels.iter().map(|p| serde_json::json!({
-                "title": p.title,
-                "series": p.series.iter().map(|s| (s.name.clone(), s.points.len())).collect::<Vec<_>>(),
-            })).collect::<Vec<_>>(),
-        })
-    }
-    fn text(&self) -> Option<String> {
-        Some(format!(
-            "{}\n\n{}\n\n`osms export` writes it as SVG, PNG and CSV.",
-            self.title, self.caption
-        ))
-    }
-    fn files(&self) -> Vec<(String, Vec<u8>)> {
-        // A rendering failure leaves the data, which is what the CSV holds.
-        Figure::files(self)
-            .unwrap_or_else(|_| vec![(format!("{}.csv", self.id), self.csv().into_bytes())])
-    }
-}
 
 /// Mean ± one sample sd across rollouts at each offset from the contact step, for one signal.
 fn profile(rows: &[&EvalRow], signal: impl Fn((f32, f32, f32)) -> f32, name: &str) -> Series {
@@ -122,15 +89,15 @@ fn profile_panels(group: &str, policies: &[(&str, Vec<&EvalRow>)]) -> Vec<Panel>
         .collect()
 }
 
-fn pooled(evals: &[(Member, Evaluation)]) -> Vec<&Evaluation> {
-    evals.iter().map(|(_, e)| e).collect()
+fn pooled(evals: &[Evaluation]) -> Vec<&Evaluation> {
+    evals.iter().collect()
 }
 
 /// Figure (a): impact profiles aligned at t_c.
 pub fn impact_profiles(
     catch_only: &Evaluation,
     teacher: &Evaluation,
-    students: [&[(Member, Evaluation)]; 3],
+    students: [&[Evaluation]; 3],
 ) -> Figure {
     let left = [
         ("catching-only RL", traced(&[catch_only])),
@@ -166,36 +133,6 @@ pub fn impact_profiles(
             profile_panels("teacher vs students", &right),
         ]
         .concat(),
-    }
-}
-
-pub struct ImpactProfilesStage;
-impl Stage for ImpactProfilesStage {
-    const KIND: &'static str = "impact_profiles";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<Evaluation>("catch_only"),
-        Slot::one::<Evaluation>("teacher"),
-        Slot::gather::<Evaluation>("naive"),
-        Slot::gather::<Evaluation>("normal"),
-        Slot::gather::<Evaluation>("ours"),
-    ];
-    const DOC: &'static str = "figure (a): impact profiles aligned at t_c, catching-only vs teacher and teacher vs the final students";
-    type Params = NoParams;
-    type Output = Figure;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {
-        let catch_only: Evaluation = ctx.sharded("catch_only")?;
-        let teacher: Evaluation = ctx.sharded("teacher")?;
-        let naive = seed_evals(ctx, "naive")?;
-        let normal = seed_evals(ctx, "normal")?;
-        let ours = seed_evals(ctx, "ours")?;
-        Ok(impact_profiles(
-            &catch_only,
-            &teacher,
-            [&naive, &normal, &ours],
-        ))
     }
 }
 
@@ -265,7 +202,7 @@ fn offset_series(name: &str, evals: &[&Evaluation], edge: f64) -> Series {
 
 /// Figures (b) and (c): teacher success per object family × size, Ours-IL's gain over the
 /// teacher, and every policy's success against the absolute lateral target offset.
-pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)]; 3]) -> Figure {
+pub fn task_conditions(teacher: &Evaluation, students: [&[Evaluation]; 3]) -> Figure {
     let variants = ObjectVariant::all();
     // Short enough for ten labels under one panel: `box L`, `sph S`, ….
     let names: Vec<String> = variants
@@ -313,7 +250,7 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)];
             .collect(),
     };
     let all: Vec<&Evaluation> = std::iter::once(teacher)
-        .chain(students.iter().flat_map(|s| s.iter().map(|(_, e)| e)))
+        .chain(students.iter().flat_map(|s| s.iter()))
         .collect();
     let edge = offset_edge(&all);
     let offsets = vec![
@@ -365,30 +302,6 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[(Member, Evaluation)];
     }
 }
 
-pub struct TaskConditionsStage;
-impl Stage for TaskConditionsStage {
-    const KIND: &'static str = "task_conditions";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<Evaluation>("teacher"),
-        Slot::gather::<Evaluation>("naive"),
-        Slot::gather::<Evaluation>("normal"),
-        Slot::gather::<Evaluation>("ours"),
-    ];
-    const DOC: &'static str = "figures (b, c): success per object family x size, Ours-IL's gain, success vs lateral offset";
-    type Params = NoParams;
-    type Output = Figure;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {
-        let teacher: Evaluation = ctx.sharded("teacher")?;
-        let naive = seed_evals(ctx, "naive")?;
-        let normal = seed_evals(ctx, "normal")?;
-        let ours = seed_evals(ctx, "ours")?;
-        Ok(task_conditions(&teacher, [&naive, &normal, &ours]))
-    }
-}
-
 /// Figure (e): S_IOS per window offset with its 95 % interval.
 pub fn ios_figure(profile: &IosProfile) -> Figure {
     let rows = profile.rows();
@@ -427,21 +340,6 @@ pub fn ios_figure(profile: &IosProfile) -> Figure {
     }
 }
 
-pub struct IosFigureStage;
-impl Stage for IosFigureStage {
-    const KIND: &'static str = "ios_figure";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[Slot::one::<IosProfile>("profile")];
-    const DOC: &'static str = "figure (e): the IOS profile";
-    type Params = NoParams;
-    type Output = Figure;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {
-        Ok(ios_figure(&ctx.sharded("profile")?))
-    }
-}
-
 /// Mean ± sd over seeds of a per-step curve, on the steps every seed logged.
 fn seed_curve(name: &str, curves: &[Vec<(f64, f64)>]) -> Series {
     let mut at: BTreeMap<u64, Vec<f64>> = BTreeMap::new();
@@ -473,7 +371,7 @@ fn seed_curve(name: &str, curves: &[Vec<(f64, f64)>]) -> Series {
 /// Figure (f): the teachers' PPO curves and the final students' flow-matching curves.
 pub fn learning_curves(
     teachers: [(&str, &Teacher); 2],
-    students: [(&str, &[(Member, StudentArtifact)]); 3],
+    students: [(&str, &[StudentArtifact]); 3],
 ) -> Figure {
     let teacher_series = |f: fn(&osms_policy::ppo::IterationStats) -> f64| -> Vec<Series> {
         teachers
@@ -496,7 +394,7 @@ pub fn learning_curves(
             .map(|(name, seeds)| {
                 let curves: Vec<Vec<(f64, f64)>> = seeds
                     .iter()
-                    .map(|(_, s)| {
+                    .map(|s| {
                         s.student
                             .curve
                             .iter()
@@ -564,42 +462,9 @@ pub fn learning_curves(
     }
 }
 
-pub struct LearningCurvesStage;
-impl Stage for LearningCurvesStage {
-    const KIND: &'static str = "learning_curves";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<Teacher>("teacher"),
-        Slot::one::<Teacher>("catch_only"),
-        Slot::gather::<StudentArtifact>("naive"),
-        Slot::gather::<StudentArtifact>("normal"),
-        Slot::gather::<StudentArtifact>("ours"),
-    ];
-    const DOC: &'static str = "figure (f): the teachers' and the final students' learning curves";
-    type Params = NoParams;
-    type Output = Figure;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {
-        let teacher: Teacher = ctx.input("teacher")?;
-        let catch_only: Teacher = ctx.input("catch_only")?;
-        let naive = ctx.gathered::<StudentArtifact>("naive")?;
-        let normal = ctx.gathered::<StudentArtifact>("normal")?;
-        let ours = ctx.gathered::<StudentArtifact>("ours")?;
-        Ok(learning_curves(
-            [("RL teacher", &teacher), ("catching-only RL", &catch_only)],
-            [
-                ("Naive-IL", &naive),
-                ("Normal-IL", &normal),
-                ("Ours-IL", &ours),
-            ],
-        ))
-    }
-}
-
 /// Figure (d): candidate selection, J against SR for the candidates of successful originals
 /// (refinement) and failed ones (repair), the selected candidates highlighted.
-pub fn candidate_selection(v: &osms_method::artifacts::Validation) -> Figure {
+pub fn candidate_selection(v: &Validation) -> Figure {
     use osms_method::validate::Robustness;
     let q = v.params.q;
     let threshold = v.params.delta_sr;
@@ -696,23 +561,5 @@ pub fn candidate_selection(v: &osms_method::artifacts::Validation) -> Figure {
             counts.join("; ")
         ),
         panels,
-    }
-}
-
-pub struct CandidateSelectionStage;
-impl Stage for CandidateSelectionStage {
-    const KIND: &'static str = "candidate_selection";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[Slot::one::<osms_method::artifacts::Validation>(
-        "validation",
-    )];
-    const DOC: &'static str =
-        "figure (d): J vs SR of the validated candidates, selected ones marked";
-    type Params = NoParams;
-    type Output = Figure;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {
-        Ok(candidate_selection(&ctx.sharded("validation")?))
     }
 }

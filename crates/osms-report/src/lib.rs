@@ -4,22 +4,11 @@
 //! table, the candidate table and the IOS profile. `docs/report.md` explains how to read it.
 
 pub mod ablations;
+pub mod artifacts;
 pub mod claims;
-pub mod figure;
 pub mod figures;
-pub mod report;
+pub mod plot;
+pub mod stages;
 pub mod tables;
 
-/// Registers the report's stage kinds.
-pub fn register(registry: &mut osms_make::Registry) {
-    registry
-        .register(tables::Table2Stage)
-        .register(tables::Table3Stage)
-        .register(figures::ImpactProfilesStage)
-        .register(figures::TaskConditionsStage)
-        .register(figures::IosFigureStage)
-        .register(figures::CandidateSelectionStage)
-        .register(figures::LearningCurvesStage)
-        .register(report::ReportStage)
-        .register(ablations::AblationsStage);
-}
+pub use stages::register;

@@ -1,11 +1,9 @@
 //! Table II (demonstration construction and closed-loop policy performance) and Table III
 //! (action-error models) as stages, aggregated over the run seeds.
 
-use osms_core::NoParams;
-use osms_make::{Ctx, Member, Slot, Stage, StageError};
 use osms_method::artifacts::ErrorModelArtifact;
 use osms_method::error_model::ErrorVariant;
-use osms_policy::artifacts::{ConstructionStats, DemoSet};
+use osms_policy::artifacts::ConstructionStats;
 use osms_sim::artifacts::{Evaluation, TableLine};
 
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
@@ -15,24 +13,9 @@ pub fn overall(eval: &Evaluation) -> Option<TableLine> {
     eval.table().pop()
 }
 
-/// Per-seed evaluations of a gather slot, in run-seed order.
-pub fn seed_evals(
-    ctx: &Ctx<'_, NoParams>,
-    slot: &str,
-) -> Result<Vec<(Member, Evaluation)>, StageError> {
-    let evals = ctx.gathered_sharded::<Evaluation>(slot)?;
-    if evals.is_empty() {
-        return Err(format!(
-            "input `{slot}` gathered no evaluation\nhint: wire `{slot} = \"<eval stage>@*\"`"
-        )
-        .into());
-    }
-    Ok(evals)
-}
-
 /// A metric of each seed's evaluation.
-pub fn per_seed(evals: &[(Member, Evaluation)], f: impl Fn(&TableLine) -> Option<f64>) -> Value {
-    Value::seeds(evals.iter().map(|(_, e)| overall(e).and_then(|l| f(&l))))
+pub fn per_seed(evals: &[Evaluation], f: impl Fn(&TableLine) -> Option<f64>) -> Value {
+    Value::seeds(evals.iter().map(|e| overall(e).and_then(|l| f(&l))))
 }
 
 fn pct(v: f64) -> Value {
@@ -130,7 +113,7 @@ fn policy_cells(
     ]
 }
 
-fn student_cells(evals: &[(Member, Evaluation)], paper: &[&str; 7]) -> Vec<Cell> {
+fn student_cells(evals: &[Evaluation], paper: &[&str; 7]) -> Vec<Cell> {
     policy_cells(
         per_seed(evals, |l| Some(l.success_rate)),
         per_seed(evals, |l| Some(l.completion_rate)),
@@ -145,7 +128,7 @@ fn student_cells(evals: &[(Member, Evaluation)], paper: &[&str; 7]) -> Vec<Cell>
 pub fn table2(
     stats: [&ConstructionStats; 3],
     teacher: &Evaluation,
-    students: [&[(Member, Evaluation)]; 3],
+    students: [&[Evaluation]; 3],
 ) -> Table {
     let teacher_line = overall(teacher);
     let t = |f: fn(&TableLine) -> Option<f64>| Value::of(teacher_line.as_ref().and_then(f));
@@ -198,41 +181,6 @@ pub fn table2(
     }
 }
 
-pub struct Table2Stage;
-impl Stage for Table2Stage {
-    const KIND: &'static str = "table2";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<DemoSet>("naive_demos"),
-        Slot::one::<DemoSet>("normal_demos"),
-        Slot::one::<DemoSet>("ours_demos"),
-        Slot::one::<Evaluation>("teacher"),
-        Slot::gather::<Evaluation>("naive"),
-        Slot::gather::<Evaluation>("normal"),
-        Slot::gather::<Evaluation>("ours"),
-    ];
-    const DOC: &'static str = "Table II: construction columns and the final students' closed-loop columns, mean ± sd over run seeds";
-    type Params = NoParams;
-    type Output = Table;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Table, StageError> {
-        let stats: Vec<ConstructionStats> = ["naive_demos", "normal_demos", "ours_demos"]
-            .iter()
-            .map(|s| ctx.sharded::<DemoSet>(s).map(|d| d.stats()))
-            .collect::<Result<_, _>>()?;
-        let teacher: Evaluation = ctx.sharded("teacher")?;
-        let naive = seed_evals(ctx, "naive")?;
-        let normal = seed_evals(ctx, "normal")?;
-        let ours = seed_evals(ctx, "ours")?;
-        Ok(table2(
-            [&stats[0], &stats[1], &stats[2]],
-            &teacher,
-            [&naive, &normal, &ours],
-        ))
-    }
-}
-
 /// The paper's Table III: moment error, lag-1 error, repair rate, π_θ task success.
 const PAPER_TABLE3: [(&str, [&str; 4]); 4] = [
     ("Unperturbed-only", ["--", "--", "65.5%", "81.7% ± 0.7%"]),
@@ -262,7 +210,7 @@ pub const TABLE3_ROWS: [&str; 4] = [
 pub fn table3(
     model: &ErrorModelArtifact,
     sets: [&ConstructionStats; 4],
-    students: [&[(Member, Evaluation)]; 4],
+    students: [&[Evaluation]; 4],
 ) -> Table {
     let mut rows = Vec::new();
     for (i, (label, paper)) in PAPER_TABLE3.iter().enumerate() {
@@ -318,51 +266,8 @@ pub fn table3(
     }
 }
 
-pub struct Table3Stage;
-impl Stage for Table3Stage {
-    const KIND: &'static str = "table3";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<ErrorModelArtifact>("error_model"),
-        Slot::one::<DemoSet>("unperturbed_demos"),
-        Slot::one::<DemoSet>("global_iid_demos"),
-        Slot::one::<DemoSet>("phase_independent_demos"),
-        Slot::one::<DemoSet>("phase_correlated_demos"),
-        Slot::gather::<Evaluation>("unperturbed"),
-        Slot::gather::<Evaluation>("global_iid"),
-        Slot::gather::<Evaluation>("phase_independent"),
-        Slot::gather::<Evaluation>("phase_correlated"),
-    ];
-    const DOC: &'static str = "Table III: the four validation models' fit metrics, repair rates and students' success, mean ± sd over run seeds";
-    type Params = NoParams;
-    type Output = Table;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Table, StageError> {
-        let model: ErrorModelArtifact = ctx.input("error_model")?;
-        let names = [
-            "unperturbed",
-            "global_iid",
-            "phase_independent",
-            "phase_correlated",
-        ];
-        let mut stats = Vec::new();
-        let mut evals = Vec::new();
-        for n in names {
-            stats.push(ctx.sharded::<DemoSet>(&format!("{n}_demos"))?.stats());
-            evals.push(seed_evals(ctx, n)?);
-        }
-        Ok(table3(
-            &model,
-            [&stats[0], &stats[1], &stats[2], &stats[3]],
-            [&evals[0], &evals[1], &evals[2], &evals[3]],
-        ))
-    }
-}
-
 #[cfg(test)]
 pub(crate) mod testing {
-    use osms_make::Member;
     use osms_policy::artifacts::ConstructionStats;
     use osms_sim::artifacts::{EvalRow, Evaluation};
     use osms_sim::metrics::{Failure, Metrics, Outcome};
@@ -392,11 +297,10 @@ pub(crate) mod testing {
 
     /// One evaluation of ten rollouts per seed: the first `success · 10` succeed, the rest
     /// fail on force; every rollout completes the catch with f_max `force`.
-    pub(crate) fn evals(success: &[f64], force: f64) -> Vec<(Member, Evaluation)> {
+    pub(crate) fn evals(success: &[f64], force: f64) -> Vec<Evaluation> {
         success
             .iter()
-            .enumerate()
-            .map(|(seed, &s)| {
+            .map(|&s| {
                 let rows = (0..10)
                     .map(|i| EvalRow {
                         variant: ObjectVariant::all()[i % 2],
@@ -420,13 +324,7 @@ pub(crate) mod testing {
                         trace: None,
                     })
                     .collect();
-                (
-                    Member {
-                        fold: None,
-                        seed: Some(seed as u64),
-                    },
-                    Evaluation { rows },
-                )
+                Evaluation { rows }
             })
             .collect()
     }
@@ -439,7 +337,7 @@ mod tests {
 
     #[test]
     fn table2_cells_are_sample_mean_and_sd_over_seeds_in_every_format() {
-        let teacher = evals(&[0.5], 40.0).remove(0).1;
+        let teacher = evals(&[0.5], 40.0).remove(0);
         let (naive, normal, ours) = (
             evals(&[0.6, 0.8, 0.7], 41.0),
             evals(&[0.5, 0.5], 44.0),

@@ -6,15 +6,11 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
-use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError, Summarize};
-use osms_method::artifacts::CandidateTable;
-use osms_method::artifacts::ConstructionTable;
-use osms_policy::artifacts::TeacherTable;
+use osms_make::Summarize;
 use serde::{Deserialize, Serialize};
 
 use crate::claims::{self, Claim};
-use crate::figure::Figure;
+use crate::plot::Figure;
 use osms_core::table::Table;
 
 /// A table of another stage kind, kept as its own Markdown and export files.
@@ -26,7 +22,7 @@ pub struct Attached {
 }
 
 impl Attached {
-    fn of(title: &str, a: &impl Summarize) -> Attached {
+    pub fn of(title: &str, a: &impl Summarize) -> Attached {
         Attached {
             title: title.into(),
             markdown: a.text().unwrap_or_default(),
@@ -124,62 +120,6 @@ impl Summarize for Report {
                 )
                 .into_bytes(),
             )]
-        })
-    }
-}
-
-pub struct ReportStage;
-impl Stage for ReportStage {
-    const KIND: &'static str = "report";
-    const CODE_VERSION: u32 = 1;
-    const USES_RNG: bool = false;
-    const INPUTS: &'static [Slot] = &[
-        Slot::one::<TeacherTable>("table1"),
-        Slot::one::<Table>("table2"),
-        Slot::one::<Table>("table3"),
-        Slot::one::<ConstructionTable>("construction"),
-        Slot::one::<CandidateTable>("candidates"),
-        Slot::one::<Figure>("impact_profiles"),
-        Slot::one::<Figure>("task_conditions"),
-        Slot::one::<Figure>("candidate_selection"),
-        Slot::one::<Figure>("ios"),
-        Slot::one::<Figure>("learning_curves"),
-    ];
-    const DOC: &'static str =
-        "the report: Tables I-III, construction and candidate tables, figures, claims check";
-    type Params = NoParams;
-    type Output = Report;
-
-    fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Report, StageError> {
-        let table2: Table = ctx.input("table2")?;
-        let table3: Table = ctx.input("table3")?;
-        let claims = claims::check(&table2, &table3);
-        let figures = [
-            "impact_profiles",
-            "task_conditions",
-            "candidate_selection",
-            "ios",
-            "learning_curves",
-        ]
-        .iter()
-        .map(|s| ctx.input::<Figure>(s))
-        .collect::<Result<Vec<_>, _>>()?;
-        Ok(Report {
-            table1: Attached::of(
-                "Table I: catching with and without impact mitigation",
-                &ctx.input::<TeacherTable>("table1")?,
-            ),
-            construction: Attached::of(
-                "Demonstration construction (Table II, left half, with counts)",
-                &ctx.input::<ConstructionTable>("construction")?,
-            ),
-            candidates: Attached::of(
-                "Candidate generators",
-                &ctx.input::<CandidateTable>("candidates")?,
-            ),
-            tables: vec![table2, table3],
-            figures,
-            claims,
         })
     }
 }
