@@ -23,7 +23,7 @@ use osms_core::{decode, encode};
 use osms_make::{MakeOptions, Outcome, Pipeline, Plan, State};
 use osms_store::{Hash, Store};
 use osms_tests::Project;
-use osms_tests::kinds::Numbers;
+use osms_tests::artifacts::Numbers;
 use osms_tests::project::Silent;
 
 const MIB: usize = 1 << 20;

@@ -6,10 +6,11 @@
 //! threads); `pipelines/engine.toml` wires them into a pipeline with `tiny`, `small` and
 //! `paper` profiles.
 
+pub mod artifacts;
 pub mod golden;
-pub mod kinds;
 pub mod project;
 pub mod python;
+pub mod stages;
 
-pub use kinds::registry;
 pub use project::Project;
+pub use stages::registry;

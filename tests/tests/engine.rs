@@ -2,8 +2,8 @@
 //! seed sweeps; status reasons; failures; and every kind of bad pipeline declaration.
 
 use osms_make::{ItemStage, MakeOptions, Reason, Registry, State};
-use osms_tests::kinds::{NumbersKind, NumbersParams};
 use osms_tests::project::{ENGINE_PIPELINE, Silent, hashes, outcomes};
+use osms_tests::stages::{NumbersKind, NumbersParams};
 use osms_tests::{Project, registry};
 
 fn with_shards(numbers: u32, drops: u32) -> String {
@@ -183,7 +183,7 @@ impl ItemStage for NumbersV2 {
     type Params = NumbersParams;
     type Prepared = ();
     type Item = Vec<f64>;
-    type Output = osms_tests::kinds::Numbers;
+    type Output = osms_tests::artifacts::Numbers;
     fn prepare(
         &self,
         ctx: &osms_make::Ctx<'_, NumbersParams>,
@@ -207,7 +207,7 @@ impl ItemStage for NumbersV2 {
         ctx: &osms_make::Ctx<'_, NumbersParams>,
         p: (),
         items: Vec<Vec<f64>>,
-    ) -> Result<osms_tests::kinds::Numbers, osms_make::StageError> {
+    ) -> Result<osms_tests::artifacts::Numbers, osms_make::StageError> {
         NumbersKind.merge(ctx, p, items)
     }
 }
@@ -274,16 +274,16 @@ fn status_names_why_each_stage_would_run() {
     let mut bumped = Registry::new();
     bumped
         .register_itemised(NumbersV2)
-        .register_itemised(osms_tests::kinds::DropKind)
-        .register(osms_tests::kinds::SignsKind)
-        .register(osms_tests::kinds::ShiftKind)
-        .register(osms_tests::kinds::OffsetKind)
-        .register(osms_tests::kinds::SumKind)
-        .register(osms_tests::kinds::CombineKind)
-        .register_itemised(osms_tests::kinds::PanicKind)
-        .register(osms_tests::kinds::FoldRowsKind)
-        .register(osms_tests::kinds::GatherKind)
-        .register(osms_tests::kinds::SumOfAKind);
+        .register_itemised(osms_tests::stages::DropKind)
+        .register(osms_tests::stages::SignsKind)
+        .register(osms_tests::stages::ShiftKind)
+        .register(osms_tests::stages::OffsetKind)
+        .register(osms_tests::stages::SumKind)
+        .register(osms_tests::stages::CombineKind)
+        .register_itemised(osms_tests::stages::PanicKind)
+        .register(osms_tests::stages::FoldRowsKind)
+        .register(osms_tests::stages::GatherKind)
+        .register(osms_tests::stages::SumOfAKind);
     assert_eq!(bumped.names(), registry().names());
     p.registry = bumped;
     let after_bump = status(&p);

@@ -8,7 +8,7 @@ use osms_core::{Artifact, decode};
 use osms_make::{Outcome, State};
 use osms_store::Hash;
 use osms_tests::Project;
-use osms_tests::kinds::{Gathered, Numbers, Total};
+use osms_tests::artifacts::{Gathered, Numbers, Total};
 use osms_tests::project::{hashes, outcomes};
 use serde::Serialize;
 
