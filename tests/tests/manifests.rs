@@ -5,8 +5,8 @@
 use osms_core::decode;
 use osms_make::{Manifest, State, StoreObjects, assemble};
 use osms_tests::Project;
-use osms_tests::project::{hashes, outcomes};
 use osms_tests::artifacts::{Numbers, Total};
+use osms_tests::project::{hashes, outcomes};
 
 #[test]
 fn an_itemised_stage_is_a_manifest_of_its_items_and_nothing_more() {

@@ -1,5 +1,11 @@
-//! One table model for every table of the report, rendered three ways that say the same
-//! thing: Markdown for people, a tidy CSV (one line per cell) and JSON for programs.
+//! One table model for every table osms prints, rendered three ways that say the same thing:
+//! Markdown for people, a tidy CSV (one line per cell) and JSON for programs; tables that
+//! export one line per row (Table I, the construction and candidate tables) also render as a
+//! wide CSV.
+//!
+//! A [`Table`] is data (it is stored as Tables II and III); how it reads in Markdown, which
+//! header its label column has and whether the report's legend follows, is a [`Layout`] the
+//! table's owner chooses when it renders.
 
 use std::fmt::Write;
 
@@ -18,6 +24,74 @@ pub enum Unit {
     Number(u8),
     /// A whole number.
     Count,
+    /// Text, left-aligned (cells hold [`Value::Text`]).
+    Text,
+    /// A number in scientific notation with this many decimals (`1.50e-3`).
+    Scientific(u8),
+}
+
+impl Unit {
+    /// Text reads from the left, numbers from the right.
+    pub fn align(self) -> Align {
+        match self {
+            Unit::Text => Align::Left,
+            _ => Align::Right,
+        }
+    }
+}
+
+/// How a column lines up in Markdown.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Align {
+    Left,
+    Right,
+}
+
+impl Align {
+    fn rule(self) -> &'static str {
+        match self {
+            Align::Left => "---|",
+            Align::Right => "---:|",
+        }
+    }
+}
+
+/// How a table reads in Markdown: the header of its label column, how that column lines up,
+/// and whether the report's legend (ours first, the paper in parentheses, mean ± sd over
+/// seeds) follows the rows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layout<'a> {
+    pub label: &'a str,
+    pub label_align: Align,
+    pub legend: bool,
+}
+
+impl Layout<'static> {
+    /// The report's tables: an unlabelled first column and the legend.
+    pub const REPORT: Layout<'static> = Layout {
+        label: "",
+        label_align: Align::Left,
+        legend: true,
+    };
+}
+
+impl<'a> Layout<'a> {
+    /// A table of this run's values alone: its first column headed `label`, no legend.
+    pub fn plain(label: &'a str) -> Layout<'a> {
+        Layout {
+            label,
+            label_align: Align::Left,
+            legend: false,
+        }
+    }
+
+    /// The same with the label column right-aligned (a column of step numbers).
+    pub fn numbered(label: &'a str) -> Layout<'a> {
+        Layout {
+            label_align: Align::Right,
+            ..Layout::plain(label)
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -33,6 +107,8 @@ pub enum Value {
     Missing,
     One(f64),
     Seeds(Vec<f64>),
+    /// Text shown as it is, whatever the column's unit (e.g. `3 / 5`, a pair of counts).
+    Text(String),
 }
 
 impl Value {
@@ -51,9 +127,14 @@ impl Value {
         }
     }
 
+    /// A number, or [`Value::Missing`] for none.
+    pub fn opt(v: Option<f64>) -> Value {
+        Value::of(v)
+    }
+
     pub fn stats(&self) -> Option<MeanSd> {
         match self {
-            Value::Missing => None,
+            Value::Missing | Value::Text(_) => None,
             Value::One(v) => MeanSd::of(&[*v]),
             Value::Seeds(v) => MeanSd::of(v),
         }
@@ -72,6 +153,44 @@ impl Cell {
         Cell {
             ours,
             paper: paper.map(str::to_string),
+        }
+    }
+
+    /// Our value alone.
+    pub fn ours(ours: Value) -> Cell {
+        Cell { ours, paper: None }
+    }
+
+    /// One number of ours.
+    pub fn one(v: f64) -> Cell {
+        Cell::ours(Value::One(v))
+    }
+
+    /// One number of ours, or none.
+    pub fn opt(v: Option<f64>) -> Cell {
+        Cell::ours(Value::of(v))
+    }
+
+    /// Text shown as it is.
+    pub fn text(s: impl Into<String>) -> Cell {
+        Cell::ours(Value::Text(s.into()))
+    }
+}
+
+impl Column {
+    pub fn new(name: impl Into<String>, unit: Unit) -> Column {
+        Column {
+            name: name.into(),
+            unit,
+        }
+    }
+}
+
+impl Row {
+    pub fn new(label: impl Into<String>, cells: Vec<Cell>) -> Row {
+        Row {
+            label: label.into(),
+            cells,
         }
     }
 }
@@ -104,6 +223,9 @@ fn number(v: f64, unit: Unit) -> String {
         Unit::Percent => format!("{:.1}%", 100.0 * v),
         Unit::Number(d) => format!("{v:.*}", d as usize),
         Unit::Count => format!("{v:.0}"),
+        Unit::Scientific(d) => format!("{v:.*e}", d as usize),
+        // A number in a text column reads as it would with no unit at all.
+        Unit::Text => v.to_string(),
     }
 }
 
@@ -111,6 +233,7 @@ fn number(v: f64, unit: Unit) -> String {
 /// seed has a value, `-` for none.
 pub fn format_value(value: &Value, unit: Unit) -> String {
     match (value, value.stats()) {
+        (Value::Text(s), _) => s.clone(),
         (_, None) => "-".into(),
         (
             Value::Seeds(_),
@@ -126,6 +249,28 @@ pub fn format_value(value: &Value, unit: Unit) -> String {
 }
 
 impl Table {
+    /// An empty table with these columns, to fill with [`Table::push`].
+    pub fn new(id: impl Into<String>, title: impl Into<String>, columns: Vec<Column>) -> Table {
+        Table {
+            id: id.into(),
+            title: title.into(),
+            columns,
+            rows: Vec::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Appends a row.
+    pub fn push(&mut self, label: impl Into<String>, cells: Vec<Cell>) {
+        self.rows.push(Row::new(label, cells));
+    }
+
+    /// The table with a note after its rows.
+    pub fn with_note(mut self, note: impl Into<String>) -> Table {
+        self.notes.push(note.into());
+        self
+    }
+
     /// The row labelled `label`, if any.
     pub fn row(&self, label: &str) -> Option<&Row> {
         self.rows.iter().find(|r| r.label == label)
@@ -137,15 +282,25 @@ impl Table {
         self.row(label)?.cells.get(c)
     }
 
+    /// The table as the report shows it ([`Layout::REPORT`]).
     pub fn markdown(&self) -> String {
+        self.markdown_with(Layout::REPORT)
+    }
+
+    /// The table in Markdown, laid out as `layout` says, its notes after the rows.
+    pub fn markdown_with(&self, layout: Layout<'_>) -> String {
         let mut out = String::new();
-        let _ = write!(out, "| |");
+        if layout.label.is_empty() {
+            out.push_str("| |");
+        } else {
+            let _ = write!(out, "| {} |", layout.label);
+        }
         for c in &self.columns {
             let _ = write!(out, " {} |", c.name);
         }
-        let _ = write!(out, "\n|---|");
-        for _ in &self.columns {
-            let _ = write!(out, "---:|");
+        let _ = write!(out, "\n|{}", layout.label_align.rule());
+        for c in &self.columns {
+            out.push_str(c.unit.align().rule());
         }
         out.push('\n');
         for r in &self.rows {
@@ -163,12 +318,43 @@ impl Table {
             }
             out.push('\n');
         }
-        let _ = writeln!(
-            out,
-            "\nOurs first, the paper's value in parentheses; `a ± b` is the mean and sample standard deviation over run seeds."
-        );
+        if layout.legend {
+            let _ = writeln!(
+                out,
+                "\nOurs first, the paper's value in parentheses; `a ± b` is the mean and sample standard deviation over run seeds."
+            );
+        }
         for n in &self.notes {
             let _ = writeln!(out, "\n{n}");
+        }
+        out
+    }
+
+    /// One line per row: `label_key` and the column names as the header, each number as Rust
+    /// prints it (full precision), nothing for a missing value, per-seed values separated by
+    /// `;`. Its columns are what a program reads, so their names are keys
+    /// (`success_rate`), unlike the Markdown's headers.
+    pub fn wide_csv(&self, label_key: &str) -> String {
+        let mut out = csv_field(label_key);
+        for c in &self.columns {
+            out.push(',');
+            out.push_str(&csv_field(&c.name));
+        }
+        out.push('\n');
+        for r in &self.rows {
+            out.push_str(&csv_field(&r.label));
+            for cell in &r.cells {
+                out.push(',');
+                match &cell.ours {
+                    Value::Missing => {}
+                    Value::One(v) => out.push_str(&v.to_string()),
+                    Value::Seeds(v) => {
+                        out.push_str(&v.iter().map(f64::to_string).collect::<Vec<_>>().join(";"))
+                    }
+                    Value::Text(t) => out.push_str(&csv_field(t)),
+                }
+            }
+            out.push('\n');
         }
         out
     }
@@ -182,6 +368,7 @@ impl Table {
                 let stats = cell.ours.stats();
                 let values = match &cell.ours {
                     Value::Missing => String::new(),
+                    Value::Text(t) => csv_field(t),
                     Value::One(v) => v.to_string(),
                     Value::Seeds(v) => v.iter().map(f64::to_string).collect::<Vec<_>>().join(";"),
                 };
@@ -349,5 +536,62 @@ mod tests {
         assert_eq!(cell["sd"].as_f64(), Some(sd));
         assert_eq!(cell["paper"], "90.3% ± 0.8%");
         assert_eq!(j["rows"][1]["cells"]["f_max (N)"]["n"], 0);
+    }
+
+    #[test]
+    fn plain_layouts_text_cells_and_the_wide_csv() {
+        let mut t = Table::new(
+            "t",
+            "T",
+            vec![
+                Column::new("window", Unit::Text),
+                Column::new("n", Unit::Count),
+                Column::new("refine / repair", Unit::Count),
+                Column::new("lr", Unit::Scientific(2)),
+            ],
+        );
+        t.push(
+            "-8, x",
+            vec![
+                Cell::text("k_e-8 … k_e-1"),
+                Cell::one(40.0),
+                Cell::text("3 / 5"),
+                Cell::one(0.0015),
+            ],
+        );
+        t.push(
+            "0",
+            vec![
+                Cell::text("a"),
+                Cell::opt(None),
+                Cell::text("0 / 0"),
+                Cell::opt(None),
+            ],
+        );
+        t.notes.push("A note.".into());
+        let md = t.markdown_with(Layout::numbered("offset"));
+        assert_eq!(
+            md,
+            "| offset | window | n | refine / repair | lr |\n\
+             |---:|---|---:|---:|---:|\n\
+             | -8, x | k_e-8 … k_e-1 | 40 | 3 / 5 | 1.50e-3 |\n\
+             | 0 | a | - | 0 / 0 | - |\n\
+             \nA note.\n"
+        );
+        assert!(
+            t.markdown_with(Layout::plain("p"))
+                .starts_with("| p | window | n | refine / repair | lr |\n|---|---|")
+        );
+        assert_eq!(
+            t.wide_csv("offset"),
+            "offset,window,n,refine / repair,lr\n\
+             \"-8, x\",k_e-8 … k_e-1,40,3 / 5,0.0015\n\
+             0,a,,0 / 0,\n"
+        );
+        // The report's layout of the same table: no label header, the legend, then the note.
+        let report = t.markdown();
+        assert!(report.starts_with("| | window |"), "{report}");
+        assert!(report.contains("\nOurs first, the paper's value in parentheses;"));
+        assert!(report.ends_with("\nA note.\n"), "{report}");
     }
 }

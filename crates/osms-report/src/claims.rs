@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::tables::{COVERAGE, POLICY_F_MAX, REPAIR_RATE, TABLE2_ROWS, TABLE3_ROWS, TASK_SUCCESS};
-use osms_core::table::{Table, Unit, Value, format_value};
+use osms_core::table::{Cell, Column, Layout, Table, Unit, Value, format_value};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -63,7 +63,7 @@ fn seeds_where(a: &Value, b: &Value, higher: bool) -> Option<(usize, usize)> {
     let list = |v: &Value| match v {
         Value::Seeds(s) => Some(s.clone()),
         Value::One(x) => Some(vec![*x]),
-        Value::Missing => None,
+        Value::Missing | Value::Text(_) => None,
     };
     let (a, b) = (list(a)?, list(b)?);
     let n = a.len().max(b.len());
@@ -282,16 +282,21 @@ pub fn check(table2: &Table, table3: &Table) -> Vec<Claim> {
 
 /// The claims as a Markdown table.
 pub fn markdown(claims: &[Claim]) -> String {
-    let mut s = String::from("| claim (paper) | in this run | evidence |\n|---|---|---|\n");
+    let mut t = Table::new(
+        "claims",
+        "Claims check",
+        vec![
+            Column::new("in this run", Unit::Text),
+            Column::new("evidence", Unit::Text),
+        ],
+    );
     for c in claims {
-        s.push_str(&format!(
-            "| {} | {} | {} |\n",
-            c.claim,
-            c.verdict.text(),
-            c.evidence
-        ));
+        t.push(
+            &c.claim,
+            vec![Cell::text(c.verdict.text()), Cell::text(&c.evidence)],
+        );
     }
-    s
+    t.markdown_with(Layout::plain("claim (paper)"))
 }
 
 #[cfg(test)]

@@ -1,12 +1,11 @@
 //! The simulator's artifact types: the world, a condition set and an evaluation, with what
 //! `osms show` and `osms export` print of each.
 
-use std::collections::BTreeMap;
-use std::fmt::Write;
-
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::{Sharded, Summarize};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 use crate::Result;
 use crate::conditions::TaskCondition;
@@ -261,44 +260,47 @@ impl Summarize for Evaluation {
     }
 
     fn text(&self) -> Option<String> {
-        let opt =
-            |v: Option<f64>, p: usize| v.map(|x| format!("{x:.p$}")).unwrap_or_else(|| "-".into());
-        let mut out = String::new();
-        let _ = writeln!(
-            out,
-            "| object | n | success | completion | v_rel (m/s) | f_max (N) | l_max (m) |"
+        let lines = self.table();
+        let mut objects = Table::new(
+            "evaluation",
+            "Evaluation per object",
+            vec![
+                Column::new("n", Unit::Count),
+                Column::new("success", Unit::Percent),
+                Column::new("completion", Unit::Percent),
+                Column::new("v_rel (m/s)", Unit::Number(2)),
+                Column::new("f_max (N)", Unit::Number(1)),
+                Column::new("l_max (m)", Unit::Number(3)),
+            ],
         );
-        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
-        let table = self.table();
-        for l in &table {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {:.1}% | {:.1}% | {} | {} | {} |",
-                l.group,
-                l.rollouts,
-                100.0 * l.success_rate,
-                100.0 * l.completion_rate,
-                opt(l.contact_speed_mps, 2),
-                opt(l.max_force_n, 1),
-                opt(l.follow_through_m, 3)
+        for l in &lines {
+            objects.push(
+                &l.group,
+                vec![
+                    Cell::one(l.rollouts as f64),
+                    Cell::one(l.success_rate),
+                    Cell::one(l.completion_rate),
+                    Cell::opt(l.contact_speed_mps),
+                    Cell::opt(l.max_force_n),
+                    Cell::opt(l.follow_through_m),
+                ],
             );
         }
-        let _ = writeln!(
-            out,
-            "\nFailures (a rollout can fail several impact criteria):\n"
+        let mut failures = Table::new(
+            "failures",
+            "Failures",
+            vec![Column::new("all", Unit::Count)],
         );
-        let _ = writeln!(out, "| failure | all |");
-        let _ = writeln!(out, "|---|---:|");
-        if let Some(all) = table.last() {
+        if let Some(all) = lines.last() {
             for f in Failure::ALL {
-                let _ = writeln!(
-                    out,
-                    "| {} | {} |",
-                    f.name(),
-                    all.failures.get(f.name()).copied().unwrap_or(0)
-                );
+                let n = all.failures.get(f.name()).copied().unwrap_or(0);
+                failures.push(f.name(), vec![Cell::one(n as f64)]);
             }
         }
-        Some(out)
+        Some(format!(
+            "{}\nFailures (a rollout can fail several impact criteria):\n\n{}",
+            objects.markdown_with(Layout::plain("object")),
+            failures.markdown_with(Layout::plain("failure"))
+        ))
     }
 }

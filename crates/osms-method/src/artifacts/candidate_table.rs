@@ -1,8 +1,7 @@
 //! The candidate generators side by side (paper 6.4).
 
-use std::fmt::Write;
-
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use serde::{Deserialize, Serialize};
 
@@ -19,32 +18,84 @@ impl Artifact for CandidateTable {
     const SCHEMA_VERSION: u16 = 1;
 }
 
-const TABLE_COLUMNS: &str = "generator,sets,refine,repair,skipped_incomplete,candidates,mean_projection_residual,mean_deviation,mean_max_deviation,mean_geodesic_length,directions_shrunk,unmatched,mean_scale";
-
 impl CandidateTable {
     fn markdown(&self) -> String {
-        let opt = |v: Option<f64>| v.map_or("-".into(), |v| format!("{v:.3}"));
-        let mut s = String::from(
-            "| generator | sets | refine / repair | projection residual | mean deviation | largest deviation | geodesic length | shrunk directions | unmatched sets | scale |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        let mut t = Table::new(
+            "candidates",
+            "Candidate generators",
+            vec![
+                Column::new("sets", Unit::Count),
+                Column::new("refine / repair", Unit::Count),
+                Column::new("projection residual", Unit::Number(3)),
+                Column::new("mean deviation", Unit::Number(3)),
+                Column::new("largest deviation", Unit::Number(3)),
+                Column::new("geodesic length", Unit::Number(3)),
+                Column::new("shrunk directions", Unit::Count),
+                Column::new("unmatched sets", Unit::Count),
+                Column::new("scale", Unit::Number(3)),
+            ],
         );
         for r in &self.rows {
-            let _ = writeln!(
-                s,
-                "| {} | {} | {} / {} | {} | {:.3} | {:.3} | {} | {} | {} | {:.3} |",
-                r.generator,
-                r.sets,
-                r.refine,
-                r.repair,
-                opt(r.mean_projection_residual),
-                r.mean_deviation,
-                r.mean_max_deviation,
-                opt(r.mean_geodesic_length),
-                r.directions_shrunk,
-                r.unmatched,
-                r.mean_scale
+            t.push(
+                &r.generator,
+                vec![
+                    Cell::one(r.sets as f64),
+                    Cell::text(format!("{} / {}", r.refine, r.repair)),
+                    Cell::opt(r.mean_projection_residual),
+                    Cell::one(r.mean_deviation),
+                    Cell::one(r.mean_max_deviation),
+                    Cell::opt(r.mean_geodesic_length),
+                    Cell::one(r.directions_shrunk as f64),
+                    Cell::one(r.unmatched as f64),
+                    Cell::one(r.mean_scale),
+                ],
             );
         }
-        s
+        t.markdown_with(Layout::plain("generator"))
+    }
+
+    /// Every statistic of every generator, one line each, for programs.
+    fn csv(&self) -> String {
+        let count = |n: &str| Column::new(n, Unit::Count);
+        let number = |n: &str| Column::new(n, Unit::Number(3));
+        let mut t = Table::new(
+            "candidates",
+            "Candidate generators",
+            vec![
+                count("sets"),
+                count("refine"),
+                count("repair"),
+                count("skipped_incomplete"),
+                count("candidates"),
+                number("mean_projection_residual"),
+                number("mean_deviation"),
+                number("mean_max_deviation"),
+                number("mean_geodesic_length"),
+                count("directions_shrunk"),
+                count("unmatched"),
+                number("mean_scale"),
+            ],
+        );
+        for r in &self.rows {
+            t.push(
+                &r.generator,
+                vec![
+                    Cell::one(r.sets as f64),
+                    Cell::one(r.refine as f64),
+                    Cell::one(r.repair as f64),
+                    Cell::one(r.skipped_incomplete as f64),
+                    Cell::one(r.candidates as f64),
+                    Cell::opt(r.mean_projection_residual),
+                    Cell::one(r.mean_deviation),
+                    Cell::one(r.mean_max_deviation),
+                    Cell::opt(r.mean_geodesic_length),
+                    Cell::one(r.directions_shrunk as f64),
+                    Cell::one(r.unmatched as f64),
+                    Cell::one(r.mean_scale),
+                ],
+            );
+        }
+        t.wide_csv("generator")
     }
 }
 
@@ -61,30 +112,9 @@ impl Summarize for CandidateTable {
     }
 
     fn files(&self) -> Vec<(String, Vec<u8>)> {
-        let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
-        let mut csv = format!("{TABLE_COLUMNS}\n");
-        for r in &self.rows {
-            let _ = writeln!(
-                csv,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{}",
-                r.generator,
-                r.sets,
-                r.refine,
-                r.repair,
-                r.skipped_incomplete,
-                r.candidates,
-                opt(r.mean_projection_residual),
-                r.mean_deviation,
-                r.mean_max_deviation,
-                opt(r.mean_geodesic_length),
-                r.directions_shrunk,
-                r.unmatched,
-                r.mean_scale
-            );
-        }
         vec![
             ("candidates.md".into(), self.markdown().into_bytes()),
-            ("candidates.csv".into(), csv.into_bytes()),
+            ("candidates.csv".into(), self.csv().into_bytes()),
             (
                 "candidates.json".into(),
                 serde_json::to_vec_pretty(&self.rows).unwrap_or_default(),

@@ -1,6 +1,7 @@
 //! Table II's left half: how Naive, Normal and ours constructed their demonstrations.
 
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit, Value};
 use osms_make::Summarize;
 use osms_policy::artifacts::ConstructionStats;
 use serde::{Deserialize, Serialize};
@@ -37,65 +38,95 @@ impl Artifact for ConstructionTable {
 
 impl ConstructionTable {
     pub fn markdown(&self) -> String {
-        use std::fmt::Write;
-        let mut out = String::from(
-            "| construction | demos | coverage | repair rate | refinement rate | unperturbed f_max (N) |\n|---|---:|---:|---:|---:|---:|\n",
-        );
         let pct = |v: f64| format!("{:.1}%", 100.0 * v);
+        let mut t = Table::new(
+            "construction_table",
+            "Demonstration construction",
+            vec![
+                Column::new("demos", Unit::Count),
+                Column::new("coverage", Unit::Percent),
+                Column::new("repair rate", Unit::Percent),
+                Column::new("refinement rate", Unit::Percent),
+                Column::new("unperturbed f_max (N)", Unit::Number(1)),
+            ],
+        );
         for r in &self.rows {
             let s = &r.stats;
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} ({}) | {} ({}) | {} ({}) | {} ({:.1}) |",
-                r.construction,
-                s.demonstrations,
-                pct(s.coverage),
-                pct(r.paper_coverage),
-                pct(s.repair_rate),
-                pct(r.paper_repair_rate),
-                pct(s.refinement_rate),
-                pct(r.paper_refinement_rate),
-                s.unperturbed_max_force_n
-                    .map_or_else(|| "-".into(), |f| format!("{f:.1}")),
-                r.paper_unperturbed_max_force_n
+            t.push(
+                &r.construction,
+                vec![
+                    Cell::one(s.demonstrations as f64),
+                    Cell::new(Value::One(s.coverage), Some(&pct(r.paper_coverage))),
+                    Cell::new(Value::One(s.repair_rate), Some(&pct(r.paper_repair_rate))),
+                    Cell::new(
+                        Value::One(s.refinement_rate),
+                        Some(&pct(r.paper_refinement_rate)),
+                    ),
+                    Cell::new(
+                        Value::of(s.unperturbed_max_force_n),
+                        Some(&format!("{:.1}", r.paper_unperturbed_max_force_n)),
+                    ),
+                ],
             );
         }
-        out.push_str("\nIn parentheses: the paper's Table II. Coverage, repair and refinement rates are over the D_R conditions; demos count every demonstration, extension included.\n");
-        out
+        t.with_note(
+            "In parentheses: the paper's Table II. Coverage, repair and refinement rates are over \
+             the D_R conditions; demos count every demonstration, extension included.",
+        )
+        .markdown_with(Layout::plain("construction"))
     }
 
     pub fn csv(&self) -> String {
-        use std::fmt::Write;
-        let mut out = String::from(
-            "construction,demonstrations,conditions,kept,refined,repaired,dropped,coverage,repair_rate,refinement_rate,unperturbed_max_force_n,extension_conditions,extension_demonstrations,paper_coverage,paper_repair_rate,paper_refinement_rate,paper_unperturbed_max_force_n\n",
+        let count = |n: &str| Column::new(n, Unit::Count);
+        let rate = |n: &str| Column::new(n, Unit::Percent);
+        let force = |n: &str| Column::new(n, Unit::Number(1));
+        let mut t = Table::new(
+            "construction_table",
+            "Demonstration construction",
+            vec![
+                count("demonstrations"),
+                count("conditions"),
+                count("kept"),
+                count("refined"),
+                count("repaired"),
+                count("dropped"),
+                rate("coverage"),
+                rate("repair_rate"),
+                rate("refinement_rate"),
+                force("unperturbed_max_force_n"),
+                count("extension_conditions"),
+                count("extension_demonstrations"),
+                rate("paper_coverage"),
+                rate("paper_repair_rate"),
+                rate("paper_refinement_rate"),
+                force("paper_unperturbed_max_force_n"),
+            ],
         );
         for r in &self.rows {
             let s = &r.stats;
-            let _ = writeln!(
-                out,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-                r.construction,
-                s.demonstrations,
-                s.conditions,
-                s.kept,
-                s.refined,
-                s.repaired,
-                s.dropped,
-                s.coverage,
-                s.repair_rate,
-                s.refinement_rate,
-                s.unperturbed_max_force_n
-                    .map(|f| f.to_string())
-                    .unwrap_or_default(),
-                s.extension_conditions,
-                s.extension_demonstrations,
-                r.paper_coverage,
-                r.paper_repair_rate,
-                r.paper_refinement_rate,
-                r.paper_unperturbed_max_force_n
+            t.push(
+                &r.construction,
+                vec![
+                    Cell::one(s.demonstrations as f64),
+                    Cell::one(s.conditions as f64),
+                    Cell::one(s.kept as f64),
+                    Cell::one(s.refined as f64),
+                    Cell::one(s.repaired as f64),
+                    Cell::one(s.dropped as f64),
+                    Cell::one(s.coverage),
+                    Cell::one(s.repair_rate),
+                    Cell::one(s.refinement_rate),
+                    Cell::opt(s.unperturbed_max_force_n),
+                    Cell::one(s.extension_conditions as f64),
+                    Cell::one(s.extension_demonstrations as f64),
+                    Cell::one(r.paper_coverage),
+                    Cell::one(r.paper_repair_rate),
+                    Cell::one(r.paper_refinement_rate),
+                    Cell::one(r.paper_unperturbed_max_force_n),
+                ],
             );
         }
-        out
+        t.wide_csv("construction")
     }
 }
 

@@ -3,6 +3,7 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use osms_sim::{N_ARM, Phase};
 use serde::{Deserialize, Serialize};
@@ -56,59 +57,97 @@ fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
 impl ErrorModelArtifact {
     /// Table III's metric columns as Markdown.
     pub fn table3_markdown(&self) -> String {
-        let mut out = String::new();
-        let _ = writeln!(
-            out,
-            "| validation model | moment err. | lag-1 err. | cells (moment / lag-1) |"
+        let mut t = Table::new(
+            "table3_metrics",
+            "Table III metrics",
+            vec![
+                Column::new("moment err.", Unit::Number(3)),
+                Column::new("lag-1 err.", Unit::Number(3)),
+                Column::new("cells (moment / lag-1)", Unit::Count),
+            ],
         );
-        let _ = writeln!(out, "|---|---:|---:|---:|");
         for v in &self.variants {
             let m = &v.metrics;
-            let _ = writeln!(
-                out,
-                "| {} | {:.3} | {:.3} | {} / {} |",
+            t.push(
                 v.model.variant.name(),
-                m.moment_error,
-                m.lag1_error,
-                m.moment_cells,
-                m.lag1_cells
+                vec![
+                    Cell::one(m.moment_error),
+                    Cell::one(m.lag1_error),
+                    Cell::text(format!("{} / {}", m.moment_cells, m.lag1_cells)),
+                ],
             );
         }
-        out
+        t.markdown_with(Layout::plain("validation model"))
+    }
+
+    /// Table III's metrics, one line per model, for programs.
+    pub fn table3_csv(&self) -> String {
+        let mut t = Table::new(
+            "table3",
+            "Table III metrics",
+            vec![
+                Column::new("moment_error", Unit::Number(3)),
+                Column::new("lag1_error", Unit::Number(3)),
+                Column::new("moment_cells", Unit::Count),
+                Column::new("lag1_cells", Unit::Count),
+            ],
+        );
+        for v in &self.variants {
+            let m = &v.metrics;
+            t.push(
+                v.model.variant.name(),
+                vec![
+                    Cell::one(m.moment_error),
+                    Cell::one(m.lag1_error),
+                    Cell::one(m.moment_cells as f64),
+                    Cell::one(m.lag1_cells as f64),
+                ],
+            );
+        }
+        t.wide_csv("model")
     }
 
     /// Per model and phase: samples, delay, gains, |bias|, AR and noise scales.
     pub fn parameters_markdown(&self) -> String {
-        let mut out = String::new();
-        let _ = writeln!(
-            out,
-            "| model | phase | samples | d | gain arm | gain hand | mean abs bias | spectral radius | AR pairs | stationary std | pooled |"
+        let mut t = Table::new(
+            "parameters",
+            "Fitted parameters",
+            vec![
+                Column::new("phase", Unit::Text),
+                Column::new("samples", Unit::Count),
+                Column::new("d", Unit::Count),
+                Column::new("gain arm", Unit::Number(3)),
+                Column::new("gain hand", Unit::Number(3)),
+                Column::new("mean abs bias", Unit::Number(3)),
+                Column::new("spectral radius", Unit::Number(3)),
+                Column::new("AR pairs", Unit::Count),
+                Column::new("stationary std", Unit::Number(3)),
+                Column::new("pooled", Unit::Text),
+            ],
         );
-        let _ = writeln!(out, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|");
         for v in &self.variants {
             let c = v.model.channels;
             for (phase, p) in v.model.phases.iter().enumerate() {
-                let f = |x: Option<f64>| x.map_or_else(|| "-".into(), |x| format!("{x:.3}"));
-                let _ = writeln!(
-                    out,
-                    "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {} | {} | {} |",
+                t.push(
                     v.model.variant.name(),
-                    Phase::ALL[phase].name(),
-                    p.samples,
-                    p.delay,
-                    f(mean(p.gain.iter().take(N_ARM).copied())),
-                    f(mean(p.gain.iter().skip(N_ARM).copied())),
-                    f(mean(p.bias.iter().map(|b| b.abs()))),
-                    p.spectral_radius,
-                    p.ar_pairs,
-                    f(mean(
-                        (0..c).map(|k| p.stationary[k * c + k].max(0.0).sqrt())
-                    )),
-                    if p.pooled { "yes" } else { "no" }
+                    vec![
+                        Cell::text(Phase::ALL[phase].name()),
+                        Cell::one(p.samples as f64),
+                        Cell::one(p.delay as f64),
+                        Cell::opt(mean(p.gain.iter().take(N_ARM).copied())),
+                        Cell::opt(mean(p.gain.iter().skip(N_ARM).copied())),
+                        Cell::opt(mean(p.bias.iter().map(|b| b.abs()))),
+                        Cell::one(p.spectral_radius),
+                        Cell::one(p.ar_pairs as f64),
+                        Cell::opt(mean(
+                            (0..c).map(|k| p.stationary[k * c + k].max(0.0).sqrt()),
+                        )),
+                        Cell::text(if p.pooled { "yes" } else { "no" }),
+                    ],
                 );
             }
         }
-        out
+        t.markdown_with(Layout::plain("model"))
     }
 }
 
@@ -145,20 +184,29 @@ impl Summarize for ErrorModelArtifact {
             out,
             "IL students π̄ on the D_E conditions held out from them:\n"
         );
-        let _ = writeln!(out, "| fold | rollouts | steps | success | completion |");
-        let _ = writeln!(out, "|---|---:|---:|---:|---:|");
+        let mut folds = Table::new(
+            "folds",
+            "IL students on their held-out folds",
+            vec![
+                Column::new("rollouts", Unit::Count),
+                Column::new("steps", Unit::Count),
+                Column::new("success", Unit::Percent),
+                Column::new("completion", Unit::Percent),
+            ],
+        );
         for f in &self.folds {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {:.1}% | {:.1}% |",
+            folds.push(
                 f.fold
                     .map_or_else(|| "-".into(), |(i, n)| format!("{i} of {n}")),
-                f.rollouts,
-                f.steps,
-                100.0 * f.success_rate,
-                100.0 * f.completion_rate
+                vec![
+                    Cell::one(f.rollouts as f64),
+                    Cell::one(f.steps as f64),
+                    Cell::one(f.success_rate),
+                    Cell::one(f.completion_rate),
+                ],
             );
         }
+        out.push_str(&folds.markdown_with(Layout::plain("fold")));
         let _ = writeln!(
             out,
             "\nTable III metrics: each model simulated on the recorded teacher actions against the observed π̄ − teacher deviations, per phase and channel (docs/method.md gives the formulas). Paper: global i.i.d. 0.289 / 0.142, phase-wise independent 0.012 / 0.132, phase-wise correlated 0.038 / 0.041.\n"
@@ -173,22 +221,9 @@ impl Summarize for ErrorModelArtifact {
     }
 
     fn files(&self) -> Vec<(String, Vec<u8>)> {
-        let mut csv = String::from("model,moment_error,lag1_error,moment_cells,lag1_cells\n");
-        for v in &self.variants {
-            let m = &v.metrics;
-            let _ = writeln!(
-                csv,
-                "{},{},{},{},{}",
-                v.model.variant.name(),
-                m.moment_error,
-                m.lag1_error,
-                m.moment_cells,
-                m.lag1_cells
-            );
-        }
         vec![
             ("table3.md".into(), self.table3_markdown().into_bytes()),
-            ("table3.csv".into(), csv.into_bytes()),
+            ("table3.csv".into(), self.table3_csv().into_bytes()),
             (
                 "parameters.md".into(),
                 self.parameters_markdown().into_bytes(),

@@ -3,6 +3,7 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::{Sharded, Summarize};
 use serde::{Deserialize, Serialize};
 
@@ -122,9 +123,17 @@ impl Summarize for IosProfile {
             p.size,
             self.force_scale_n
         );
-        let _ = writeln!(
-            out,
-            "| offset | window | n | S_IOS | 95% CI | success flips | mean |Δ f_max| (N) |\n|---:|---|---:|---:|---|---:|---:|"
+        let mut t = Table::new(
+            "ios_profile",
+            "IOS profile",
+            vec![
+                Column::new("window", Unit::Text),
+                Column::new("n", Unit::Count),
+                Column::new("S_IOS", Unit::Number(3)),
+                Column::new("95% CI", Unit::Text),
+                Column::new("success flips", Unit::Percent),
+                Column::new("mean |Δ f_max| (N)", Unit::Number(2)),
+            ],
         );
         let peak = self.peak().map(|r| r.offset);
         for r in self.rows() {
@@ -134,30 +143,29 @@ impl Summarize for IosProfile {
                 (false, true) => " (paper's OSW)",
                 (false, false) => "",
             };
-            if r.n == 0 {
-                let _ = writeln!(
-                    out,
-                    "| {:+}{mark} | k_e{:+} … k_e{:+} | 0 | - | - | - | - |",
-                    r.offset,
-                    r.offset,
-                    r.offset + p.window as i64 - 1
-                );
-                continue;
-            }
-            let _ = writeln!(
-                out,
-                "| {:+}{mark} | k_e{:+} … k_e{:+} | {} | {:.3} | [{:.3}, {:.3}] | {:.1}% | {:.2} |",
+            let window = Cell::text(format!(
+                "k_e{:+} … k_e{:+}",
                 r.offset,
-                r.offset,
-                r.offset + p.window as i64 - 1,
-                r.n,
-                r.sensitivity,
-                r.ci_low,
-                r.ci_high,
-                100.0 * r.success_change_rate,
-                r.mean_abs_force_change_n
+                r.offset + p.window as i64 - 1
+            ));
+            let measured = r.n > 0;
+            t.push(
+                format!("{:+}{mark}", r.offset),
+                vec![
+                    window,
+                    Cell::one(r.n as f64),
+                    Cell::opt(measured.then_some(r.sensitivity)),
+                    if measured {
+                        Cell::text(format!("[{:.3}, {:.3}]", r.ci_low, r.ci_high))
+                    } else {
+                        Cell::opt(None)
+                    },
+                    Cell::opt(measured.then_some(r.success_change_rate)),
+                    Cell::opt(measured.then_some(r.mean_abs_force_change_n)),
+                ],
             );
         }
+        out.push_str(&t.markdown_with(Layout::numbered("offset")));
         if let Some(peak) = self.peak() {
             let paper = self
                 .rows()

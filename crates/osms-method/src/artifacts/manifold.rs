@@ -3,6 +3,7 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 
 use crate::cvae::{CurvePoint, Cvae};
@@ -50,11 +51,17 @@ impl Summarize for Cvae {
             s,
             "errors are ‖·‖²_{{W_a}} per element: 1.0 = predicting each channel's mean\n"
         );
-        let _ = writeln!(
-            s,
-            "| epoch | train rec | smooth | KL | held-out rec (encoder mean) | held-out rec (prior mean) |"
+        let mut t = Table::new(
+            "manifold_curve",
+            "Manifold learning curve",
+            vec![
+                Column::new("train rec", Unit::Number(4)),
+                Column::new("smooth", Unit::Number(4)),
+                Column::new("KL", Unit::Number(3)),
+                Column::new("held-out rec (encoder mean)", Unit::Number(4)),
+                Column::new("held-out rec (prior mean)", Unit::Number(4)),
+            ],
         );
-        let _ = writeln!(s, "|---:|---:|---:|---:|---:|---:|");
         let step = self.curve.len().div_ceil(10).max(1);
         let mut shown: Vec<&CurvePoint> = self.curve.iter().step_by(step).collect();
         if let Some(last) = self.curve.last()
@@ -63,17 +70,20 @@ impl Summarize for Cvae {
             shown.push(last);
         }
         for c in shown {
-            let _ = writeln!(
-                s,
-                "| {} | {:.4} | {:.4} | {:.3} | {:.4} | {:.4} |",
-                c.epoch,
-                c.reconstruction,
-                c.smoothness,
-                c.kl,
-                c.heldout_reconstruction,
-                c.heldout_prior_reconstruction
+            t.push(
+                c.epoch.to_string(),
+                [
+                    c.reconstruction,
+                    c.smoothness,
+                    c.kl,
+                    c.heldout_reconstruction,
+                    c.heldout_prior_reconstruction,
+                ]
+                .map(|v| Cell::one(f64::from(v)))
+                .to_vec(),
             );
         }
+        s.push_str(&t.markdown_with(Layout::numbered("epoch")));
         Some(s)
     }
 

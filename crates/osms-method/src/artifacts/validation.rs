@@ -5,6 +5,7 @@ use std::fmt::Write;
 
 use osms_core::Artifact;
 use osms_core::rng::StreamRng;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use serde::{Deserialize, Serialize};
 
@@ -157,10 +158,16 @@ impl Summarize for Validation {
             fmt(s.mean_sr_org),
             fmt(s.mean_sr_selected)
         );
-        let _ = writeln!(out, "\n| decision | rollouts |\n|---|---:|");
+        let mut decisions = Table::new(
+            "decisions",
+            "Decisions",
+            vec![Column::new("rollouts", Unit::Count)],
+        );
         for (d, n) in &s.decisions {
-            let _ = writeln!(out, "| {d} | {n} |");
+            decisions.push(d, vec![Cell::one(*n as f64)]);
         }
+        out.push('\n');
+        out.push_str(&decisions.markdown_with(Layout::plain("decision")));
         Some(out)
     }
 

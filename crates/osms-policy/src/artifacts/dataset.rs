@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use osms_core::rng::StreamId;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_sim::{Phase, RolloutRecord};
 use serde::{Deserialize, Serialize};
 
@@ -205,25 +206,49 @@ impl osms_make::Summarize for Dataset {
             "Phases (mean control steps per rollout; {} of {} rollouts show all five):\n",
             s.all_phases, s.rollouts
         );
-        let _ = writeln!(out, "| phase | steps |\n|---|---:|");
-        for (p, steps) in &s.phase_steps {
-            let _ = writeln!(out, "| {p} | {steps:.2} |");
-        }
-        let _ = writeln!(out);
-        let _ = writeln!(out, "| failure | count |\n|---|---:|");
-        for f in osms_sim::Failure::ALL {
-            if let Some(c) = s.failures.get(f.name()) {
-                let _ = writeln!(out, "| {} | {c} |", f.name());
+        let counts = |label: &str, column: &str, unit: Unit, rows: Vec<(String, f64)>| {
+            let mut t = Table::new(column, column, vec![Column::new(column, unit)]);
+            for (name, v) in rows {
+                t.push(name, vec![Cell::one(v)]);
             }
-        }
-        let _ = writeln!(out, "\n| family | rollouts |\n|---|---:|");
-        for (f, c) in &s.per_family {
-            let _ = writeln!(out, "| {f} | {c} |");
-        }
-        let _ = writeln!(out, "\n| object | rollouts |\n|---|---:|");
-        for (v, c) in &s.per_variant {
-            let _ = writeln!(out, "| {v} | {c} |");
-        }
+            t.markdown_with(Layout::plain(label))
+        };
+        out.push_str(&counts(
+            "phase",
+            "steps",
+            Unit::Number(2),
+            s.phase_steps.clone(),
+        ));
+        out.push('\n');
+        out.push_str(&counts(
+            "failure",
+            "count",
+            Unit::Count,
+            osms_sim::Failure::ALL
+                .iter()
+                .filter_map(|f| Some((f.name().to_string(), *s.failures.get(f.name())? as f64)))
+                .collect(),
+        ));
+        out.push('\n');
+        out.push_str(&counts(
+            "family",
+            "rollouts",
+            Unit::Count,
+            s.per_family
+                .iter()
+                .map(|(f, c)| (f.clone(), *c as f64))
+                .collect(),
+        ));
+        out.push('\n');
+        out.push_str(&counts(
+            "object",
+            "rollouts",
+            Unit::Count,
+            s.per_variant
+                .iter()
+                .map(|(v, c)| (v.clone(), *c as f64))
+                .collect(),
+        ));
         Some(out)
     }
 }

@@ -3,6 +3,7 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use osms_sim::artifacts::{EvalRow, Evaluation};
 use osms_sim::{N_ACTION, Phase};
@@ -132,19 +133,26 @@ impl Summarize for ErrorPairs {
             out,
             "\nDeviations from the teacher queried at the same states:\n"
         );
-        let _ = writeln!(out, "| phase | steps | mean abs arm | mean abs hand |");
-        let _ = writeln!(out, "|---|---:|---:|---:|");
-        let f = |v: Option<f64>| v.map_or_else(|| "-".into(), |v| format!("{v:.4}"));
+        let mut t = Table::new(
+            "deviations",
+            "Deviations from the teacher",
+            vec![
+                Column::new("steps", Unit::Count),
+                Column::new("mean abs arm", Unit::Number(4)),
+                Column::new("mean abs hand", Unit::Number(4)),
+            ],
+        );
         for d in self.phase_deviations() {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {} |",
+            t.push(
                 d.phase,
-                d.steps,
-                f(d.arm_abs_deviation),
-                f(d.hand_abs_deviation)
+                vec![
+                    Cell::one(d.steps as f64),
+                    Cell::opt(d.arm_abs_deviation),
+                    Cell::opt(d.hand_abs_deviation),
+                ],
             );
         }
+        out.push_str(&t.markdown_with(Layout::plain("phase")));
         Some(out)
     }
 }

@@ -3,6 +3,7 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use serde::{Deserialize, Serialize};
 
@@ -70,23 +71,30 @@ impl Summarize for StudentArtifact {
             out,
             "Learning curve (flow-matching loss per element of the standardised chunk):\n"
         );
-        let _ = writeln!(out, "| steps | train loss | validation loss | lr |");
-        let _ = writeln!(out, "|---:|---:|---:|---:|");
+        let mut t = Table::new(
+            "curve",
+            "Learning curve",
+            vec![
+                Column::new("train loss", Unit::Number(4)),
+                Column::new("validation loss", Unit::Number(4)),
+                Column::new("lr", Unit::Scientific(2)),
+            ],
+        );
         let stride = s.curve.len().div_ceil(20).max(1);
         for (i, c) in s.curve.iter().enumerate() {
             if i % stride != 0 && i + 1 != s.curve.len() {
                 continue;
             }
-            let _ = writeln!(
-                out,
-                "| {} | {:.4} | {} | {:.2e} |",
-                c.step,
-                c.train_loss,
-                c.validation_loss
-                    .map_or_else(|| "-".into(), |v| format!("{v:.4}")),
-                c.lr
+            t.push(
+                c.step.to_string(),
+                vec![
+                    Cell::one(f64::from(c.train_loss)),
+                    Cell::opt(c.validation_loss.map(f64::from)),
+                    Cell::one(f64::from(c.lr)),
+                ],
             );
         }
+        out.push_str(&t.markdown_with(Layout::numbered("steps")));
         Some(out)
     }
 

@@ -3,6 +3,7 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use serde::{Deserialize, Serialize};
 
@@ -72,32 +73,33 @@ impl Summarize for Teacher {
     }
 
     fn text(&self) -> Option<String> {
-        let mut out = String::new();
-        let _ = writeln!(
-            out,
-            "Learning curve (means over blocks of iterations, under exploration noise):\n"
+        let mut t = Table::new(
+            "curve",
+            "Learning curve",
+            vec![
+                Column::new("return", Unit::Number(2)),
+                Column::new("success", Unit::Percent),
+                Column::new("completion", Unit::Percent),
+                Column::new("f_max (N)", Unit::Number(1)),
+                Column::new("clip fraction", Unit::Number(3)),
+            ],
         );
-        let _ = writeln!(
-            out,
-            "| iterations | return | success | completion | f_max (N) | clip fraction |"
-        );
-        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|");
         for (a, b, m) in curve_blocks(&self.agent.curve, 20) {
-            let f = if m[3].is_finite() {
-                format!("{:.1}", m[3])
-            } else {
-                "-".into()
-            };
-            let _ = writeln!(
-                out,
-                "| {a}–{b} | {:.2} | {:.1}% | {:.1}% | {f} | {:.3} |",
-                m[0],
-                100.0 * m[1],
-                100.0 * m[2],
-                m[4]
+            t.push(
+                format!("{a}–{b}"),
+                vec![
+                    Cell::one(m[0]),
+                    Cell::one(m[1]),
+                    Cell::one(m[2]),
+                    Cell::opt(m[3].is_finite().then_some(m[3])),
+                    Cell::one(m[4]),
+                ],
             );
         }
-        Some(out)
+        Some(format!(
+            "Learning curve (means over blocks of iterations, under exploration noise):\n\n{}",
+            t.markdown_with(Layout::plain("iterations"))
+        ))
     }
 
     fn files(&self) -> Vec<(String, Vec<u8>)> {

@@ -1,8 +1,7 @@
 //! Table I's analog: the scripted prior, the catching-only teacher and the teacher.
 
-use std::fmt::Write;
-
 use osms_core::Artifact;
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use osms_sim::artifacts::{Evaluation, TableLine};
 use serde::{Deserialize, Serialize};
@@ -32,59 +31,65 @@ impl Artifact for TeacherTable {
     const SCHEMA_VERSION: u16 = 1;
 }
 
-fn opt(v: Option<f64>, digits: usize) -> String {
-    v.map(|x| format!("{x:.digits$}"))
-        .unwrap_or_else(|| "-".into())
-}
-
 impl TeacherTable {
-    pub fn markdown(&self) -> String {
-        let mut out = String::new();
-        let _ = writeln!(
-            out,
-            "| policy | n | catch completion | task success | v_rel (m/s) | f_max (N) | l_max (m) |"
-        );
-        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|");
+    /// The rows with these column names: the Markdown's headers or the CSV's keys.
+    fn table(&self, names: [&str; 6]) -> Table {
+        let units = [
+            Unit::Count,
+            Unit::Percent,
+            Unit::Percent,
+            Unit::Number(2),
+            Unit::Number(1),
+            Unit::Number(3),
+        ];
+        let columns = names
+            .iter()
+            .zip(units)
+            .map(|(n, u)| Column::new(*n, u))
+            .collect();
+        let mut t = Table::new("table1", "Table I", columns);
         for r in &self.rows {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {:.1}% | {:.1}% | {} | {} | {} |",
-                r.policy,
-                r.rollouts,
-                100.0 * r.completion_rate,
-                100.0 * r.success_rate,
-                opt(r.contact_speed_mps, 2),
-                opt(r.max_force_n, 1),
-                opt(r.follow_through_m, 3)
+            t.push(
+                &r.policy,
+                vec![
+                    Cell::one(r.rollouts as f64),
+                    Cell::one(r.completion_rate),
+                    Cell::one(r.success_rate),
+                    Cell::opt(r.contact_speed_mps),
+                    Cell::opt(r.max_force_n),
+                    Cell::opt(r.follow_through_m),
+                ],
             );
         }
-        let _ = writeln!(
-            out,
-            "\nImpact metrics are means over catch completions. Paper (Table I): catching-only \
-             92.5% / 0.4% / 160 N; teacher 90.7% / 85.2% / 40.8 N."
-        );
-        out
+        t
+    }
+
+    pub fn markdown(&self) -> String {
+        self.table([
+            "n",
+            "catch completion",
+            "task success",
+            "v_rel (m/s)",
+            "f_max (N)",
+            "l_max (m)",
+        ])
+        .with_note(
+            "Impact metrics are means over catch completions. Paper (Table I): catching-only \
+             92.5% / 0.4% / 160 N; teacher 90.7% / 85.2% / 40.8 N.",
+        )
+        .markdown_with(Layout::plain("policy"))
     }
 
     pub fn csv(&self) -> String {
-        let mut out = String::from(
-            "policy,rollouts,completion_rate,success_rate,contact_speed_mps,max_force_n,follow_through_m\n",
-        );
-        let o = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
-        for r in &self.rows {
-            let _ = writeln!(
-                out,
-                "{},{},{},{},{},{},{}",
-                r.policy,
-                r.rollouts,
-                r.completion_rate,
-                r.success_rate,
-                o(r.contact_speed_mps),
-                o(r.max_force_n),
-                o(r.follow_through_m)
-            );
-        }
-        out
+        self.table([
+            "rollouts",
+            "completion_rate",
+            "success_rate",
+            "contact_speed_mps",
+            "max_force_n",
+            "follow_through_m",
+        ])
+        .wide_csv("policy")
     }
 }
 

@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, Result, bail};
+use osms_core::table::{Cell, Column, Layout, Table, Unit};
 use osms_make::{Plan, State, StoreObjects};
 use osms_store::{Record, Store};
 
@@ -111,26 +112,34 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
         lineage.len(),
         total
     );
-    let _ = writeln!(
-        s,
-        "| instance | kind | key | content hash | wall time (s) |"
+    let mut t = Table::new(
+        "provenance",
+        "Provenance",
+        vec![
+            Column::new("kind", Unit::Text),
+            Column::new("key", Unit::Text),
+            Column::new("content hash", Unit::Text),
+            Column::new("wall time (s)", Unit::Number(1)),
+        ],
     );
-    let _ = writeln!(s, "|---|---|---|---|---:|");
     for (instance, kind, r) in lineage {
-        match r {
-            Some(r) => {
-                let _ = writeln!(
-                    s,
-                    "| {instance} | {kind} | `{}` | `{}` | {:.1} |",
-                    &r.key.to_string()[..12],
-                    &r.content_hash.to_string()[..12],
-                    r.wall_time_secs
-                );
-            }
-            None => {
-                let _ = writeln!(s, "| {instance} | {kind} | - | - | - |");
-            }
-        }
+        let short = |h: &osms_store::Hash| Cell::text(format!("`{}`", &h.to_string()[..12]));
+        let cells = match r {
+            Some(r) => vec![
+                Cell::text(kind),
+                short(&r.key),
+                short(&r.content_hash),
+                Cell::one(r.wall_time_secs),
+            ],
+            None => vec![
+                Cell::text(kind),
+                Cell::opt(None),
+                Cell::opt(None),
+                Cell::opt(None),
+            ],
+        };
+        t.push(instance, cells);
     }
+    s.push_str(&t.markdown_with(Layout::plain("instance")));
     s
 }
