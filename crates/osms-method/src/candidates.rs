@@ -20,6 +20,7 @@ use crate::cvae::Cvae;
 use crate::geodesic::{Chart, PullbackMetric, ShootSpec, shoot};
 use crate::project::{Projection, ProjectionParams, project};
 use crate::sobol;
+use crate::{Error, Result};
 
 /// Which generator builds the candidate sets (paper 6.4, "Candidate generation").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -207,17 +208,6 @@ impl Chart for DecoderChart<'_> {
     }
 }
 
-/// Why a set cannot be built.
-#[derive(Debug, thiserror::Error)]
-pub enum SearchError {
-    #[error("the Sobol table has no {0}-dimensional points")]
-    SobolDim(usize),
-    #[error("the Sobol directions are linearly dependent under the metric")]
-    Dependent,
-    #[error("ζ_org has {got} values, the manifold {expected}")]
-    ZetaLength { got: usize, expected: usize },
-}
-
 fn to_f64(v: &[f32]) -> Vec<f64> {
     v.iter().map(|x| f64::from(*x)).collect()
 }
@@ -279,9 +269,11 @@ fn directions(
     m: &[f64],
     d: usize,
     p: &SearchParams,
-) -> Result<Vec<Vec<f64>>, SearchError> {
-    let raw = sobol::directions(d, p.sobol_first, p.directions).ok_or(SearchError::SobolDim(d))?;
-    metric.orthonormalise(m, &raw).ok_or(SearchError::Dependent)
+) -> Result<Vec<Vec<f64>>> {
+    let raw = sobol::directions(d, p.sobol_first, p.directions).ok_or(Error::SobolDimension(d))?;
+    metric
+        .orthonormalise(m, &raw)
+        .ok_or(Error::DependentDirections)
 }
 
 /// The 2K geodesic endpoints from z⁰ with initial velocities ± radius ξ_i (Eq. 5), each
@@ -457,9 +449,9 @@ pub fn candidate_set(
     reference: Option<&CandidateSet>,
     p: &SearchParams,
     rng: &mut StreamRng,
-) -> Result<CandidateSet, SearchError> {
+) -> Result<CandidateSet> {
     if zeta_org.len() != model.zeta_len() {
-        return Err(SearchError::ZetaLength {
+        return Err(Error::SnippetLength {
             got: zeta_org.len(),
             expected: model.zeta_len(),
         });

@@ -28,6 +28,7 @@ use crate::validate::{
     CandidateReport, Case, Cost, Robustness, ValidateParams, ValidationItem, select_unperturbed,
     unperturbed_reports,
 };
+use crate::{Error, Result};
 
 /// What validation and D_* read: the world, the teacher, the D_R rollouts with their task,
 /// their candidate sets and the error model.
@@ -43,18 +44,16 @@ pub struct Inputs {
 
 impl Inputs {
     /// Refuses a validation of other rollouts or other candidate sets than these.
-    pub fn check_validation(
-        &self,
-        items: &[ValidationItem],
-        generator: &str,
-    ) -> Result<(), String> {
+    pub fn check_validation(&self, items: &[ValidationItem], generator: &str) -> Result<()> {
         if items.len() != self.rollouts.len()
             || items
                 .iter()
                 .zip(&self.rollouts)
                 .any(|(v, r)| (v.item, v.attempt) != (r.item, r.attempt))
         {
-            return Err("input `validation` was run on other rollouts than `data`".into());
+            return Err(Error::MismatchedInputs(
+                "input `validation` was run on other rollouts than `data`".into(),
+            ));
         }
         if generator != self.generator
             || items
@@ -62,10 +61,10 @@ impl Inputs {
                 .zip(&self.sets)
                 .any(|(v, set)| v.validated && v.candidates.len() != set.len())
         {
-            return Err(format!(
+            return Err(Error::MismatchedInputs(format!(
                 "input `validation` was run on other candidate sets ({}) than `candidates` ({})",
                 generator, self.generator
-            ));
+            )));
         }
         Ok(())
     }
@@ -109,7 +108,7 @@ pub fn dstar_group(
     v: &ValidationItem,
     q_runs: usize,
     errors: &dyn Fn(usize) -> StreamRng,
-) -> Result<DemoGroup, String> {
+) -> Result<DemoGroup> {
     let r = &inputs.rollouts[index];
     let mut group = DemoGroup {
         extension: false,
@@ -150,11 +149,8 @@ pub fn dstar_group(
             errors,
         )
     };
-    let mismatch = |what: &str| -> String {
-        format!(
-            "D_R item {}: the selected candidate's {what} does not repeat its validation\nhint: the validation was built from other inputs; rebuild it",
-            r.item
-        )
+    let mismatch = |what: &str| Error::NotRepeated {
+        what: format!("D_R item {}: the selected candidate's {what}", r.item),
     };
     let u = run(None);
     if !u.record.outcome.success() {
@@ -234,10 +230,9 @@ pub fn naive_extension(
     max_attempts: u32,
     rng: &mut StreamRng,
     attempt_rng: &dyn Fn(u64) -> StreamRng,
-) -> Result<DemoGroup, String> {
+) -> Result<DemoGroup> {
     for attempt in 0..max_attempts {
-        let condition =
-            sample(&task.conditions, world.home_palm_pos, rng).map_err(|e| e.to_string())?;
+        let condition = sample(&task.conditions, world.home_palm_pos, rng)?;
         let dr = attempt_rng(index as u64 * u64::from(max_attempts) + u64::from(attempt));
         let record = rollout(world, task, agent, condition, dr);
         if record.outcome.success() {
@@ -252,9 +247,10 @@ pub fn naive_extension(
             });
         }
     }
-    Err(format!(
-        "extension item {index}: the teacher failed {max_attempts} attempts in a row\nhint: raise params.max_attempts"
-    ))
+    Err(Error::NoTeacherSuccess {
+        index,
+        attempts: max_attempts,
+    })
 }
 
 /// One condition through unperturbed-only validation: the selected candidate's unperturbed
@@ -266,7 +262,7 @@ pub fn normal_group(
     candidates: &[Candidate],
     reports: &[CandidateReport],
     extension: bool,
-) -> Result<DemoGroup, String> {
+) -> Result<DemoGroup> {
     let success = rollout.record.outcome.success();
     let j_org = p.j_org(success, rollout.record.metrics.max_force_n);
     let mut group = DemoGroup {
@@ -293,11 +289,13 @@ pub fn normal_group(
                 None,
             );
             if !e.record.outcome.success() {
-                return Err(format!(
-                    "condition {} ({}): the selected candidate's unperturbed rollout does not repeat its validation",
-                    rollout.item,
-                    if extension { "extension" } else { "D_R" }
-                ));
+                return Err(Error::NotRepeated {
+                    what: format!(
+                        "condition {} ({}): the selected candidate's unperturbed rollout",
+                        rollout.item,
+                        if extension { "extension" } else { "D_R" }
+                    ),
+                });
             }
             group.origin = if success {
                 Origin::Refined
@@ -336,10 +334,13 @@ pub fn normal_extension(
     rng: &mut StreamRng,
     dr_stream: StreamId,
     projection_rng: &mut StreamRng,
-) -> Result<DemoGroup, String> {
+) -> Result<DemoGroup> {
     let world = &inputs.world;
-    let condition =
-        sample(&task.conditions, world.home_palm_pos, rng).map_err(|e| e.to_string())?;
+    let in_item = |e: Error| Error::Extension {
+        index,
+        source: Box::new(e),
+    };
+    let condition = sample(&task.conditions, world.home_palm_pos, rng)?;
     let record = rollout(world, task, &inputs.agent, condition, dr_stream.rng());
     let osw = OswWindow::extract(
         &record,
@@ -347,7 +348,7 @@ pub fn normal_extension(
             h_os: manifold.h_os,
         },
     )
-    .map_err(|e| format!("extension item {index}: {e}"))?;
+    .map_err(|e| in_item(e.into()))?;
     let r = DemoRollout {
         item: index as u32,
         attempt: 0,
@@ -364,7 +365,7 @@ pub fn normal_extension(
             search,
             projection_rng,
         )
-        .map_err(|e| format!("extension item {index}: {e}"))?
+        .map_err(in_item)?
         .candidates
     } else {
         Vec::new()

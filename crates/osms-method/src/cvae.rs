@@ -11,6 +11,8 @@ use osms_core::rng::{self, StreamRng};
 use osms_nn::{Activation, Adam, AdamConfig, Matrix, Mlp, Schedule, flatten_grads};
 use serde::{Deserialize, Serialize};
 
+use crate::{Error, Result};
+
 /// Log standard deviations are clamped here: keeps exp() finite early in training and keeps
 /// the prior from collapsing onto a point.
 const LOG_STD_MIN: f32 = -6.0;
@@ -208,27 +210,6 @@ fn join_gaussian_grad(out: &Matrix, l: usize, gm: &Matrix, gs: &Matrix) -> Matri
     })
 }
 
-/// Why training cannot start.
-#[derive(Debug, thiserror::Error)]
-pub enum CvaeError {
-    #[error("the manifold needs at least 2 windows with all H_OS steps, got {0}")]
-    TooFewWindows(usize),
-    #[error("window {index}: ζ has {got} values, expected {expected} (H_OS × arm channels)")]
-    ZetaLength {
-        index: usize,
-        got: usize,
-        expected: usize,
-    },
-    #[error("window {index}: ω̄ has {got} values, expected {expected} (as the first window)")]
-    OmegaLength {
-        index: usize,
-        got: usize,
-        expected: usize,
-    },
-    #[error("params.{0} must be at least 1")]
-    Zero(&'static str),
-}
-
 /// Per-element loss terms of one batch and the gradients of the three networks.
 struct BatchLoss {
     reconstruction: f32,
@@ -247,7 +228,7 @@ pub fn train(
     params: &ManifoldParams,
     (seed, stage): (u64, &str),
     progress: &dyn Fn(),
-) -> Result<Cvae, CvaeError> {
+) -> Result<Cvae> {
     let p = params;
     for (v, name) in [
         (p.latent, "latent"),
@@ -256,21 +237,21 @@ pub fn train(
         (p.epochs as usize, "epochs"),
     ] {
         if v == 0 {
-            return Err(CvaeError::Zero(name));
+            return Err(Error::Params(format!("params.{name} must be at least 1")));
         }
     }
     let zeta_len = h_os * channels;
     let omega_len = windows.first().map_or(0, |w| w.omega_bar.len());
     for (index, w) in windows.iter().enumerate() {
         if w.zeta.len() != zeta_len {
-            return Err(CvaeError::ZetaLength {
+            return Err(Error::WindowZetaLength {
                 index,
                 got: w.zeta.len(),
                 expected: zeta_len,
             });
         }
         if w.omega_bar.len() != omega_len {
-            return Err(CvaeError::OmegaLength {
+            return Err(Error::WindowOmegaLength {
                 index,
                 got: w.omega_bar.len(),
                 expected: omega_len,
@@ -281,7 +262,7 @@ pub fn train(
     let train_idx: Vec<usize> = (0..windows.len()).filter(|&i| !held(i)).collect();
     let held_idx: Vec<usize> = (0..windows.len()).filter(|&i| held(i)).collect();
     if train_idx.len() < 2 {
-        return Err(CvaeError::TooFewWindows(train_idx.len()));
+        return Err(Error::TooFewWindows(train_idx.len()));
     }
 
     let w_a = channel_weights(windows, &train_idx, h_os, channels);
@@ -311,23 +292,25 @@ pub fn train(
             Activation::Identity,
             seed,
             &format!("{stage}/encoder"),
-        ),
-        prior: (cond_len > 0).then(|| {
-            Mlp::new(
-                &sizes(cond_len, 2 * l),
-                Activation::Elu,
-                Activation::Identity,
-                seed,
-                &format!("{stage}/prior"),
-            )
-        }),
+        )?,
+        prior: (cond_len > 0)
+            .then(|| {
+                Mlp::new(
+                    &sizes(cond_len, 2 * l),
+                    Activation::Elu,
+                    Activation::Identity,
+                    seed,
+                    &format!("{stage}/prior"),
+                )
+            })
+            .transpose()?,
         decoder: Mlp::new(
             &sizes(l + cond_len, zeta_len),
             Activation::Elu,
             Activation::Tanh,
             seed,
             &format!("{stage}/decoder"),
-        ),
+        )?,
         windows_train: train_idx.len(),
         windows_heldout: held_idx.len(),
         curve: Vec::new(),
@@ -739,7 +722,7 @@ mod tests {
         let e = train(&bad, 8, 7, &p, (1, "t"), &|| {}).expect_err("short ζ");
         assert!(e.to_string().contains("window 5"), "{e}");
         let few = train(&windows(&z[..1], &o[..1]), 8, 7, &p, (1, "t"), &|| {});
-        assert!(matches!(few, Err(CvaeError::TooFewWindows(1))));
+        assert!(matches!(few, Err(Error::TooFewWindows(1))));
     }
 }
 

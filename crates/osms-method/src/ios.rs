@@ -22,6 +22,8 @@ use osms_policy::catch::CatchTaskSpec;
 use osms_sim::{N_ACTION, N_ARM, World};
 use serde::{Deserialize, Serialize};
 
+use crate::{Error, Result};
+
 use crate::intervene::{Intervention, Snippet};
 
 /// The profile's settings. Every default lives here.
@@ -58,18 +60,23 @@ impl Default for IosParams {
 }
 
 impl IosParams {
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<()> {
         if self.stride == 0 || self.window == 0 || self.draws == 0 {
-            return Err("params.stride, params.window and params.draws must be at least 1".into());
-        }
-        if self.first_offset > self.last_offset {
-            return Err(format!(
-                "params.first_offset = {} is after params.last_offset = {}",
-                self.first_offset, self.last_offset
+            return Err(Error::Params(
+                "params.stride, params.window and params.draws must be at least 1".into(),
             ));
         }
+        if self.first_offset > self.last_offset {
+            return Err(Error::Params(format!(
+                "params.first_offset = {} is after params.last_offset = {}",
+                self.first_offset, self.last_offset
+            )));
+        }
         if !(self.size > 0.0 && self.size.is_finite()) {
-            return Err(format!("params.size = {} must be positive", self.size));
+            return Err(Error::Params(format!(
+                "params.size = {} must be positive",
+                self.size
+            )));
         }
         Ok(())
     }
@@ -124,7 +131,7 @@ pub fn profile(
     r: &DemoRollout,
     p: &IosParams,
     rng: &mut StreamRng,
-) -> Result<IosItem, String> {
+) -> Result<IosItem> {
     let rec = &r.record;
     let k_e = rec.metrics.event_step as i64;
     let success = rec.outcome.success();
@@ -171,10 +178,10 @@ pub fn profile(
         base.run_until(agent, *start);
         let n = start * N_ACTION;
         if base.step_index() != *start || base.record().intended[..n] != rec.intended[..n] {
-            return Err(format!(
-                "D_R item {}: the teacher's replay up to step {start} is not the recorded rollout ({} steps)\nhint: `teacher` must be the teacher that collected `data`",
-                r.item, rec.steps
-            ));
+            return Err(Error::ReplayDiverged {
+                item: r.item,
+                until: format!("step {start} (of {} recorded)", rec.steps),
+            });
         }
         let snapshot = base.snapshot();
         for (zeta, norm) in draws.iter().filter(|(_, n)| *n > 0.0) {

@@ -6,6 +6,7 @@ pub mod artifacts;
 pub mod candidates;
 pub mod construct;
 pub mod cvae;
+mod error;
 pub mod error_model;
 pub mod geodesic;
 pub mod intervene;
@@ -16,3 +17,5 @@ pub mod select;
 pub mod sobol;
 pub mod stages;
 pub mod validate;
+
+pub use error::{Error, Result};

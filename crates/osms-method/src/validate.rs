@@ -24,6 +24,8 @@ use osms_policy::catch::CatchTaskSpec;
 use osms_sim::{N_ACTION, World};
 use serde::{Deserialize, Serialize};
 
+use crate::{Error, Result};
+
 use crate::candidates::Candidate;
 use crate::error_model::{ErrorModel, ErrorVariant, Perturber};
 use crate::intervene::{Errors, Intervention, InterventionSnapshot, Snippet, execute};
@@ -93,21 +95,24 @@ impl Default for ValidateParams {
 }
 
 impl ValidateParams {
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<()> {
         if self.q == 0 || self.q > 1024 {
-            return Err(format!("params.q = {} must be between 1 and 1024", self.q));
+            return Err(Error::Params(format!(
+                "params.q = {} must be between 1 and 1024",
+                self.q
+            )));
         }
         if !(0.0..=1.0).contains(&self.delta_sr) {
-            return Err(format!(
+            return Err(Error::Params(format!(
                 "params.delta_sr = {} must be within [0, 1]",
                 self.delta_sr
-            ));
+            )));
         }
         for (name, v) in [("lambda_f", self.lambda_f), ("lambda_d", self.lambda_d)] {
             if !(v >= 0.0 && v.is_finite()) {
-                return Err(format!(
+                return Err(Error::Params(format!(
                     "params.{name} = {v} must be finite and non-negative"
-                ));
+                )));
             }
         }
         Ok(())
@@ -381,7 +386,7 @@ fn unperturbed(success: bool, max_force_n: f64, deviation: f64, p: &ValidatePara
 }
 
 /// Validates one D_R rollout (Alg. 1 steps 3–4) the way `p.exhaustive` says.
-pub fn validate(case: &Case<'_>, p: &ValidateParams) -> Result<(ValidationItem, Cost), String> {
+pub fn validate(case: &Case<'_>, p: &ValidateParams) -> Result<(ValidationItem, Cost)> {
     let r = case.rollout;
     let mut item = ValidationItem {
         item: r.item,
@@ -417,7 +422,7 @@ fn exhaustive(
     p: &ValidateParams,
     item: &mut ValidationItem,
     cost: &mut Cost,
-) -> Result<(), String> {
+) -> Result<()> {
     let r = case.rollout;
     let run = |zeta: &[f32], errors: Option<Errors<'_>>, cost: &mut Cost| {
         let e = execute(
@@ -540,7 +545,7 @@ pub fn unperturbed_reports(
     case: &Case<'_>,
     p: &ValidateParams,
     cost: &mut Cost,
-) -> Result<Vec<CandidateReport>, String> {
+) -> Result<Vec<CandidateReport>> {
     let r = case.rollout;
     let start = r.osw.start;
     let base = prefix(case, None, cost);
@@ -551,10 +556,10 @@ pub fn unperturbed_reports(
         || recorded.intended[..n] != r.record.intended[..n]
         || recorded.executed[..n] != r.record.executed[..n]
     {
-        return Err(format!(
-            "D_R item {}: the teacher's replay up to the window's start (step {start}) differs from the recorded rollout\nhint: `teacher` must be the teacher that collected `data`",
-            r.item
-        ));
+        return Err(Error::ReplayDiverged {
+            item: r.item,
+            until: format!("the window's start (step {start})"),
+        });
     }
     let snapshot = base.snapshot();
     let mut base = (base, snapshot);
@@ -579,7 +584,7 @@ fn fast<'c>(
     p: &ValidateParams,
     item: &mut ValidationItem,
     cost: &mut Cost,
-) -> Result<(), String> {
+) -> Result<()> {
     let r = case.rollout;
     let j_org = p.j_org(item.original.success, item.original.max_force_n);
     item.candidates = unperturbed_reports(case, p, cost)?;

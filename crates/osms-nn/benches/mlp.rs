@@ -61,7 +61,8 @@ fn main() {
         .expect("pool");
     let (t_step, t_infer, t_tiled, t_ref) = pool.install(|| {
         let sizes = [64, 256, 256, 256, 24];
-        let mut net = Mlp::new(&sizes, Activation::Silu, Activation::Identity, 0, "bench");
+        let mut net = Mlp::new(&sizes, Activation::Silu, Activation::Identity, 0, "bench")
+            .expect("a valid MLP");
         let mut opt = Adam::new(AdamConfig::default(), Schedule::Constant { lr: 1e-3 });
         let x = random(256, 64, 1);
         let y = random(256, 24, 2);

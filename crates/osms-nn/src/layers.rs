@@ -3,8 +3,8 @@
 use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
-use crate::Matrix;
 use crate::kernels::{Level, matmul, matmul_nt, matmul_tn};
+use crate::{Error, Matrix, Result};
 
 /// Element-wise activations. SiLU uses [`crate::math::exp`], which runs in SIMD lanes; the
 /// others use `libm`; never the platform's maths library.
@@ -206,25 +206,36 @@ pub struct MlpCache {
 }
 
 impl Mlp {
-    /// `sizes` = [inputs, hidden…, outputs]; layer `l` draws from stream (name, l).
+    /// `sizes` = [inputs, hidden…, outputs]; layer `l` draws from stream (name, l). Refuses
+    /// fewer than two sizes and a layer without units (a width of 0 in params).
     pub fn new(
         sizes: &[usize],
         hidden: Activation,
         output: Activation,
         seed: u64,
         name: &str,
-    ) -> Self {
-        assert!(sizes.len() >= 2, "an MLP needs at least inputs and outputs");
+    ) -> Result<Self> {
+        if sizes.len() < 2 {
+            return Err(Error::TooFewSizes {
+                sizes: sizes.to_vec(),
+            });
+        }
+        if let Some(layer) = sizes.iter().position(|&s| s == 0) {
+            return Err(Error::EmptyLayer {
+                layer,
+                sizes: sizes.to_vec(),
+            });
+        }
         let layers = sizes
             .windows(2)
             .enumerate()
             .map(|(l, w)| Linear::new(w[0], w[1], &mut rng::stream(seed, "nn", name, l as u64)))
             .collect();
-        Mlp {
+        Ok(Mlp {
             layers,
             hidden,
             output,
-        }
+        })
     }
 
     fn activation(&self, layer: usize) -> Activation {
@@ -439,7 +450,7 @@ mod tests {
     ];
 
     fn net(hidden: Activation, output: Activation, seed: u64) -> Mlp {
-        Mlp::new(&[5, 7, 6, 3], hidden, output, seed, "t")
+        Mlp::new(&[5, 7, 6, 3], hidden, output, seed, "t").expect("a valid MLP")
     }
 
     fn random(rows: usize, cols: usize, seed: u64) -> Matrix {

@@ -4,6 +4,7 @@
 //! Entry points: [`kernels`] (matrix products, reductions), [`Mlp`] (forward, backward),
 //! [`mse`]/[`weighted_mse`], [`Adam`].
 
+mod error;
 mod extra;
 pub mod kernels;
 mod layers;
@@ -12,6 +13,7 @@ pub mod math;
 mod matrix;
 mod optim;
 
+pub use error::{Error, Result};
 pub use extra::{
     DiagGaussian, GaussianGrad, LayerNorm, LayerNormCache, sinusoidal_embedding,
     sinusoidal_embedding_backward, softmax_cross_entropy,

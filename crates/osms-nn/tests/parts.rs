@@ -219,7 +219,8 @@ fn input_jacobian_matches_finite_differences() {
         Activation::Tanh,
         11,
         "decoder",
-    );
+    )
+    .expect("a valid MLP");
     let x: Vec<f32> = random(1, 6, 12, 1.0).data;
     let range = 2..5;
     let jac = net.input_jacobian(&x, range.clone());
@@ -249,7 +250,8 @@ fn a_small_classification_reaches_a_known_loss() {
         Activation::Identity,
         1,
         "blobs",
-    );
+    )
+    .expect("a valid MLP");
     let mut opt = Adam::new(AdamConfig::default(), Schedule::Constant { lr: 0.02 });
     let mut loss = f32::NAN;
     for _ in 0..300 {
@@ -265,4 +267,23 @@ fn a_small_classification_reaches_a_known_loss() {
         loss = l;
     }
     assert!(loss < 0.05, "cross-entropy {loss}");
+}
+
+#[test]
+fn an_mlp_without_an_output_or_with_an_empty_layer_is_refused() {
+    let build = |sizes: &[usize]| Mlp::new(sizes, Activation::Silu, Activation::Identity, 0, "bad");
+    assert!(matches!(
+        build(&[4]),
+        Err(osms_nn::Error::TooFewSizes { .. })
+    ));
+    let err = build(&[4, 8, 0, 2]).expect_err("a layer without units");
+    assert!(
+        matches!(err, osms_nn::Error::EmptyLayer { layer: 2, .. }),
+        "{err}"
+    );
+    assert!(
+        err.to_string().contains("hint: every width in `hidden`"),
+        "{err}"
+    );
+    assert!(build(&[4, 8, 2]).is_ok());
 }

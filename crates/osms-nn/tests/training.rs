@@ -79,7 +79,7 @@ fn every_activation_layer_and_loss_has_the_finite_difference_gradient() {
         Activation::Elu,
     ] {
         for out in [Activation::Identity, Activation::Tanh] {
-            let net = Mlp::new(&[4, 5, 5, 3], act, out, 7, "gradcheck");
+            let net = Mlp::new(&[4, 5, 5, 3], act, out, 7, "gradcheck").expect("a valid MLP");
             check_gradients(
                 &net,
                 &x,
@@ -104,7 +104,8 @@ fn fit_sine(steps: u32, seed: u64) -> (f32, Vec<u8>) {
         Activation::Identity,
         seed,
         "sine",
-    );
+    )
+    .expect("a valid MLP");
     let mut opt = Adam::new(
         AdamConfig {
             max_grad_norm: Some(10.0),
@@ -169,7 +170,8 @@ fn weights_round_trip_through_the_artifact_codec() {
         Activation::Identity,
         5,
         "store",
-    );
+    )
+    .expect("a valid MLP");
     let bytes = osms_core::encode(&net).expect("encode");
     let back: Mlp = osms_core::decode(&bytes).expect("decode");
     assert_eq!(back, net);
@@ -204,7 +206,7 @@ fn inference_and_training_forward_passes_agree_bit_for_bit() {
         Activation::Relu,
         Activation::Identity,
     ] {
-        let net = Mlp::new(&[5, 19, 7], act, act, 4, "agree");
+        let net = Mlp::new(&[5, 19, 7], act, act, 4, "agree").expect("a valid MLP");
         for batch in [1, 2, 9] {
             let x = random(batch, 5, 8);
             let bits = |m: &Matrix| m.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
@@ -231,7 +233,8 @@ fn parameter_gradients_alone_equal_the_full_backward_pass() {
         Activation::Tanh,
         9,
         "param-grads",
-    );
+    )
+    .expect("a valid MLP");
     let x = random(10, 6, 11);
     let (y, cache) = net.forward_cached(&x);
     let (_, dy) = mse(&y, &random(10, 3, 12));

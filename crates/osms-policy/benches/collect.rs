@@ -57,7 +57,8 @@ fn main() {
         ..PpoConfig::default()
     };
 
-    let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench"));
+    let mut agent =
+        Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench")).expect("a valid agent");
     if let Some(b) = agent
         .actor
         .layers
@@ -107,7 +108,8 @@ fn main() {
         };
         pool.install(|| {
             best(|| {
-                let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench"));
+                let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench"))
+                    .expect("a valid agent");
                 train(&task, &mut agent, &config, (0, "bench"), &|_| {}).expect("trains");
                 (agent.curve[0].steps as f64, ())
             })

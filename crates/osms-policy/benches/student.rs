@@ -71,7 +71,8 @@ fn main() {
         task.act_len(),
         &PpoConfig::default(),
         (0, "bench"),
-    );
+    )
+    .expect("a valid agent");
     let dr = |i: u64| rng::stream(0, "bench", "dr", i);
     let teacher_records: Vec<_> = (0..EPISODES)
         .map(|i| rollout(&world, &spec, &agent, task.condition(i).expect("ω"), dr(i)))

@@ -24,6 +24,8 @@ pub enum Error {
     NoPrivilegedFrames,
     #[error("the rollout kept no arm servo targets")]
     NoArmTargets,
+    #[error(transparent)]
+    Network(#[from] osms_nn::Error),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -47,16 +47,16 @@ impl FlowNet {
         time_embedding: usize,
         seed: u64,
         name: &str,
-    ) -> Self {
+    ) -> osms_nn::Result<Self> {
         let mut sizes = vec![cond_len + time_embedding + x_len];
         sizes.extend_from_slice(hidden);
         sizes.push(x_len);
-        FlowNet {
-            mlp: Mlp::new(&sizes, Activation::Silu, Activation::Identity, seed, name),
+        Ok(FlowNet {
+            mlp: Mlp::new(&sizes, Activation::Silu, Activation::Identity, seed, name)?,
             x_len,
             cond_len,
             time_embedding,
-        }
+        })
     }
 
     /// The network's input rows [c, emb(t), x].
@@ -222,7 +222,7 @@ mod tests {
 
     #[test]
     fn the_loss_gradient_matches_finite_differences() {
-        let net = FlowNet::new(3, 2, &[8], 4, 7, "fd");
+        let net = FlowNet::new(3, 2, &[8], 4, 7, "fd").expect("a valid network");
         let mut r = rng::stream(0, "test", "fd", 0);
         let x1 = Matrix::from_vec(4, 3, normals(&mut r, 12));
         let x0 = Matrix::from_vec(4, 3, normals(&mut r, 12));
@@ -269,7 +269,7 @@ mod tests {
                 c + sigma * rng::normal(r) as f32,
             ]
         };
-        let mut net = FlowNet::new(2, 1, &[64, 64], 16, 3, "mixture");
+        let mut net = FlowNet::new(2, 1, &[64, 64], 16, 3, "mixture").expect("a valid network");
         let mut opt = Adam::new(
             AdamConfig::default(),
             Schedule::Cosine {

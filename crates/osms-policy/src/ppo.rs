@@ -140,7 +140,7 @@ impl Agent {
         act_len: usize,
         config: &PpoConfig,
         (seed, stage): (u64, &str),
-    ) -> Self {
+    ) -> crate::Result<Self> {
         let sizes = |out: usize| {
             std::iter::once(obs_len)
                 .chain(config.hidden.iter().copied())
@@ -153,7 +153,7 @@ impl Agent {
             Activation::Identity,
             seed,
             &format!("{stage}/actor"),
-        );
+        )?;
         if config.zero_init_actor_output
             && let Some(last) = actor.layers.last_mut()
         {
@@ -166,14 +166,14 @@ impl Agent {
             Activation::Identity,
             seed,
             &format!("{stage}/critic"),
-        );
-        Agent {
+        )?;
+        Ok(Agent {
             actor,
             critic,
             log_std: vec![config.init_log_std; act_len],
             obs_norm: RunningNorm::new(obs_len, config.obs_clip),
             curve: Vec::new(),
-        }
+        })
     }
 
     /// The deterministic action tanh(μ(s)) for a raw observation.

@@ -332,7 +332,7 @@ impl Student {
                 p.time_embedding,
                 seed,
                 &format!("{stage}/velocity"),
-            ),
+            )?,
             curve: Vec::new(),
             train_rollouts: train.len(),
             train_samples: samples.len(),

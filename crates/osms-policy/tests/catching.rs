@@ -72,7 +72,8 @@ fn short_training(threads: usize) -> blake3::Hash {
         .build()
         .expect("pool");
     let agent = pool.install(|| {
-        let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (1, "test"));
+        let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (1, "test"))
+            .expect("a valid agent");
         train(&task, &mut agent, &config, (1, "test"), &|_| {}).expect("trains");
         agent
     });
@@ -95,7 +96,7 @@ fn lively_agent(task: &CatchTask<'_>) -> Agent {
         zero_init_actor_output: false,
         ..PpoConfig::default()
     };
-    Agent::new(task.obs_len(), task.act_len(), &config, (2, "test"))
+    Agent::new(task.obs_len(), task.act_len(), &config, (2, "test")).expect("a valid agent")
 }
 
 #[test]
@@ -165,7 +166,9 @@ fn network_initialisation_streams_include_the_stage_name() {
         hidden: vec![16],
         ..PpoConfig::default()
     };
-    let agent = |stage: &str| Agent::new(task.obs_len(), task.act_len(), &config, (0, stage));
+    let agent = |stage: &str| {
+        Agent::new(task.obs_len(), task.act_len(), &config, (0, stage)).expect("a valid agent")
+    };
     let (a, b) = (agent("teacher"), agent("teacher_catch_only"));
     assert_ne!(a.actor.layers[0].w.data, b.actor.layers[0].w.data);
     assert_ne!(a.critic.layers[0].w.data, b.critic.layers[0].w.data);
@@ -189,7 +192,8 @@ fn a_condition_that_cannot_be_drawn_is_an_error_not_condition_zero() {
         hidden: vec![8],
         ..PpoConfig::default()
     };
-    let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "t"));
+    let mut agent =
+        Agent::new(task.obs_len(), task.act_len(), &config, (0, "t")).expect("a valid agent");
     let err = train(&task, &mut agent, &config, (0, "t"), &|_| {}).expect_err("training stops");
     assert!(
         matches!(

@@ -91,7 +91,7 @@ fn trained(threads: usize) -> Agent {
         .expect("pool");
     pool.install(|| {
         let config = config();
-        let mut agent = Agent::new(1, 1, &config, (3, "test"));
+        let mut agent = Agent::new(1, 1, &config, (3, "test")).expect("a valid agent");
         train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {}).expect("trains");
         agent
     })

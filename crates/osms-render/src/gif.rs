@@ -4,6 +4,7 @@
 
 use gif::{DisposalMethod, Encoder, Frame, Repeat};
 
+use crate::RenderError;
 use crate::image::Image;
 
 /// Bits kept per channel for the histogram and the colour look-up (5: 32768 cells).
@@ -144,7 +145,7 @@ impl Palette {
 
 /// An animated GIF of `frames` (all of one size, each side below 65536), each shown for its
 /// delay in hundredths of a second, looping forever.
-pub fn encode(frames: &[(Image, u16)]) -> Result<Vec<u8>, String> {
+pub fn encode(frames: &[(Image, u16)]) -> crate::Result<Vec<u8>> {
     let Some((first, _)) = frames.first() else {
         return Ok(Vec::new());
     };
@@ -154,14 +155,16 @@ pub fn encode(frames: &[(Image, u16)]) -> Result<Vec<u8>, String> {
         || first.width > u32::from(u16::MAX)
         || first.height > u32::from(u16::MAX)
     {
-        return Err("GIF frames must have one size below 65536 pixels a side".into());
+        return Err(RenderError::Gif(
+            "GIF frames must have one size below 65536 pixels a side".into(),
+        ));
     }
     encode_frames(
         first,
         frames,
         &Palette::median_cut(frames.iter().map(|(f, _)| f), 256),
     )
-    .map_err(|e| e.to_string())
+    .map_err(|e| RenderError::Gif(e.to_string()))
 }
 
 fn encode_frames(

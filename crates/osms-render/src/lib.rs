@@ -55,6 +55,8 @@ pub enum RenderError {
     Gif(String),
 }
 
+pub type Result<T, E = RenderError> = std::result::Result<T, E>;
+
 /// A free camera: it looks at `lookat` from `distance` metres, turned `azimuth_deg` about the
 /// world z axis (0: looking along +x, 90: along +y) and `elevation_deg` above the horizon
 /// (negative: looking down), with the model's vertical field of view (45° by default).

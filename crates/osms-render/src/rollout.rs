@@ -356,7 +356,7 @@ pub fn render_rollout(
             (image, d)
         })
         .collect();
-    let gif = crate::gif::encode(&frames).map_err(RenderError::Gif)?;
+    let gif = crate::gif::encode(&frames)?;
     Ok(Rendered {
         key_frames,
         strip,

@@ -6,9 +6,11 @@
 pub mod ablations;
 pub mod artifacts;
 pub mod claims;
+mod error;
 pub mod figures;
 pub mod plot;
 pub mod stages;
 pub mod tables;
 
+pub use error::{Error, Result};
 pub use stages::register;

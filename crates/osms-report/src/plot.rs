@@ -12,6 +12,8 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 use serde::{Deserialize, Serialize};
 
+use crate::{Error, Result};
+
 /// How a series is drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -141,44 +143,55 @@ impl Figure {
         out
     }
 
-    pub fn svg(&self) -> Result<String, String> {
+    pub fn svg(&self) -> Result<String> {
         register_font();
         let mut s = String::new();
         {
             let root = SVGBackend::with_string(&mut s, self.size()).into_drawing_area();
-            self.draw(&root).map_err(|e| format!("{}: {e}", self.id))?;
-            root.present().map_err(|e| format!("{}: {e}", self.id))?;
+            self.draw(&root).map_err(|e| self.draw_error(e))?;
+            root.present().map_err(|e| self.draw_error(e))?;
         }
         Ok(s)
     }
 
-    pub fn png(&self) -> Result<Vec<u8>, String> {
+    pub fn png(&self) -> Result<Vec<u8>> {
         register_font();
         let (w, h) = self.size();
         let mut rgb = vec![0u8; (w * h * 3) as usize];
         {
             let root = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
-            self.draw(&root).map_err(|e| format!("{}: {e}", self.id))?;
-            root.present().map_err(|e| format!("{}: {e}", self.id))?;
+            self.draw(&root).map_err(|e| self.draw_error(e))?;
+            root.present().map_err(|e| self.draw_error(e))?;
         }
         let mut out = Vec::new();
         {
             let mut enc = png::Encoder::new(&mut out, w, h);
             enc.set_color(png::ColorType::Rgb);
             enc.set_depth(png::BitDepth::Eight);
-            let mut writer = enc.write_header().map_err(|e| e.to_string())?;
-            writer.write_image_data(&rgb).map_err(|e| e.to_string())?;
+            let png = |source| Error::Png {
+                figure: self.id.clone(),
+                source,
+            };
+            let mut writer = enc.write_header().map_err(png)?;
+            writer.write_image_data(&rgb).map_err(png)?;
         }
         Ok(out)
     }
 
     /// `<id>.svg`, `<id>.png` and `<id>.csv`.
-    pub fn files(&self) -> Result<Vec<(String, Vec<u8>)>, String> {
+    pub fn files(&self) -> Result<Vec<(String, Vec<u8>)>> {
         Ok(vec![
             (format!("{}.svg", self.id), self.svg()?.into_bytes()),
             (format!("{}.png", self.id), self.png()?),
             (format!("{}.csv", self.id), self.csv().into_bytes()),
         ])
+    }
+
+    fn draw_error(&self, e: impl std::fmt::Display) -> Error {
+        Error::Draw {
+            figure: self.id.clone(),
+            message: e.to_string(),
+        }
     }
 
     fn draw<DB: DrawingBackend>(

@@ -341,7 +341,8 @@ fn main() {
         teacher_spec.act_len(),
         &config,
         (0, "bench-teacher"),
-    );
+    )
+    .expect("a valid agent");
     // An untrained actor's follow-through output sits near zero, where the channel's Jacobian
     // solve is skipped; a trained teacher uses it at most steps.
     if let Some(b) = agent

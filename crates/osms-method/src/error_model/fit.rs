@@ -7,6 +7,7 @@
 
 use super::model::*;
 use crate::linalg::{lower_times_transpose, robust_cholesky};
+use crate::{Error, Result};
 
 /// Fits Eq. 7 to paired student/teacher actions (section 4.3).
 ///
@@ -19,24 +20,24 @@ pub fn fit(
     sequences: &[PairSequence<'_>],
     channels: usize,
     params: &ErrorFitParams,
-) -> Result<ErrorModel, FitError> {
+) -> Result<ErrorModel> {
     if !params.kappa.is_finite() {
-        return Err(FitError::InvalidParams(format!(
+        return Err(Error::InvalidFitParams(format!(
             "kappa {} is not finite",
             params.kappa
         )));
     }
     if !(0.0..1.0).contains(&params.max_ar) {
-        return Err(FitError::InvalidParams(format!(
+        return Err(Error::InvalidFitParams(format!(
             "max_ar {} is not in [0, 1)",
             params.max_ar
         )));
     }
     if channels == 0 {
-        return Err(FitError::NoChannels);
+        return Err(Error::NoChannels);
     }
     if sequences.is_empty() {
-        return Err(FitError::NoSequences);
+        return Err(Error::NoSequences);
     }
     check_sequences(sequences, channels)?;
 
@@ -62,7 +63,7 @@ pub fn fit(
                         let p = match fit_group(sequences, channels, Group::All, params) {
                             GroupFit::Model(m) => m,
                             GroupFit::Empty => {
-                                return Err(FitError::TooFewPooledSamples {
+                                return Err(Error::TooFewPooledSamples {
                                     samples: 0,
                                     needed: needed_samples(channels),
                                     what: "regression samples",
@@ -73,7 +74,7 @@ pub fn fit(
                                 needed,
                                 what,
                             } => {
-                                return Err(FitError::TooFewPooledSamples {
+                                return Err(Error::TooFewPooledSamples {
                                     samples,
                                     needed,
                                     what,
@@ -101,12 +102,12 @@ pub fn fit(
     })
 }
 
-pub(super) fn check_sequences(sequences: &[PairSequence<'_>], c: usize) -> Result<(), FitError> {
+pub(super) fn check_sequences(sequences: &[PairSequence<'_>], c: usize) -> Result<()> {
     for (i, s) in sequences.iter().enumerate() {
         let steps = s.steps();
         let expected = steps * c;
         if s.student.len() != expected || s.teacher.len() != expected {
-            return Err(FitError::LengthMismatch {
+            return Err(Error::LengthMismatch {
                 sequence: i,
                 student: s.student.len(),
                 teacher: s.teacher.len(),
@@ -117,7 +118,7 @@ pub(super) fn check_sequences(sequences: &[PairSequence<'_>], c: usize) -> Resul
         }
         for n in 0..steps {
             if usize::from(s.phase[n]) >= N_PHASES {
-                return Err(FitError::PhaseOutOfRange {
+                return Err(Error::PhaseOutOfRange {
                     sequence: i,
                     step: n,
                     phase: s.phase[n],
@@ -127,7 +128,7 @@ pub(super) fn check_sequences(sequences: &[PairSequence<'_>], c: usize) -> Resul
             let finite = s.student[row.clone()].iter().all(|v| v.is_finite())
                 && s.teacher[row].iter().all(|v| v.is_finite());
             if !finite {
-                return Err(FitError::NonFinite {
+                return Err(Error::NonFinite {
                     sequence: i,
                     step: n,
                 });
@@ -393,7 +394,7 @@ fn fit_group(
 }
 
 /// Table III's global i.i.d. Gaussian: one mean and covariance of `a − ā` over every step.
-fn fit_global(sequences: &[PairSequence<'_>], c: usize) -> Result<PhaseModel, FitError> {
+fn fit_global(sequences: &[PairSequence<'_>], c: usize) -> Result<PhaseModel> {
     let mut cov = Covariance::new(c);
     let mut dev = vec![0.0; c];
     for s in sequences {
@@ -406,7 +407,7 @@ fn fit_global(sequences: &[PairSequence<'_>], c: usize) -> Result<PhaseModel, Fi
     }
     let needed = needed_samples(c);
     if cov.n < needed {
-        return Err(FitError::TooFewPooledSamples {
+        return Err(Error::TooFewPooledSamples {
             samples: cov.n,
             needed,
             what: "samples",
@@ -635,18 +636,18 @@ mod tests {
         bad[1].student = short;
         let err = fit(&bad, C, &params).expect_err("length");
         assert!(
-            matches!(err, FitError::LengthMismatch { sequence: 1, .. }),
+            matches!(err, Error::LengthMismatch { sequence: 1, .. }),
             "{err}"
         );
         let mut bad = pairs.clone();
         bad[2].phase = &data.phase[2][1..];
         assert!(matches!(
             fit(&bad, C, &params),
-            Err(FitError::LengthMismatch { sequence: 2, .. })
+            Err(Error::LengthMismatch { sequence: 2, .. })
         ));
         assert!(matches!(
             fit(&pairs, 2, &params),
-            Err(FitError::LengthMismatch { sequence: 0, .. })
+            Err(Error::LengthMismatch { sequence: 0, .. })
         ));
 
         // Phase out of range.
@@ -657,7 +658,7 @@ mod tests {
         let err = fit(&bad, C, &params).expect_err("phase");
         assert!(matches!(
             err,
-            FitError::PhaseOutOfRange {
+            Error::PhaseOutOfRange {
                 sequence: 0,
                 step: 17,
                 phase: 5
@@ -707,21 +708,18 @@ mod tests {
         };
         assert!(matches!(
             fit(&[head(6)], C, &params),
-            Err(FitError::TooFewPooledSamples { samples: 2, .. })
+            Err(Error::TooFewPooledSamples { samples: 2, .. })
         ));
         let err = fit(&[head(4)], C, &params).expect_err("nothing");
         println!("{err}");
-        assert!(matches!(
-            err,
-            FitError::TooFewPooledSamples { samples: 0, .. }
-        ));
+        assert!(matches!(err, Error::TooFewPooledSamples { samples: 0, .. }));
         let global = ErrorFitParams {
             variant: ErrorVariant::GlobalIid,
             ..params.clone()
         };
         assert!(matches!(
             fit(&[head(4)], C, &global),
-            Err(FitError::TooFewPooledSamples { samples: 4, .. })
+            Err(Error::TooFewPooledSamples { samples: 4, .. })
         ));
 
         // Non-finite actions, bad parameters, nothing to fit.
@@ -731,7 +729,7 @@ mod tests {
         bad[0].student = &nan;
         assert!(matches!(
             fit(&bad, C, &params),
-            Err(FitError::NonFinite {
+            Err(Error::NonFinite {
                 sequence: 0,
                 step: 2
             })
@@ -742,9 +740,9 @@ mod tests {
         };
         assert!(matches!(
             fit(&pairs, C, &unstable),
-            Err(FitError::InvalidParams(_))
+            Err(Error::InvalidFitParams(_))
         ));
-        assert!(matches!(fit(&[], C, &params), Err(FitError::NoSequences)));
-        assert!(matches!(fit(&pairs, 0, &params), Err(FitError::NoChannels)));
+        assert!(matches!(fit(&[], C, &params), Err(Error::NoSequences)));
+        assert!(matches!(fit(&pairs, 0, &params), Err(Error::NoChannels)));
     }
 }

@@ -3,6 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::{Error, Result};
+
 /// Catching phases: approach, velocity matching, contact, follow-through, grasping.
 pub const N_PHASES: usize = 5;
 
@@ -120,48 +122,6 @@ pub struct ErrorModel {
     pub phases: Vec<PhaseModel>,
 }
 
-/// Why [`fit`] refused its input.
-#[derive(Debug, thiserror::Error)]
-pub enum FitError {
-    #[error("the model needs at least one action channel")]
-    NoChannels,
-    #[error("no sequences to fit")]
-    NoSequences,
-    #[error("invalid fit parameters: {0}")]
-    InvalidParams(String),
-    #[error(
-        "sequence {sequence}: student has {student} values and teacher {teacher}, \
-         but {steps} phases × {channels} channels need {expected}"
-    )]
-    LengthMismatch {
-        sequence: usize,
-        student: usize,
-        teacher: usize,
-        steps: usize,
-        channels: usize,
-        expected: usize,
-    },
-    #[error("sequence {sequence}, step {step}: phase {phase} is out of range (phases are 0..=4)")]
-    PhaseOutOfRange {
-        sequence: usize,
-        step: usize,
-        phase: u8,
-    },
-    #[error("sequence {sequence}, step {step}: an action is not finite")]
-    NonFinite { sequence: usize, step: usize },
-    #[error("all phases pooled: {samples} {what}, at least {needed} needed")]
-    TooFewPooledSamples {
-        samples: usize,
-        needed: usize,
-        what: &'static str,
-    },
-}
-
-/// An [`ErrorModel`] whose shapes do not fit together (e.g. hand-edited or deserialized).
-#[derive(Debug, thiserror::Error)]
-#[error("malformed action-error model: {0}")]
-pub struct MalformedModel(pub String);
-
 impl ErrorModel {
     /// The model of unperturbed-only validation.
     pub fn unperturbed(channels: usize) -> Self {
@@ -175,23 +135,25 @@ impl ErrorModel {
 
     /// Checks that every phase carries vectors and matrices of `channels` entries and a stable
     /// AR process.
-    pub fn validate(&self) -> Result<(), MalformedModel> {
+    pub fn validate(&self) -> Result<()> {
         let c = self.channels;
         if self.variant == ErrorVariant::Unperturbed {
             return if self.phases.is_empty() {
                 Ok(())
             } else {
-                Err(MalformedModel("an unperturbed model has no phases".into()))
+                Err(Error::MalformedModel(
+                    "an unperturbed model has no phases".into(),
+                ))
             };
         }
         if self.phases.len() != N_PHASES {
-            return Err(MalformedModel(format!(
+            return Err(Error::MalformedModel(format!(
                 "{} phases instead of {N_PHASES}",
                 self.phases.len()
             )));
         }
         if !self.kappa.is_finite() {
-            return Err(MalformedModel("kappa is not finite".into()));
+            return Err(Error::MalformedModel("kappa is not finite".into()));
         }
         for (i, p) in self.phases.iter().enumerate() {
             let shapes_ok = p.gain.len() == c
@@ -200,18 +162,18 @@ impl ErrorModel {
                 && p.l.len() == c * c
                 && p.stationary.len() == c * c;
             if !shapes_ok {
-                return Err(MalformedModel(format!(
+                return Err(Error::MalformedModel(format!(
                     "phase {i}: parameter shapes do not match {c} channels"
                 )));
             }
             let upper_zero = (0..c).all(|i| (i + 1..c).all(|j| p.l[i * c + j] == 0.0));
             if !upper_zero {
-                return Err(MalformedModel(format!(
+                return Err(Error::MalformedModel(format!(
                     "phase {i}: L is not lower-triangular"
                 )));
             }
             if p.ar.iter().any(|a| a.is_nan() || a.abs() >= 1.0) {
-                return Err(MalformedModel(format!(
+                return Err(Error::MalformedModel(format!(
                     "phase {i}: an AR coefficient is not inside (−1, 1)"
                 )));
             }

@@ -68,18 +68,20 @@ impl Default for BaselineParams {
 
 impl BaselineParams {
     /// `has_target`: whether the `target` input is wired.
-    fn check(&self, has_target: bool) -> Result<(), String> {
+    fn check(&self, has_target: bool) -> crate::Result<()> {
         if self.extend && !has_target {
-            return Err("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into());
+            return Err(crate::Error::Params("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into()));
         }
         if self.max_attempts == 0 {
-            return Err("params.max_attempts must be at least 1".into());
+            return Err(crate::Error::Params(
+                "params.max_attempts must be at least 1".into(),
+            ));
         }
         if !(self.margin >= 1.0 && self.margin <= 10.0) {
-            return Err(format!(
+            return Err(crate::Error::Params(format!(
                 "params.margin = {} must be within [1, 10]",
                 self.margin
-            ));
+            )));
         }
         Ok(())
     }

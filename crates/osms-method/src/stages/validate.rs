@@ -97,7 +97,7 @@ fn validate_with_cost(
     ctx: &Ctx<'_, ValidateParams>,
     inputs: &Inputs,
     index: usize,
-) -> Result<(ValidationItem, Cost), String> {
+) -> crate::Result<(ValidationItem, Cost)> {
     let streams = streams(ctx);
     let item = inputs.rollouts[index].item;
     let errors = move |q| streams.rng(item, q);

@@ -50,7 +50,8 @@ impl Stage for TeacherStage {
             );
         }
         let task = CatchTask::new(&world, p.task.clone(), seed, ctx.stage(), "train")?;
-        let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, (seed, ctx.stage()));
+        let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, (seed, ctx.stage()))
+            .map_err(|e| format!("params.ppo: {e}"))?;
         let progress = ctx.progress();
         progress.set_total(u64::from(p.ppo.iterations));
         train(&task, &mut agent, &p.ppo, (seed, ctx.stage()), &|_| {

@@ -82,7 +82,7 @@ impl Report {
 
     /// Every file of the report directory but the provenance: `index.md`, the tables'
     /// Markdown, CSV and JSON, the figures' SVG, PNG and CSV, `claims.json`.
-    pub fn render(&self) -> Result<Vec<(String, Vec<u8>)>, String> {
+    pub fn render(&self) -> crate::Result<Vec<(String, Vec<u8>)>> {
         let mut files = vec![("index.md".to_string(), self.index().into_bytes())];
         for a in [&self.table1, &self.construction, &self.candidates] {
             files.extend(a.files.iter().cloned());
@@ -93,7 +93,7 @@ impl Report {
         for f in &self.figures {
             files.extend(f.files()?);
         }
-        let claims = serde_json::to_string_pretty(&self.claims).map_err(|e| e.to_string())?;
+        let claims = serde_json::to_string_pretty(&self.claims)?;
         files.push(("claims.json".into(), (claims + "\n").into_bytes()));
         Ok(files)
     }
