@@ -1,4 +1,5 @@
 use std::path::PathBuf;
+use std::str::FromStr;
 
 use crate::Hash;
 
@@ -53,5 +54,18 @@ impl Error {
             path: path.into(),
             source,
         }
+    }
+}
+
+// Parsing a hash is where a `Hash` meets the error type; it lives here so that hash.rs needs
+// nothing of this module (no import circle between the two).
+impl FromStr for Hash {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self, Error> {
+        blake3::Hash::from_hex(s)
+            .map(Hash::from)
+            .map_err(|_| Error::BadHash {
+                text: s.to_string(),
+            })
     }
 }
