@@ -1,5 +1,4 @@
-//! End-to-end tests of osms: test-only stage kinds, a test binary, golden snapshots and
-//! benchmarks.
+//! End-to-end tests of osms: test-only stage kinds, a test binary, golden snapshots and benchmarks.
 //!
 //! The kinds here exercise every engine feature (itemised and plain kinds, seeded and unseeded,
 //! fixed seeds, several inputs, early cutoff, MuJoCo rollouts sharing one model across

@@ -1,6 +1,6 @@
-//! The foundation of osms: seeded RNG streams and samplers, the Artifact trait and its
-//! canonical postcard+zstd encoding, NoParams, and the one table model (Markdown, CSV, JSON;
-//! the paper's value beside ours; mean ± sd over seeds).
+//! The foundation of osms: seeded RNG streams and samplers, the Artifact trait and its canonical
+//! postcard+zstd encoding, NoParams, and the one table model (Markdown, CSV, JSON; the paper's
+//! value beside ours; mean ± sd over seeds).
 //!
 //! Everything above depends on it and it on nothing of osms: the numeric core (`osms-nn`)
 //! draws its initial weights from [`rng`] and stores networks as [`Artifact`]s without

@@ -1,6 +1,14 @@
-//! The paper's method (section 4.1): the OSW motion manifold (a conditional VAE), projection of
-//! an original snippet onto it (Eq. 3), the decoder's pullback metric (Eq. 4), Sobol shooting
-//! directions and geodesic shooting (Eq. 5), and the candidate sets η (Eq. 6).
+//! The paper's method: the OSW motion manifold (conditional VAE), projection, pullback metric and
+//! geodesic candidate sets with the ablation generators, the IL-student action-error model and its
+//! Table III metrics, candidate validation, D_* and the Naive and Normal baselines, and the IOS
+//! profile, with their stage kinds.
+//!
+//! Rooms: library modules know nothing of the engine: [`cvae`] (the manifold), [`project`] (Eq. 3),
+//! [`geodesic`] (Eqs. 4–5), [`sobol`] and [`candidates`] (Eq. 6), [`error_model`] (Eq. 7: model,
+//! fit, perturber, Table III metrics), [`intervene`], [`validate`] and [`select`] (Eqs. 8–9,
+//! Alg. 1), [`construct`] (D_* and the baselines' groups) and [`ios`] (Eq. 1); one small
+//! linear-algebra module serves them all. [`artifacts`] holds the stored types and
+//! [`stages`] one thin adapter per stage kind.
 
 pub mod artifacts;
 pub mod candidates;

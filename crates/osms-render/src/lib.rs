@@ -1,5 +1,5 @@
-//! Headless offscreen rendering of rollouts with MuJoCo's own renderer through Mesa's OSMesa
-//! (software rendering with llvmpipe: no GPU, no display).
+//! Headless offscreen rendering of rollouts with MuJoCo's own renderer through Mesa's OSMesa (no
+//! GPU, no display): key-frame strips, animated GIFs and faded-pose figures.
 //!
 //! `libOSMesa.so.8` (Debian package `libosmesa6`, installed by `scripts/setup-render`) is loaded
 //! at run time; nothing links against it, so the workspace builds without it and only

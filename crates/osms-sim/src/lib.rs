@@ -1,5 +1,11 @@
-//! The MuJoCo catching world: xArm7 + ORCA-like hand + ten objects as MJCF, task conditions,
-//! domain randomisation, control loop, contacts, metrics and success, scripted catcher.
+//! The MuJoCo catching world: xArm7 + ORCA-like hand + ten objects as MJCF, task conditions ω,
+//! domain randomisation, the rollout loop with contacts, metrics and success, the scripted catcher
+//! and open-loop replay, with the world, conditions and scripted-evaluation stage kinds.
+//!
+//! Rooms: the world and its rollouts ([`world`], [`mjcf`], [`episode`], [`control`],
+//! [`metrics`], [`catcher`], [`replay`]) know nothing of the engine; [`artifacts`] holds the
+//! world, condition-set and evaluation artifacts and [`stages`] one thin adapter per stage
+//! kind.
 
 pub mod artifacts;
 pub mod catcher;

@@ -1,5 +1,5 @@
-//! Content-addressed artifact store: blake3 hashes, a versioned postcard+zstd codec, atomic
-//! verified reads and writes, an index of stage records, locks, verify and gc.
+//! Content-addressed artifact store: blake3 hashes, atomic verified reads and writes of encoded
+//! artifacts, an index of stage records, locks, verify and gc.
 //!
 //! Entry points: [`Store`] (objects, records, lock, verify, gc), [`Hash`] (content hashes and
 //! stage keys). The artifact codec the objects are written in is `osms_core`'s.

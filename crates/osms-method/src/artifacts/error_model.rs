@@ -33,7 +33,7 @@ pub struct ErrorModelArtifact {
     pub params: ErrorFitParams,
     /// The model of `params.variant`, the one validation applies.
     pub model: ErrorModel,
-    /// All four models of Table III, fitted on the same pairs, in [`ErrorVariant::TABLE3`] order.
+    /// All four models of Table III, fitted on the same pairs, in [`ErrorVariant::TABLE3`](crate::error_model::ErrorVariant::TABLE3) order.
     pub variants: Vec<VariantFit>,
     pub folds: Vec<FoldStats>,
     /// Pair steps per phase (online phase, in phase order).

@@ -39,7 +39,7 @@ pub struct Table3Metrics {
 ///
 /// # Panics
 /// If the model fails [`ErrorModel::validate`], or a sequence's lengths or phases do not match
-/// the model (checked as in [`fit`]).
+/// the model (checked as in [`fit`](super::fit)).
 pub fn table3_metrics(
     model: &ErrorModel,
     sequences: &[PairSequence<'_>],
