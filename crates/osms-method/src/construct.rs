@@ -69,6 +69,8 @@ impl Inputs {
         Ok(())
     }
 
+    /// Rollout `index` as validation sees it; `errors(q)` gives perturbed rollout q's
+    /// innovations.
     pub fn case<'a>(&'a self, index: usize, errors: &'a dyn Fn(usize) -> StreamRng) -> Case<'a> {
         Case {
             world: &self.world,
@@ -82,6 +84,8 @@ impl Inputs {
     }
 }
 
+/// A demonstration of one executed rollout: its deployable frames labelled with `actions`
+/// (what the policy commanded), and its f_max.
 pub fn entry(
     execution: Execution,
     record: &osms_sim::RolloutRecord,
@@ -101,7 +105,8 @@ pub fn entry(
 /// D_* (Alg. 1 step 4): for a refined or repaired rollout the selected ζ*'s unperturbed
 /// rollout and every successful perturbed one (labels: the commanded actions, modelled
 /// perturbations included); a kept original as it ran; nothing for a dropped one. The
-/// rollouts are re-run with the validation's streams and checked against its outcomes.
+/// rollouts are re-run with the validation's streams (`errors(q)` for perturbed rollout q of
+/// `q_runs`) and checked against its outcomes.
 pub fn dstar_group(
     inputs: &Inputs,
     index: usize,
