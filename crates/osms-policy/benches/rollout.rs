@@ -1,0 +1,344 @@
+//! The teacher's rollouts against MuJoCo alone, for two patterns, each against a bare `mj_step`
+//! replay of the very same per-physics-step controls from the same state, measured in the same
+//! run (the scripted catcher's pattern is osms-sim's rollout bench; both include its bare
+//! replay, `osms-sim/benches/common/bare.rs`). The ratio (bare / osms) is the share of a
+//! rollout's time that is MuJoCo's; 1.0 means osms adds nothing.
+//!
+//! - **teacher**: the PPO teacher's episode (`CatchEpisode`: the prior, the actor network of the
+//!   default profile's size, the follow-through channel's Jacobian solve, the reward).
+//! - **branch**: validation's pattern: the teacher runs to a window start shortly before its
+//!   event step, is snapshotted, and every branch restores the snapshot, perturbs the arm over
+//!   the window and runs to the end. The bare side restores MuJoCo's state (`mj_setState`) and
+//!   replays each branch. The prefix is untimed on both sides.
+//!
+//! The teacher's observation includes the admissible contact force at the current state under
+//! the held controls, a constraint solve the physics steps do not share (docs/sim.md, "What the
+//! loop costs"). A third side replays the controls and also pays for those solves; the osms
+//! time against it is the share of osms's own work.
+//!
+//! Every rollout is timed on all sides back to back, in rotating order, `rounds` times; a
+//! rollout's time is its fastest round (interruptions only ever add time), and a pattern's ratio
+//! is the sum of bare times over the sum of osms times. The whole measurement repeats `runs`
+//! times and the figures are min / median / max over runs. Prints figures; asserts nothing about
+//! time.
+//!
+//! Settings (environment): `OSMS_BENCH_CONDITIONS` (default 48), `OSMS_BENCH_ROUNDS` (3),
+//! `OSMS_BENCH_RUNS` (3), `OSMS_BENCH_PATTERNS` (comma-separated subset of `teacher,branch`),
+//! `OSMS_BENCH_ONLY=<pattern>:<osms|bare>` (run only that side, for `perf record`).
+
+#[path = "../../osms-sim/benches/common/bare.rs"]
+mod bare;
+
+use std::time::Instant;
+
+use bare::{Bare, Controls, STATE, conditions, dr, measure, replay, report, setting, time};
+use mujoco_rs::prelude::*;
+use osms_policy::catch::{CatchEpisode, CatchSnapshot, CatchTaskSpec, OBS_LEN};
+use osms_policy::{Agent, PpoConfig, TaskEpisode};
+use osms_sim::control::DrSpec;
+use osms_sim::episode::{Hooks, initial_data};
+use osms_sim::{Action, N_ARM, TaskCondition, World, WorldSpec};
+
+/// Branches per condition, as validation's Q perturbed rollouts.
+const BRANCHES: usize = 4;
+/// Control steps of the perturbed window (the paper's OSW is a few steps before contact).
+const WINDOW: usize = 6;
+
+/// Validation's hooks, cut down: a branch-specific offset on the arm channels in the window.
+struct Perturb {
+    from: usize,
+    offset: f64,
+    controls: Option<Controls>,
+}
+
+impl Hooks for Perturb {
+    fn override_arm(&mut self, step: usize, action: &mut Action) {
+        if let Some(c) = &mut self.controls {
+            c.override_arm(step, action);
+        }
+    }
+    fn perturb(&mut self, step: usize, action: &mut Action) {
+        if (self.from..self.from + WINDOW).contains(&step) {
+            for (c, a) in action[..N_ARM].iter_mut().enumerate() {
+                *a = (*a + self.offset * if c % 2 == 0 { 1.0 } else { -1.0 }).clamp(-1.0, 1.0);
+            }
+        }
+    }
+    fn after_physics_step(&mut self, data: &MjData<Box<MjModel>>) {
+        if let Some(c) = &mut self.controls {
+            c.after_physics_step(data);
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Pattern {
+    Teacher,
+    Branch,
+}
+
+impl Pattern {
+    const ALL: [Pattern; 2] = [Pattern::Teacher, Pattern::Branch];
+    fn name(self) -> &'static str {
+        match self {
+            Pattern::Teacher => "teacher",
+            Pattern::Branch => "branch",
+        }
+    }
+}
+
+struct Bench<'a> {
+    world: &'a World,
+    spec: CatchTaskSpec,
+    agent: Agent,
+    conditions: Vec<TaskCondition>,
+}
+
+impl Bench<'_> {
+    fn episode(&self, i: usize) -> CatchEpisode<'_> {
+        CatchEpisode::new(self.world, &self.spec, self.conditions[i].clone(), dr(i))
+    }
+
+    fn teacher(&self, i: usize, hooks: &mut dyn Hooks) -> usize {
+        let mut ep = self.episode(i);
+        let agent = &self.agent;
+        while !ep
+            .step_with_hooks(&mut |obs| agent.act_deterministic(obs), hooks)
+            .1
+        {}
+        let steps = ep.episode().record().steps;
+        std::hint::black_box(ep.finish());
+        steps
+    }
+
+    /// The teacher run to its window start, which is a few steps before the unperturbed
+    /// rollout's event step.
+    fn prefix(&self, i: usize) -> CatchEpisode<'_> {
+        let mut probe = self.episode(i);
+        let agent = &self.agent;
+        while !probe
+            .step_with_hooks(
+                &mut |obs| agent.act_deterministic(obs),
+                &mut Controls::default(),
+            )
+            .1
+        {}
+        let from = probe
+            .episode()
+            .outcome()
+            .1
+            .event_step
+            .saturating_sub(WINDOW + 2);
+        let mut ep = self.episode(i);
+        for _ in 0..from {
+            ep.step_with_hooks(
+                &mut |obs| agent.act_deterministic(obs),
+                &mut Controls::default(),
+            );
+        }
+        ep
+    }
+
+    /// Every branch of condition `i` from the prefix's snapshot, optionally recording controls.
+    fn branches(
+        &self,
+        ep: &mut CatchEpisode<'_>,
+        snapshot: &CatchSnapshot,
+        record: bool,
+    ) -> Vec<Controls> {
+        let agent = &self.agent;
+        (0..BRANCHES)
+            .map(|b| {
+                ep.restore(snapshot);
+                let from = ep.episode().step_index();
+                let mut hooks = Perturb {
+                    from,
+                    offset: 0.05 * (b as f64 + 1.0),
+                    controls: record.then(Controls::default),
+                };
+                while !ep
+                    .step_with_hooks(&mut |obs| agent.act_deterministic(obs), &mut hooks)
+                    .1
+                {}
+                std::hint::black_box(ep.episode().outcome());
+                hooks.controls.unwrap_or_default()
+            })
+            .collect()
+    }
+
+    fn bare(&self, pattern: Pattern, i: usize) -> Bare {
+        match pattern {
+            Pattern::Teacher => {
+                let mut controls = Controls::default();
+                let dr = self.episode(i).episode().record().dr.clone();
+                self.teacher(i, &mut controls);
+                let data = initial_data(self.world, &self.conditions[i], &dr);
+                Bare {
+                    model: data.model().clone(),
+                    start: data.state(STATE),
+                    branches: vec![controls],
+                }
+            }
+            Pattern::Branch => {
+                let mut ep = self.prefix(i);
+                let snapshot = ep.snapshot();
+                let data = ep.episode().data();
+                let (model, start) = (data.model().clone(), data.state(STATE));
+                Bare {
+                    model,
+                    start,
+                    branches: self.branches(&mut ep, &snapshot, true),
+                }
+            }
+        }
+    }
+
+    fn prefixes(&self) -> Vec<(CatchEpisode<'_>, CatchSnapshot)> {
+        (0..self.conditions.len())
+            .map(|i| {
+                let ep = self.prefix(i);
+                let s = ep.snapshot();
+                (ep, s)
+            })
+            .collect()
+    }
+}
+
+fn main() {
+    let n = setting("OSMS_BENCH_CONDITIONS", 48);
+    let rounds = setting("OSMS_BENCH_ROUNDS", 3).max(1);
+    let runs = setting("OSMS_BENCH_RUNS", 3).max(1);
+    let patterns: Vec<Pattern> = match std::env::var("OSMS_BENCH_PATTERNS") {
+        Ok(list) => Pattern::ALL
+            .into_iter()
+            .filter(|p| list.split(',').any(|s| s.trim() == p.name()))
+            .collect(),
+        Err(_) => Pattern::ALL.to_vec(),
+    };
+
+    let world = World::new(WorldSpec::default()).expect("world");
+    let mut spec = CatchTaskSpec::default();
+    spec.rollout.dr = DrSpec::paper();
+    let config = PpoConfig::default();
+    let mut agent =
+        Agent::new(OBS_LEN, spec.act_len(), &config, (0, "bench-teacher")).expect("a valid agent");
+    // An untrained actor's follow-through output sits near zero, where the channel's Jacobian
+    // solve is skipped; a trained teacher uses it at most steps.
+    if let Some(b) = agent
+        .actor
+        .layers
+        .last_mut()
+        .and_then(|last| last.b.last_mut())
+    {
+        *b = 0.3;
+    }
+    let bench = Bench {
+        world: &world,
+        spec,
+        agent,
+        conditions: conditions(&world, n),
+    };
+
+    if let Ok(only) = std::env::var("OSMS_BENCH_ONLY") {
+        let (pattern, side) = only
+            .split_once(':')
+            .expect("OSMS_BENCH_ONLY=<pattern>:<side>");
+        let pattern = Pattern::ALL
+            .into_iter()
+            .find(|p| p.name() == pattern)
+            .expect("a pattern: teacher or branch");
+        profile(&bench, pattern, side == "bare", runs * rounds);
+        return;
+    }
+
+    println!(
+        "rollout loop vs bare mj_step replay: {n} conditions, paper DR, one core; {rounds} rounds per run (fastest kept), {runs} runs"
+    );
+    println!(
+        "teacher: actor {:?} hidden, follow-through channel on",
+        config.hidden
+    );
+    let classes = world.ids.geom_class.as_slice();
+    for pattern in patterns {
+        let bare: Vec<Bare> = (0..n).map(|i| bench.bare(pattern, i)).collect();
+        let physics_steps = bare.iter().map(Bare::physics_steps).sum();
+        let mut prefixes = match pattern {
+            Pattern::Branch => bench.prefixes(),
+            Pattern::Teacher => Vec::new(),
+        };
+        let fresh = pattern == Pattern::Teacher;
+        let figures = measure(n, 3, rounds, runs, |i, side| {
+            let b = &bare[i];
+            let mut data = MjData::new(Box::new(b.model.clone()));
+            Some(match side {
+                0 => time(|| match pattern {
+                    Pattern::Teacher => {
+                        std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
+                    }
+                    Pattern::Branch => {
+                        let (ep, s) = &mut prefixes[i];
+                        bench.branches(ep, s, false);
+                    }
+                }),
+                1 => time(|| replay(b, &mut data, fresh, None)),
+                _ => time(|| replay(b, &mut data, fresh, Some(classes))),
+            })
+        });
+        report(pattern.name(), physics_steps, &figures);
+    }
+}
+
+/// Runs one side of one pattern `times` over, for a profiler.
+fn profile(bench: &Bench<'_>, pattern: Pattern, bare_side: bool, times: usize) {
+    let n = bench.conditions.len();
+    let bare: Vec<Bare> = if bare_side {
+        (0..n).map(|i| bench.bare(pattern, i)).collect()
+    } else {
+        Vec::new()
+    };
+    let mut prefixes = if pattern == Pattern::Branch && !bare_side {
+        bench.prefixes()
+    } else {
+        Vec::new()
+    };
+    let t = Instant::now();
+    profiled_loop(bench, pattern, &bare, &mut prefixes, times);
+    println!(
+        "{}:{} ran {times} times in {:.1} s",
+        pattern.name(),
+        if bare_side { "bare" } else { "osms" },
+        t.elapsed().as_secs_f64()
+    );
+}
+
+/// The profiled work alone, in a frame of its own: scripts/perf-breakdown.py counts only the
+/// samples under it, so the preparation above (probe rollouts, prefixes) stays out.
+#[inline(never)]
+fn profiled_loop(
+    bench: &Bench<'_>,
+    pattern: Pattern,
+    bare: &[Bare],
+    prefixes: &mut [(CatchEpisode<'_>, CatchSnapshot)],
+    times: usize,
+) {
+    let n = bench.conditions.len();
+    for _ in 0..times {
+        for i in 0..n {
+            if !bare.is_empty() {
+                let b = &bare[i];
+                let mut data = MjData::new(Box::new(b.model.clone()));
+                replay(b, &mut data, pattern == Pattern::Teacher, None);
+            } else {
+                match pattern {
+                    Pattern::Teacher => {
+                        std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
+                    }
+                    Pattern::Branch => {
+                        let (ep, s) = &mut prefixes[i];
+                        bench.branches(ep, s, false);
+                    }
+                }
+            }
+        }
+    }
+}
