@@ -21,8 +21,8 @@ pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, Store
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
     Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest, Member, NoProgress, Numerics,
-    Objects, ParsedParams, Progress, Registry, RunOutput, Scale, ShardRun, Sharded, Slot, Stage,
-    StageError, Summarize, assemble,
+    Objects, ParamError, ParsedParams, Progress, Registry, RunOutput, Scale, ShardRun, Sharded,
+    Slot, Stage, StageError, Summarize, assemble,
 };
 pub use pipeline::{Pipeline, StageSpec};
 pub use plan::{

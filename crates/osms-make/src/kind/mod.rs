@@ -1,0 +1,26 @@
+//! Stage kinds: the typed traits a stage implements, and their type-erased form in a
+//! [`Registry`].
+//!
+//! A kind is registered in code with a name, an explicit code version (bump it whenever the
+//! output for the same inputs may change), its input slots and a params struct. Plain kinds
+//! ([`Stage`]) compute one artifact; itemised kinds ([`ItemStage`]) compute a list of
+//! independent items that the executor can split into shards.
+//!
+//! [`author`] is what a kind implements and reads; [`erased`] turns a kind into a [`DynKind`]
+//! the engine runs without knowing its types; [`stored`] is how itemised outputs and shards sit
+//! in the store; [`Registry`] maps names to kinds.
+
+mod author;
+mod erased;
+mod registry;
+mod stored;
+
+pub use author::{
+    Ctx, Fold, InputBytes, ItemStage, Member, NoProgress, Numerics, Objects, Progress, Scale,
+    Sharded, Slot, Stage, StageError, Summarize,
+};
+pub use erased::{
+    DynKind, KindInfo, ParamError, ParsedParams, RunEnv, RunOutput, ShardIo, ShardRun,
+};
+pub use registry::Registry;
+pub use stored::{Manifest, assemble};
