@@ -5,13 +5,11 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use osms_core::Artifact;
-use osms_core::decode;
 use osms_core::rng::{self, StreamRng};
+use osms_core::{Artifact, decode};
+use osms_store::Hash;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
-
-use osms_store::Hash;
 
 use super::stored::{Manifest, assemble, load_item};
 
