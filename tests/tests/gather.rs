@@ -1,6 +1,6 @@
 //! Folds, gather inputs and typed input slots: instance naming, gathered members in a fixed
 //! order, keys that cover every member, miswired pipelines refused before anything runs, and
-//! a damaged input rebuilt instead of failing its consumer.
+//! a damaged or stale input rebuilt instead of failing its consumer.
 
 use std::collections::BTreeMap;
 
@@ -489,4 +489,105 @@ fn an_optional_slot_may_be_left_unwired() {
                        [stages.wrong]\nkind = \"offset\"\ninputs = { offset = \"numbers\" }\n",
     );
     assert!(err.contains("is missing input `values`"), "{err}");
+}
+
+/// Keeps the notes a make prints (the stale-artifact warning is one).
+#[derive(Default)]
+struct Notes(std::sync::Mutex<Vec<String>>);
+impl osms_make::Observer for Notes {
+    fn note(&self, text: &str) {
+        self.0.lock().expect("notes").push(text.to_string());
+    }
+    fn started(&self, _: &str, _: &str) -> Box<dyn osms_make::Progress + '_> {
+        Box::new(osms_make::NoProgress)
+    }
+    fn finished(&self, _: &osms_make::InstanceReport) {}
+}
+
+#[test]
+fn a_stale_input_is_reported_once_and_rebuilt_rather_than_failing_its_consumers() {
+    // `shifted` feeds two consumers; its cached artifact is made stale, then both must run.
+    let text = |by: f64| {
+        format!(
+            "[stages.numbers]\nkind = \"numbers\"\nparams = {{ n = 4 }}\n\
+             [stages.shifted]\nkind = \"shift\"\ninputs = {{ values = \"numbers\" }}\nparams = {{ by = 1.0 }}\n\
+             [stages.a]\nkind = \"shift\"\ninputs = {{ values = \"shifted\" }}\nparams = {{ by = {by:?} }}\n\
+             [stages.b]\nkind = \"shift\"\ninputs = {{ values = \"shifted\" }}\nparams = {{ by = {:?} }}\n",
+            by + 10.0
+        )
+    };
+    let clean = Project::new(&text(2.0));
+    let clean = hashes(&clean.make(None, &[0], 1));
+    let p = Project::new(&text(1.0));
+    let first = p.make(None, &[0], 1);
+    let shifted = first
+        .instances
+        .iter()
+        .find(|r| r.instance == "shifted@0")
+        .expect("shifted");
+
+    // What an older osms would have stored under the same type tag and schema version, before
+    // the type's layout changed: it does not decode as today's `Numbers`.
+    #[derive(Serialize, serde::Deserialize)]
+    struct OldNumbers {
+        rows: u32,
+    }
+    impl Artifact for OldNumbers {
+        const TYPE_TAG: &'static str = Numbers::TYPE_TAG;
+        const SCHEMA_VERSION: u16 = Numbers::SCHEMA_VERSION;
+    }
+    let old = osms_core::encode(&OldNumbers { rows: 7 }).expect("encode");
+    assert!(
+        decode::<Numbers>(&old).is_err(),
+        "the planted bytes must be stale"
+    );
+    let store = p.open_store();
+    let planted = store.put(&old).expect("put");
+    let mut record = store
+        .record(&shifted.key.expect("key"))
+        .expect("read")
+        .expect("record");
+    record.content_hash = planted;
+    record.size_bytes = old.len() as u64;
+    store.put_record(&record).expect("plant");
+
+    p.write_pipeline(&text(2.0));
+    let plan = p.plan(None).expect("plan");
+    let notes = Notes::default();
+    let opts = osms_make::MakeOptions {
+        targets: vec![],
+        seeds: vec![0],
+        jobs: 1,
+        dry_run: false,
+    };
+    let second = osms_make::make(&plan, &p.open_store(), &opts, &notes).expect("make");
+    assert!(second.failed().is_empty(), "{second:?}");
+    let notes = notes.0.into_inner().expect("notes");
+    let stale: Vec<&String> = notes
+        .iter()
+        .filter(|n| n.contains("does not decode"))
+        .collect();
+    assert_eq!(stale.len(), 1, "reported once, not per consumer: {notes:?}");
+    assert!(
+        stale[0].contains("stage `shifted@0`")
+            && stale[0].contains(&format!("`{}`", Numbers::TYPE_TAG))
+            && stale[0].contains(&planted.short())
+            && stale[0].contains("rebuilding it"),
+        "{}",
+        stale[0]
+    );
+    let o = outcomes(&second);
+    assert_eq!(o["shifted@0"], "built");
+    assert_eq!((o["a@0"], o["b@0"]), ("built", "built"));
+    assert_eq!(
+        second.instances.len(),
+        4,
+        "each instance reported once: {second:?}"
+    );
+    assert_eq!(hashes(&second), clean, "the same bytes as a clean build");
+    let third = p.make(None, &[0], 1);
+    assert!(
+        outcomes(&third).values().all(|o| *o == "cached"),
+        "{third:?}"
+    );
 }

@@ -124,6 +124,8 @@ pub fn make(
     // stage goes back to the front, to be rebuilt before that stage runs again.
     let mut queue: VecDeque<InstanceId> = instances.into();
     let mut requeued: BTreeSet<InstanceId> = BTreeSet::new();
+    // Instances whose cached artifact no longer decodes: built again whatever their record says.
+    let mut stale: BTreeMap<InstanceId, String> = BTreeMap::new();
     while let Some(id) = queue.pop_front() {
         let name = plan.display(id);
         let inputs = plan.input_instances(id, &opts.seeds);
@@ -167,7 +169,11 @@ pub fn make(
         }
 
         let key = plan.key(id, &input_hashes);
-        let reason = match find(plan, store, &heads, id, &name, &key, &input_hashes)? {
+        let found = match stale.get(&id) {
+            Some(reason) => Found::Build(reason.clone()),
+            None => find(plan, store, &heads, id, &name, &key, &input_hashes)?,
+        };
+        let reason = match found {
             Found::Present(rec) => {
                 let cut_off = inputs.iter().any(|i| built.contains(&i.id));
                 available.insert(id, rec.content_hash);
@@ -202,7 +208,7 @@ pub fn make(
             Ok(loaded) => loaded,
             // The stat cache vouched for this input when it was found cached, but its bytes no
             // longer match: rebuild it (once), then come back to this instance.
-            Err(Damaged { input, hash }) if !requeued.contains(&input) => {
+            Err(BadInput::Damaged { input, hash }) if !requeued.contains(&input) => {
                 let up = plan.display(input);
                 tracing::warn!(
                     "input `{up}` of `{name}`: object {} is damaged; rebuilding it",
@@ -216,10 +222,41 @@ pub fn make(
                 queue.push_front(input);
                 continue;
             }
-            Err(Damaged { input, hash }) => Err(format!(
+            Err(BadInput::Damaged { input, hash }) => Err(format!(
                 "input `{}`: object {} is damaged again after a rebuild",
                 plan.display(input),
                 hash.short()
+            )
+            .into()),
+            // Like a damaged input, but the bytes are intact: the kind's output type changed
+            // under them. Said once, here, where the first consumer meets it.
+            Err(BadInput::Stale {
+                input,
+                hash,
+                tag,
+                reason,
+            }) if !requeued.contains(&input) => {
+                let up = plan.display(input);
+                observer.note(&format!(
+                    "warning: stage `{up}`: its cached `{tag}` artifact {} does not decode ({reason}); rebuilding it",
+                    hash.short()
+                ));
+                stale.insert(
+                    input,
+                    format!("its cached `{tag}` artifact does not decode as this osms's type"),
+                );
+                available.remove(&input);
+                requeued.insert(input);
+                report.instances.retain(|r| r.instance != up);
+                queue.push_front(id);
+                queue.push_front(input);
+                continue;
+            }
+            Err(BadInput::Stale {
+                input, tag, reason, ..
+            }) => Err(format!(
+                "input `{}`: its `{tag}` artifact does not decode even after a rebuild: {reason}\nhint: the kind writes bytes its own output type cannot read; bump its SCHEMA_VERSION or fix its serialisation",
+                plan.display(input)
             )
             .into()),
         };
@@ -330,10 +367,18 @@ pub(crate) fn cached_report(
     }
 }
 
-/// An input whose object failed its hash check when loaded.
-pub(crate) struct Damaged {
-    pub(crate) input: InstanceId,
-    pub(crate) hash: Hash,
+/// An input that cannot be used as stored.
+pub(crate) enum BadInput {
+    /// Its object failed its hash check when loaded.
+    Damaged { input: InstanceId, hash: Hash },
+    /// Its bytes do not decode as its kind's output: a cached artifact whose layout changed
+    /// without a schema bump.
+    Stale {
+        input: InstanceId,
+        hash: Hash,
+        tag: &'static str,
+        reason: String,
+    },
 }
 
 /// The state of a record's artifact: its object's, or the first part (shard) that is not
@@ -366,19 +411,28 @@ pub(crate) fn load_inputs(
     store: &Store,
     inputs: &[InputInstance],
     input_hashes: &[(String, Hash)],
-) -> Result<Result<BTreeMap<String, Vec<InputBytes>>, StageError>, Damaged> {
+) -> Result<Result<BTreeMap<String, Vec<InputBytes>>, StageError>, BadInput> {
     let mut loaded: BTreeMap<String, Vec<InputBytes>> = BTreeMap::new();
     for (input, (_, hash)) in inputs.iter().zip(input_hashes) {
         let bytes = match store.get(hash) {
             Ok(bytes) => bytes,
             Err(osms_store::Error::Damaged { .. }) => {
-                return Err(Damaged {
+                return Err(BadInput::Damaged {
                     input: input.id,
                     hash: *hash,
                 });
             }
             Err(e) => return Ok(Err(e.into())),
         };
+        let producer = &plan.stages[input.id.stage];
+        if let Err(e) = producer.kind.check_output(&bytes, &StoreObjects(store)) {
+            return Err(BadInput::Stale {
+                input: input.id,
+                hash: *hash,
+                tag: producer.info.output_tag,
+                reason: e.to_string(),
+            });
+        }
         loaded
             .entry(input.slot.clone())
             .or_default()

@@ -116,6 +116,10 @@ pub trait DynKind: Send + Sync {
         )
         .into())
     }
+    /// Whether stored bytes still decode as this kind's output: for an itemised kind the
+    /// manifest's head and its first item (items share one layout), for a plain kind the whole
+    /// artifact. An artifact whose Rust layout changed without a schema bump fails here.
+    fn check_output(&self, bytes: &[u8], objects: &dyn Objects) -> Result<(), StageError>;
     /// Decodes an output artifact of this kind (reading its shards from `objects`) and
     /// summarises it.
     fn summarize(
@@ -253,6 +257,10 @@ macro_rules! shared_kind_methods {
 
 impl<S: Stage> DynKind for Plain<S> {
     shared_kind_methods!(false, |bytes, _| Ok(decode(bytes)?));
+    fn check_output(&self, bytes: &[u8], _: &dyn Objects) -> Result<(), StageError> {
+        decode::<S::Output>(bytes)?;
+        Ok(())
+    }
     fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError> {
         let ctx = env.ctx::<S::Params>();
         Ok(RunOutput {
@@ -264,6 +272,13 @@ impl<S: Stage> DynKind for Plain<S> {
 
 impl<S: ItemStage> DynKind for Itemised<S> {
     shared_kind_methods!(true, assemble);
+    fn check_output(&self, bytes: &[u8], objects: &dyn Objects) -> Result<(), StageError> {
+        let manifest: Manifest<S::Output> = decode(bytes)?;
+        if let Some(first) = manifest.items.first() {
+            load_item::<S::Item>(objects, first)?;
+        }
+        Ok(())
+    }
     fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError> {
         let ctx = env.ctx::<S::Params>();
         let prepared = self.0.prepare(&ctx)?;

@@ -6,7 +6,7 @@ use std::time::Instant;
 use osms_store::{Hash, ObjectState, Store};
 
 use crate::error::{Error, Result};
-use crate::exec::{Damaged, build, load_inputs, record, record_state, with_env};
+use crate::exec::{BadInput, build, load_inputs, record, record_state, with_env};
 use crate::kind::{Progress, ShardRun};
 use crate::plan::Plan;
 use crate::slurm::ledger::TaskSpec;
@@ -75,9 +75,22 @@ pub fn run_task(
     let loaded = match load_inputs(plan, store, &inputs, &spec.input_hashes) {
         Ok(Ok(loaded)) => loaded,
         Ok(Err(e)) => return Err(Error::usage(format!("`{}`: {e}", spec.instance))),
-        Err(Damaged { input, hash }) => {
+        Err(BadInput::Damaged { input, hash }) => {
             return Err(Error::usage(format!(
                 "`{}`: input `{}` (object {}) is damaged; hint: `osms make` rebuilds it",
+                spec.instance,
+                plan.display(input),
+                hash.short()
+            )));
+        }
+        Err(BadInput::Stale {
+            input,
+            hash,
+            tag,
+            reason,
+        }) => {
+            return Err(Error::usage(format!(
+                "`{}`: input `{}` (object {}) does not decode as `{tag}` ({reason}); hint: `osms make` rebuilds it",
                 spec.instance,
                 plan.display(input),
                 hash.short()
