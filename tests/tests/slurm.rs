@@ -7,8 +7,9 @@ use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::process::Command;
 
+use osms_make::executor::ExecutorConfig;
 use osms_make::slurm::cmd::{Ended, JobRequest, Queued, Scheduler};
-use osms_make::slurm::{ExecutorConfig, Launch, make_slurm};
+use osms_make::slurm::{Launch, make_slurm};
 use osms_make::{MakeOptions, MakeReport, Outcome};
 use osms_store::Hash;
 use osms_tests::Project;

@@ -1,6 +1,6 @@
 use std::fmt;
 use std::io::ErrorKind;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// A place in `pipeline.toml`.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -104,5 +104,41 @@ pub(crate) fn list(names: impl IntoIterator<Item = impl AsRef<str>>) -> String {
         "(none)".to_string()
     } else {
         items.join(", ")
+    }
+}
+
+/// Where the key path `keys` (e.g. `["stages", "teacher", "params"]`) sits in a TOML
+/// source, for errors that point at the line the user wrote.
+pub(crate) fn key_location(
+    path: &Path,
+    source: &str,
+    doc: &toml_edit::Document<String>,
+    keys: &[&str],
+) -> Option<Location> {
+    let mut item: &toml_edit::Item = doc.as_item();
+    let mut span = None;
+    for key in keys {
+        let Some((k, next)) = item.as_table_like().and_then(|t| t.get_key_value(key)) else {
+            break;
+        };
+        span = k.span().or(span);
+        item = next;
+    }
+    span.map(|s| location_of(path, source, s.start))
+}
+
+pub(crate) fn location_of(path: &Path, source: &str, offset: usize) -> Location {
+    let before = &source[..offset.min(source.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before
+        .rsplit('\n')
+        .next()
+        .map(|l| l.chars().count())
+        .unwrap_or(0)
+        + 1;
+    Location {
+        path: path.to_path_buf(),
+        line,
+        column,
     }
 }

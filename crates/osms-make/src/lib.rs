@@ -8,6 +8,7 @@
 mod error;
 mod estimate;
 mod exec;
+pub mod executor;
 mod heads;
 mod kind;
 mod pipeline;

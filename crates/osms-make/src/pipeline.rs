@@ -32,8 +32,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::error::{Error, Location, Result, list};
-use crate::slurm::ExecutorConfig;
+use crate::error::{Error, Location, Result, key_location, list, location_of};
+use crate::executor::ExecutorConfig;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -314,40 +314,6 @@ fn key_depth(doc: &toml_edit::Document<String>, keys: &[&str]) -> usize {
         }
     }
     keys.len()
-}
-
-pub(crate) fn key_location(
-    path: &Path,
-    source: &str,
-    doc: &toml_edit::Document<String>,
-    keys: &[&str],
-) -> Option<Location> {
-    let mut item: &toml_edit::Item = doc.as_item();
-    let mut span = None;
-    for key in keys {
-        let Some((k, next)) = item.as_table_like().and_then(|t| t.get_key_value(key)) else {
-            break;
-        };
-        span = k.span().or(span);
-        item = next;
-    }
-    span.map(|s| location_of(path, source, s.start))
-}
-
-fn location_of(path: &Path, source: &str, offset: usize) -> Location {
-    let before = &source[..offset.min(source.len())];
-    let line = before.matches('\n').count() + 1;
-    let column = before
-        .rsplit('\n')
-        .next()
-        .map(|l| l.chars().count())
-        .unwrap_or(0)
-        + 1;
-    Location {
-        path: path.to_path_buf(),
-        line,
-        column,
-    }
 }
 
 #[cfg(test)]

@@ -69,7 +69,7 @@ pub struct Plan {
     /// The targets of a make given none (empty: every stage).
     pub default_targets: Vec<String>,
     /// `[executor]` of the pipeline (a user config may overlay it).
-    pub executor: crate::slurm::ExecutorConfig,
+    pub executor: crate::executor::ExecutorConfig,
     index: BTreeMap<String, usize>,
 }
 

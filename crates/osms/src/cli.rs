@@ -127,7 +127,7 @@ pub struct MakeArgs {
     /// Where stages run: `local`, or `slurm` (a job array per sharded stage; see "Running on a
     /// cluster" in README.md) [default: `[executor] kind`, else local]
     #[arg(long, value_name = "local|slurm")]
-    pub executor: Option<osms_make::slurm::ExecutorKind>,
+    pub executor: Option<osms_make::executor::ExecutorKind>,
     /// Print the report as JSON on stdout
     #[arg(long)]
     pub json: bool,

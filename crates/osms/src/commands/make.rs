@@ -2,8 +2,9 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context as _, Result, bail};
+use osms_make::executor::{ExecutorConfig, ExecutorKind, load_user_config, user_config_path};
+use osms_make::slurm::Launch;
 use osms_make::slurm::cmd::SlurmCli;
-use osms_make::slurm::{ExecutorConfig, ExecutorKind, Launch, load_user_config, user_config_path};
 use osms_make::{MakeOptions, Outcome, Plan};
 
 use crate::EXIT_FAILURE;

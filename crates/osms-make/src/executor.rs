@@ -346,7 +346,7 @@ pub fn load_user_config(
         )
     })?;
     parsed.executor.validate(&[], &|keys| {
-        crate::pipeline::key_location(path, &source, &doc, keys)
+        crate::error::key_location(path, &source, &doc, keys)
     })?;
     unknown.extend(
         parsed
