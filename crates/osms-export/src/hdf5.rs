@@ -22,6 +22,8 @@ use std::borrow::Cow;
 use std::collections::BTreeSet;
 use std::io::{self, Write};
 
+use crate::Error;
+
 /// The undefined address.
 const UNDEF: u64 = u64::MAX;
 const SUPERBLOCK_LEN: u64 = 48;
@@ -141,7 +143,7 @@ impl Data<'_> {
         self.len() * self.dtype().size() as u64
     }
 
-    fn check(&self) -> Result<(), String> {
+    fn check(&self) -> crate::Result<()> {
         match self {
             Data::F32Columns {
                 src,
@@ -149,18 +151,20 @@ impl Data<'_> {
                 start,
                 width,
             } if *row == 0 || !src.len().is_multiple_of(*row) || start + width > *row => {
-                return Err(format!(
+                return Err(Error::Hdf5(format!(
                     "columns {start}..{} of {} values in rows of {row}",
                     start + width,
                     src.len()
-                ));
+                )));
             }
             Data::FixedStrings(v) => {
                 if let Some(s) = v.iter().find(|s| !s.is_ascii() || s.contains('\0')) {
-                    return Err(format!("{s:?} is not a NUL-free ASCII string"));
+                    return Err(Error::Hdf5(format!("{s:?} is not a NUL-free ASCII string")));
                 }
                 if v.iter().any(|s| s.len() > u32::MAX as usize) {
-                    return Err("a fixed-length string is longer than 4 GiB".into());
+                    return Err(Error::Hdf5(
+                        "a fixed-length string is longer than 4 GiB".into(),
+                    ));
                 }
             }
             _ => {}
@@ -361,18 +365,18 @@ fn align8(x: u64) -> u64 {
     x.div_ceil(8) * 8
 }
 
-fn check_name<'s>(name: &'s str, seen: &mut BTreeSet<&'s str>) -> Result<(), String> {
+fn check_name<'s>(name: &'s str, seen: &mut BTreeSet<&'s str>) -> crate::Result<()> {
     if name.is_empty() || name == "." || name.contains('/') || name.contains('\0') {
-        return Err(format!("{name:?} is not a valid HDF5 name"));
+        return Err(Error::Hdf5(format!("{name:?} is not a valid HDF5 name")));
     }
     if !seen.insert(name) {
-        return Err(format!("{name:?} appears twice"));
+        return Err(Error::Hdf5(format!("{name:?} appears twice")));
     }
     Ok(())
 }
 
 /// Lays out the file rooted at `root`; fails on names or shapes HDF5 cannot hold.
-pub fn plan<'n, 'a>(root: &'n Group<'a>) -> Result<Plan<'n, 'a>, String> {
+pub fn plan<'n, 'a>(root: &'n Group<'a>) -> crate::Result<Plan<'n, 'a>> {
     let mut plan = Plan {
         objects: Vec::new(),
         heap: Vec::new(),
@@ -403,8 +407,8 @@ pub fn plan<'n, 'a>(root: &'n Group<'a>) -> Result<Plan<'n, 'a>, String> {
 }
 
 impl<'n, 'a> Plan<'n, 'a> {
-    fn flatten(&mut self, group: &'n Group<'a>, path: &str) -> Result<usize, String> {
-        let at = |e: String| format!("{path}: {e}");
+    fn flatten(&mut self, group: &'n Group<'a>, path: &str) -> crate::Result<usize> {
+        let at = |e: Error| Error::Hdf5(format!("{path}: {e}"));
         let mut seen = BTreeSet::new();
         let mut strings = Vec::new();
         for (name, value) in &group.attrs {
@@ -432,14 +436,16 @@ impl<'n, 'a> Plan<'n, 'a> {
             match node {
                 Node::Group(g) => members.push(self.flatten(g, &format!("{child}/"))?),
                 Node::Dataset(d) => {
-                    d.data.check().map_err(|e| format!("{child}: {e}"))?;
+                    d.data
+                        .check()
+                        .map_err(|e| Error::Hdf5(format!("{child}: {e}")))?;
                     let n = d.shape.iter().try_fold(1u64, |a, &x| a.checked_mul(x));
                     if n != Some(d.data.len()) {
-                        return Err(format!(
+                        return Err(Error::Hdf5(format!(
                             "{child}: shape {:?} does not hold {} values",
                             d.shape,
                             d.data.len()
-                        ));
+                        )));
                     }
                     members.push(self.objects.len());
                     self.objects.push(Placed {
@@ -457,8 +463,9 @@ impl<'n, 'a> Plan<'n, 'a> {
         Ok(index)
     }
 
-    fn heap_put(&mut self, s: &'n [u8]) -> Result<HeapRef, String> {
-        let len = u32::try_from(s.len()).map_err(|_| "a string attribute exceeds 4 GiB")?;
+    fn heap_put(&mut self, s: &'n [u8]) -> crate::Result<HeapRef> {
+        let len = u32::try_from(s.len())
+            .map_err(|_| Error::Hdf5("a string attribute exceeds 4 GiB".into()))?;
         let full = self
             .heap
             .last()
@@ -478,7 +485,7 @@ impl<'n, 'a> Plan<'n, 'a> {
     }
 
     /// Object `i`'s header, with the addresses the plan holds so far.
-    fn header(&self, i: usize) -> Result<Vec<u8>, String> {
+    fn header(&self, i: usize) -> crate::Result<Vec<u8>> {
         let mut m = Messages::default();
         match &self.objects[i].obj {
             Obj::Group {
@@ -505,7 +512,9 @@ impl<'n, 'a> Plan<'n, 'a> {
                         Attr::F64(v) => (Dtype::F64, v.to_le_bytes().to_vec()),
                         Attr::Bool(v) => (Dtype::Bool, vec![u8::from(*v)]),
                         Attr::Str(_) => {
-                            let r = strings.next().ok_or("string attributes out of step")?;
+                            let r = strings.next().ok_or_else(|| {
+                                Error::Hdf5("string attributes out of step".into())
+                            })?;
                             let mut d = Vec::with_capacity(16);
                             d.extend_from_slice(&r.len.to_le_bytes());
                             d.extend_from_slice(&self.heap[r.collection].addr.to_le_bytes());
@@ -589,13 +598,16 @@ struct Messages {
 }
 
 impl Messages {
-    fn push(&mut self, kind: u8, flags: u8, data: impl FnOnce(&mut Vec<u8>)) -> Result<(), String> {
+    fn push(&mut self, kind: u8, flags: u8, data: impl FnOnce(&mut Vec<u8>)) -> crate::Result<()> {
         let start = self.body.len();
         self.body.extend_from_slice(&[kind, 0, 0, flags]);
         data(&mut self.body);
         let len = self.body.len() - start - 4;
-        let len = u16::try_from(len)
-            .map_err(|_| format!("an object header message of {len} bytes exceeds 64 KiB"))?;
+        let len = u16::try_from(len).map_err(|_| {
+            Error::Hdf5(format!(
+                "an object header message of {len} bytes exceeds 64 KiB"
+            ))
+        })?;
         self.body[start + 1..start + 3].copy_from_slice(&len.to_le_bytes());
         Ok(())
     }
@@ -766,11 +778,15 @@ mod tests {
     fn the_plan_rejects_what_hdf5_cannot_hold() {
         let mut g = Group::new();
         g.dataset("x", &[2, 3], Data::F32(vec![0.0; 5].into()));
-        assert!(plan(&g).err().is_some_and(|e| e.contains("/x")));
+        assert!(plan(&g).err().is_some_and(|e| e.to_string().contains("/x")));
         let mut g = Group::new();
         g.attr("a", Attr::I64(1));
         g.attr("a", Attr::I64(2));
-        assert!(plan(&g).err().is_some_and(|e| e.contains("twice")));
+        assert!(
+            plan(&g)
+                .err()
+                .is_some_and(|e| e.to_string().contains("twice"))
+        );
         let mut g = Group::new();
         g.group("a/b", Group::new());
         assert!(plan(&g).is_err());

@@ -1,6 +1,9 @@
-//! Datasets out of the store (docs/export.md): a rollout dataset (D_M, D_E, D_R) or a
-//! demonstration set (D_*, Naive, Normal) becomes an [`ExportSet`], one neutral table of
-//! episodes, which the LeRobot v3.0 and robomimic writers lay out in their formats.
+//! Rollout datasets and demonstration sets out of the store: LeRobot v3.0 (Parquet) and robomimic
+//! (HDF5) exports, with MuJoCo physics states from an open-loop replay.
+//!
+//! A rollout dataset (D_M, D_E, D_R) or a demonstration set (D_*, Naive, Normal) becomes an
+//! [`ExportSet`], one neutral table of episodes, which the [`lerobot`] and [`robomimic`] writers
+//! lay out in their formats (docs/export.md).
 //!
 //! Every export is a pure function of the artifact: the same artifact gives the same bytes.
 
@@ -19,7 +22,7 @@ use osms_sim::{N_ACTION, RolloutRecord, World};
 
 /// What an export failed on.
 #[derive(Debug, thiserror::Error)]
-pub enum ExportError {
+pub enum Error {
     #[error("cannot write {path}: {source}")]
     Io {
         path: PathBuf,
@@ -30,11 +33,17 @@ pub enum ExportError {
     Episode { episode: usize, message: String },
     #[error("{0}")]
     Format(String),
+    /// The robomimic file's HDF5 structure cannot be written (a name or a string HDF5 cannot
+    /// hold).
+    #[error("{0}")]
+    Hdf5(String),
 }
 
-impl ExportError {
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
-        ExportError::Io {
+        Error::Io {
             path: path.to_path_buf(),
             source,
         }
@@ -122,11 +131,11 @@ pub struct ExportSet {
 }
 
 /// The world's control rate as whole frames per second, which both formats need.
-pub fn control_fps(world: &World) -> Result<u32, ExportError> {
+pub fn control_fps(world: &World) -> Result<u32, Error> {
     let rate = 1.0 / (world.spec.timestep_secs * f64::from(world.spec.substeps));
     let fps = rate.round();
     if (rate - fps).abs() > 1e-6 * rate || fps < 1.0 {
-        return Err(ExportError::Format(format!(
+        return Err(Error::Format(format!(
             "the world's control rate 1 / (timestep_secs {} × substeps {}) = {rate} Hz is not a whole number of frames per second, which LeRobot's fps needs; choose world params whose control period divides one second",
             world.spec.timestep_secs, world.spec.substeps
         )));
@@ -200,7 +209,7 @@ pub fn from_dataset(
     dataset: &Dataset,
     world: &World,
     progress: &(dyn Fn(usize) + Sync),
-) -> Result<ExportSet, ExportError> {
+) -> Result<ExportSet, Error> {
     use rayon::prelude::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
     let spec = &dataset.task.rollout;
@@ -238,12 +247,11 @@ pub fn rollout_episode(
     record: &RolloutRecord,
     source: String,
     index: usize,
-) -> Result<ExportEpisode, ExportError> {
-    let (states, report) =
-        replay::states(world, spec, record).map_err(|e| ExportError::Episode {
-            episode: index,
-            message: e.to_string(),
-        })?;
+) -> Result<ExportEpisode, Error> {
+    let (states, report) = replay::states(world, spec, record).map_err(|e| Error::Episode {
+        episode: index,
+        message: e.to_string(),
+    })?;
     check_replay(index, &report)?;
     let state_size = states.first().map_or(0, Vec::len);
     Ok(ExportEpisode {
@@ -272,7 +280,7 @@ pub fn rollout_episode(
     })
 }
 
-fn check_replay(index: usize, report: &ReplayReport) -> Result<(), ExportError> {
+fn check_replay(index: usize, report: &ReplayReport) -> Result<(), Error> {
     if report.bit_exact {
         return Ok(());
     }
@@ -287,7 +295,7 @@ fn check_replay(index: usize, report: &ReplayReport) -> Result<(), ExportError> 
             )
         })
         .collect();
-    Err(ExportError::Episode {
+    Err(Error::Episode {
         episode: index,
         message: format!(
             "the open-loop replay does not reproduce the record ({}); its physics states would not be the rollout's",
@@ -306,7 +314,7 @@ pub fn from_demo_set(
     provenance: Provenance,
     set: &DemoSet,
     world: &World,
-) -> Result<ExportSet, ExportError> {
+) -> Result<ExportSet, Error> {
     let mut episodes = Vec::new();
     for (g, group) in set.used_groups().iter().enumerate() {
         for (e, entry) in group.demos.iter().enumerate() {
@@ -356,9 +364,9 @@ fn execution_name(e: osms_policy::artifacts::Execution) -> String {
 }
 
 /// Checks the per-frame widths of every episode, so a writer can index without checks.
-pub fn validate(set: &ExportSet) -> Result<(), ExportError> {
+pub fn validate(set: &ExportSet) -> Result<(), Error> {
     for (i, e) in set.episodes.iter().enumerate() {
-        let bad = |what: &str, got: usize, want: usize| ExportError::Episode {
+        let bad = |what: &str, got: usize, want: usize| Error::Episode {
             episode: i,
             message: format!("{what} has {got} values, expected {want}"),
         };

@@ -38,7 +38,7 @@ use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
 
 use self::hdf5::{Attr, Data, Group};
-use crate::{ExportEpisode, ExportError, ExportSet};
+use crate::{Error, ExportEpisode, ExportSet};
 
 /// `env_args.env_name`.
 pub const ENV_NAME: &str = "osms-catch";
@@ -67,17 +67,17 @@ const _: () = {
 };
 
 /// Writes `set` as one robomimic HDF5 file at `path`.
-pub fn write(set: &ExportSet, path: &Path) -> Result<(), ExportError> {
+pub fn write(set: &ExportSet, path: &Path) -> Result<(), Error> {
     crate::validate(set)?;
     for (i, e) in set.episodes.iter().enumerate() {
         check_episode(i, e)?;
     }
     let env_args = env_args(set)?;
     let root = build(set, env_args);
-    let plan = hdf5::plan(&root).map_err(ExportError::Format)?;
-    let file = File::create(path).map_err(|e| ExportError::io(path, e))?;
+    let plan = hdf5::plan(&root)?;
+    let file = File::create(path).map_err(|e| Error::io(path, e))?;
     plan.write(BufWriter::with_capacity(1 << 20, file))
-        .map_err(|e| ExportError::io(path, e))
+        .map_err(|e| Error::io(path, e))
 }
 
 /// The name of episode `i`'s group.
@@ -91,8 +91,8 @@ pub fn is_valid(i: usize) -> bool {
 }
 
 /// Widths [`crate::validate`] leaves to the writers.
-fn check_episode(i: usize, e: &ExportEpisode) -> Result<(), ExportError> {
-    let bad = |what: &str, got: usize, want: usize| ExportError::Episode {
+fn check_episode(i: usize, e: &ExportEpisode) -> Result<(), Error> {
+    let bad = |what: &str, got: usize, want: usize| Error::Episode {
         episode: i,
         message: format!("{what} has {got} values, expected {want}"),
     };
@@ -151,10 +151,10 @@ impl serde::Serialize for Mjcf<'_> {
     }
 }
 
-fn env_args(set: &ExportSet) -> Result<String, ExportError> {
+fn env_args(set: &ExportSet) -> Result<String, Error> {
     for (i, (name, _)) in set.mjcf.iter().enumerate() {
         if set.mjcf[..i].iter().any(|(n, _)| n == name) {
-            return Err(ExportError::Format(format!(
+            return Err(Error::Format(format!(
                 "the MJCF of variant {name} is given twice"
             )));
         }
@@ -176,7 +176,7 @@ fn env_args(set: &ExportSet) -> Result<String, ExportError> {
             mjcf: Mjcf(&set.mjcf),
         },
     };
-    serde_json::to_string(&args).map_err(|e| ExportError::Format(format!("env_args: {e}")))
+    serde_json::to_string(&args).map_err(|e| Error::Format(format!("env_args: {e}")))
 }
 
 fn build(set: &ExportSet, env_args: String) -> Group<'_> {
@@ -591,18 +591,15 @@ mod tests {
         s.episodes[1].phase = Some(vec![0; 1]);
         assert!(matches!(
             write(&s, &path),
-            Err(ExportError::Episode { episode: 1, .. })
+            Err(Error::Episode { episode: 1, .. })
         ));
         let mut s = set(3);
         s.episodes[2].state.pop();
         assert!(matches!(
             write(&s, &path),
-            Err(ExportError::Episode { episode: 2, .. })
+            Err(Error::Episode { episode: 2, .. })
         ));
         let missing = dir.path().join("no/such/dir/x.hdf5");
-        assert!(matches!(
-            write(&set(1), &missing),
-            Err(ExportError::Io { .. })
-        ));
+        assert!(matches!(write(&set(1), &missing), Err(Error::Io { .. })));
     }
 }
