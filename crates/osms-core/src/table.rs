@@ -440,15 +440,22 @@ impl Table {
     /// `<id>.md`, `<id>.csv`, `<id>.json`.
     pub fn files(&self) -> Vec<(String, Vec<u8>)> {
         let json = serde_json::to_string_pretty(&self.json()).unwrap_or_default() + "\n";
-        vec![
-            (
-                format!("{}.md", self.id),
-                format!("# {}\n\n{}", self.title, self.markdown()).into_bytes(),
-            ),
-            (format!("{}.csv", self.id), self.csv().into_bytes()),
-            (format!("{}.json", self.id), json.into_bytes()),
-        ]
+        files(
+            &self.id,
+            format!("# {}\n\n{}", self.title, self.markdown()),
+            self.csv(),
+            json.into_bytes(),
+        )
     }
+}
+
+/// The export files of a table: `<stem>.md`, `<stem>.csv` and `<stem>.json`.
+pub fn files(stem: &str, markdown: String, csv: String, json: Vec<u8>) -> Vec<(String, Vec<u8>)> {
+    vec![
+        (format!("{stem}.md"), markdown.into_bytes()),
+        (format!("{stem}.csv"), csv.into_bytes()),
+        (format!("{stem}.json"), json),
+    ]
 }
 
 fn csv_field(s: &str) -> String {

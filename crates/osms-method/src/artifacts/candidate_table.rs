@@ -1,7 +1,7 @@
 //! The candidate generators side by side (paper 6.4).
 
 use osms_core::Artifact;
-use osms_core::table::{Cell, Column, Layout, Table, Unit};
+use osms_core::table::{self, Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use serde::{Deserialize, Serialize};
 
@@ -112,13 +112,11 @@ impl Summarize for CandidateTable {
     }
 
     fn files(&self) -> Vec<(String, Vec<u8>)> {
-        vec![
-            ("candidates.md".into(), self.markdown().into_bytes()),
-            ("candidates.csv".into(), self.csv().into_bytes()),
-            (
-                "candidates.json".into(),
-                serde_json::to_vec_pretty(&self.rows).unwrap_or_default(),
-            ),
-        ]
+        table::files(
+            "candidates",
+            self.markdown(),
+            self.csv(),
+            serde_json::to_vec_pretty(&self.rows).unwrap_or_default(),
+        )
     }
 }

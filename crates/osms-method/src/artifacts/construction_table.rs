@@ -1,7 +1,7 @@
 //! Table II's left half: how Naive, Normal and ours constructed their demonstrations.
 
 use osms_core::Artifact;
-use osms_core::table::{Cell, Column, Layout, Table, Unit, Value};
+use osms_core::table::{self, Cell, Column, Layout, Table, Unit, Value};
 use osms_make::Summarize;
 use osms_policy::artifacts::ConstructionStats;
 use serde::{Deserialize, Serialize};
@@ -139,10 +139,11 @@ impl Summarize for ConstructionTable {
     }
     fn files(&self) -> Vec<(String, Vec<u8>)> {
         let json = serde_json::to_string_pretty(&self.rows).unwrap_or_default() + "\n";
-        vec![
-            ("construction_table.md".into(), self.markdown().into_bytes()),
-            ("construction_table.csv".into(), self.csv().into_bytes()),
-            ("construction_table.json".into(), json.into_bytes()),
-        ]
+        table::files(
+            "construction_table",
+            self.markdown(),
+            self.csv(),
+            json.into_bytes(),
+        )
     }
 }

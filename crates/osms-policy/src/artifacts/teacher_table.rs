@@ -1,7 +1,7 @@
 //! Table I's analog: the scripted prior, the catching-only teacher and the teacher.
 
 use osms_core::Artifact;
-use osms_core::table::{Cell, Column, Layout, Table, Unit};
+use osms_core::table::{self, Cell, Column, Layout, Table, Unit};
 use osms_make::Summarize;
 use osms_sim::artifacts::{Evaluation, TableLine};
 use serde::{Deserialize, Serialize};
@@ -102,11 +102,7 @@ impl Summarize for TeacherTable {
     }
     fn files(&self) -> Vec<(String, Vec<u8>)> {
         let json = serde_json::to_string_pretty(&self.rows).unwrap_or_default() + "\n";
-        vec![
-            ("table1.md".into(), self.markdown().into_bytes()),
-            ("table1.csv".into(), self.csv().into_bytes()),
-            ("table1.json".into(), json.into_bytes()),
-        ]
+        table::files("table1", self.markdown(), self.csv(), json.into_bytes())
     }
 }
 
