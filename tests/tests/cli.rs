@@ -1,6 +1,7 @@
 //! The real command line over a temporary project: exit codes, stdout and stderr snapshotted
 //! under `golden/cli/`, with only the temp path and timings filtered (never hashes).
 
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Output;
 
@@ -321,4 +322,236 @@ fn a_panicking_stage_fails_with_exit_1_and_the_rest_is_built() {
         text.contains("osms make: 4 built, 0 cached, 0 cut off, 1 failed, 1 skipped"),
         "{text}"
     );
+}
+
+/// A pipeline for experiments: seeded numbers, two shifts in a row and their total, and a
+/// held-out set that an experiment should not read.
+const EXP_PIPELINE: &str = r#"[pipeline]
+default_profile = "small"
+seed = 0
+experiment_targets = ["total"]
+held_out = ["heldout"]
+
+[stages.numbers]
+kind = "numbers"
+shards = 2
+params = { n = 4, len = 2 }
+
+[stages.shifted]
+kind = "shift"
+inputs = { values = "numbers" }
+params = { by = 0.5 }
+
+[stages.again]
+kind = "shift"
+inputs = { values = "shifted" }
+params = { by = 10.0 }
+
+[stages.total]
+kind = "sum"
+inputs = { values = "again" }
+
+[stages.heldout]
+kind = "numbers"
+seed = 9
+params = { n = 3 }
+
+[stages.peek]
+kind = "sum"
+inputs = { values = "heldout" }
+
+[profiles.tiny.numbers]
+params = { n = 2 }
+[profiles.small]
+"#;
+
+/// Every file of the store with its bytes, to prove a command left it alone.
+fn store_files(p: &Project) -> BTreeMap<String, Vec<u8>> {
+    fn walk(dir: &Path, root: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let path = e.path();
+            if path.is_dir() {
+                walk(&path, root, out);
+            } else {
+                let name = path.strip_prefix(root).unwrap_or(&path).display().to_string();
+                // The lock file and the stat cache are bookkeeping, rewritten by any reader.
+                if !name.ends_with(".lock") && !name.contains("stat-cache") {
+                    out.insert(name, std::fs::read(&path).unwrap_or_default());
+                }
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(&p.store, &p.store, &mut out);
+    out
+}
+
+#[test]
+fn bad_overrides_exit_1_naming_the_field_and_leave_the_store_alone() {
+    let p = Project::new(EXP_PIPELINE);
+    transcript(&p, &["make", "total"]);
+    let before = store_files(&p);
+    let text = session(
+        &p,
+        &[
+            &["make", "--set", "nosuch.n=1"],
+            &["make", "--set", "numbers.nn=1"],
+            &["make", "--set", "numbers.n=many"],
+            &["make", "--set", "numbers.n=-1"],
+            &["make", "--set", "numbers.shards=0"],
+            &["make", "--set", "numbers"],
+            &["make", "--set", "numbers.n.deep=1"],
+            &["make", "--set", "shifted.inputs.values=heldout"],
+            &["status", "--set", "shifted.by=2", "total"],
+            &["exp", "run", "bad", "--sweep", "shifted.by=1,x"],
+            &["exp", "run", "bad", "--sweep", "shifted.by=1,1"],
+            &["exp", "run", "bad/name"],
+            &["exp", "show", "nope"],
+            &["exp", "diff", "a", "b"],
+            &["exp", "rm", "nope"],
+        ],
+    );
+    assert_eq!(store_files(&p), before, "a refused command changed the store");
+    // A mistyped base value that the active profile overlays is still an error.
+    p.write_pipeline(&EXP_PIPELINE.replace(
+        "params = { n = 4, len = 2 }",
+        "params = { n = \"many\", len = 2 }",
+    ));
+    let text = format!(
+        "{text}\n{}",
+        session(&p, &[&["make", "-p", "tiny", "total"]])
+    );
+    settings().bind(|| insta::assert_snapshot!("overrides", text));
+}
+
+fn json_of(out: &Output) -> serde_json::Value {
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
+}
+
+#[test]
+fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
+    let p = Project::new(EXP_PIPELINE);
+    let bin = Path::new(BIN);
+    let run = json_of(&p.run(
+        bin,
+        &[
+            "exp", "run", "sw", "--sweep", "shifted.by=0.5,1,2", "--sweep", "again.by=10,20",
+            "--json", "-q",
+        ],
+    ));
+    let mut built: BTreeMap<String, usize> = BTreeMap::new();
+    for i in run["make"]["instances"].as_array().expect("instances") {
+        if i["outcome"] == "built" {
+            let name = i["instance"].as_str().expect("name");
+            let stage = name.split(['~', '#', '@']).next().expect("stage");
+            *built.entry(stage.to_string()).or_default() += 1;
+        }
+    }
+    let expected: BTreeMap<String, usize> = [("numbers", 1), ("shifted", 3), ("again", 6), ("total", 6)]
+        .map(|(s, n)| (s.to_string(), n))
+        .into();
+    assert_eq!(built, expected, "one graph: the shared numbers build once");
+    assert_eq!(run["experiment"]["points"].as_array().map(Vec::len), Some(6));
+
+    let show = json_of(&p.run(bin, &["exp", "show", "--json", "--metrics", "sum,count"]));
+    let rows = show["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 6);
+    let mut seen = Vec::new();
+    for (k, row) in rows.iter().enumerate() {
+        assert_eq!(row["experiment"], "sw");
+        assert_eq!(row["point"], k);
+        let (a, b) = (
+            row["params"]["shifted.by"].as_str().expect("shifted.by"),
+            row["params"]["again.by"].as_str().expect("again.by"),
+        );
+        seen.push(format!("{a} {b}"));
+        // The metric is the artifact's summary, the same that `osms show` prints for a make
+        // with the same overrides; and that make finds everything built.
+        let set_a = format!("shifted.by={a}");
+        let set_b = format!("again.by={b}");
+        let shown = json_of(&p.run(
+            bin,
+            &["show", "total", "--set", &set_a, "--set", &set_b, "--json"],
+        ));
+        for m in ["sum", "count"] {
+            assert_eq!(
+                row["metrics"][m][0].as_f64(),
+                shown["summary"][m].as_f64(),
+                "point {k}, {m}"
+            );
+        }
+        let made = json_of(&p.run(
+            bin,
+            &["make", "total", "--set", &set_a, "--set", &set_b, "--json", "-q"],
+        ));
+        assert!(
+            made["instances"]
+                .as_array()
+                .expect("instances")
+                .iter()
+                .all(|i| i["outcome"] == "cached"),
+            "{made}"
+        );
+    }
+    assert_eq!(seen, ["0.5 10", "0.5 20", "1 10", "1 20", "2 10", "2 20"]);
+
+    let diff = json_of(&p.run(bin, &["exp", "diff", "sw/0", "sw/1", "--json", "--metrics", "sum"]));
+    assert_eq!(diff["params"]["again.by"], serde_json::json!(["10", "20"]));
+    assert!(diff["params"].get("shifted.by").is_none(), "{diff}");
+    assert_eq!(diff["shared_instances"], 2, "numbers and shifted: {diff}");
+    let delta = diff["metrics"]["sum"][2].as_f64().expect("delta");
+    assert!((delta - 10.0 * 8.0).abs() < 1e-9, "8 values shifted 10 further: {delta}");
+
+    // The name is taken; gc keeps what the experiment holds until it is forgotten.
+    let again = p.run(bin, &["exp", "run", "sw"]);
+    assert_eq!(again.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("experiment `sw` exists"));
+    let rebuilt = |p: &Project| {
+        let made = json_of(&p.run(
+            bin,
+            &["make", "total", "--set", "shifted.by=2", "--set", "again.by=20", "--json", "-q"],
+        ));
+        made["instances"]
+            .as_array()
+            .expect("instances")
+            .iter()
+            .filter(|i| i["outcome"] == "built")
+            .count()
+    };
+    json_of(&p.run(bin, &["gc", "--json"]));
+    assert_eq!(rebuilt(&p), 0, "gc removed an experiment's artifacts");
+    assert_eq!(
+        json_of(&p.run(bin, &["exp", "show", "sw", "--json", "--metrics", "sum"]))["rows"]
+            .as_array()
+            .map(Vec::len),
+        Some(6)
+    );
+    assert_eq!(p.run(bin, &["exp", "rm", "sw"]).status.code(), Some(0));
+    json_of(&p.run(bin, &["gc", "--json"]));
+    assert_eq!(rebuilt(&p), 3, "shifted, again and total went with the experiment");
+    let shown = json_of(&p.run(bin, &["exp", "show", "--json"]));
+    assert_eq!(shown["rows"], serde_json::json!([]));
+}
+
+#[test]
+fn an_experiment_that_reads_held_out_stages_is_warned() {
+    let p = Project::new(EXP_PIPELINE);
+    let (text, out) = transcript(&p, &["exp", "run", "peeking", "peek"]);
+    assert_eq!(out.status.code(), Some(0), "{text}");
+    assert!(
+        text.contains("warning: experiment `peeking` reads the held-out stage(s) heldout"),
+        "{text}"
+    );
+    let (text, _) = transcript(&p, &["exp", "run", "clean", "--set", "again.by=3"]);
+    assert!(!text.contains("warning"), "{text}");
+    assert!(text.contains("osms exp run clean: 1 point(s), 4 built"), "{text}");
 }

@@ -178,7 +178,7 @@ pub fn make(
                 let cut_off = inputs.iter().any(|i| built.contains(&i.id));
                 available.insert(id, rec.content_hash);
                 // A dry run holds no lock, so it writes nothing but the stat cache.
-                if !opts.dry_run {
+                if !opts.dry_run && plan.record_heads {
                     heads.update(&name, &rec)?;
                 }
                 let r = cached_report(name, key, &rec, cut_off);
@@ -289,7 +289,9 @@ pub fn make(
                 );
                 rec.parts = parts;
                 store.put_record(&rec)?;
-                heads.update(&name, &rec)?;
+                if plan.record_heads {
+                    heads.update(&name, &rec)?;
+                }
                 available.insert(id, content_hash);
                 built.insert(id);
                 InstanceReport {

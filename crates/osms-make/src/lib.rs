@@ -8,9 +8,11 @@
 mod error;
 mod estimate;
 mod exec;
+pub mod experiment;
 pub mod executor;
 mod heads;
 mod kind;
+pub mod overrides;
 mod pipeline;
 mod plan;
 pub mod slurm;

@@ -6,6 +6,8 @@
 //! default_profile = "small"   # used when --profile is not given
 //! seeds = [0, 1, 2]           # run seeds when --seed/--seeds are not given (or `seed = 0`)
 //! targets = ["summary"]       # what `osms make` builds when given no targets [default: all]
+//! experiment_targets = ["dev_eval"] # what `osms exp run` builds when given no targets
+//! held_out = ["heldout"]      # stages an experiment is warned for reading
 //!
 //! [stages.rollouts]
 //! kind = "collect"            # a kind registered in code
@@ -34,6 +36,7 @@ use serde::Deserialize;
 
 use crate::error::{Error, Location, Result, key_location, list, location_of};
 use crate::executor::ExecutorConfig;
+use crate::overrides::{Field, Override, set_path, unknown_stage};
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -57,6 +60,10 @@ struct RawMeta {
     seeds: Option<Vec<u64>>,
     #[serde(default)]
     targets: Vec<String>,
+    #[serde(default)]
+    experiment_targets: Vec<String>,
+    #[serde(default)]
+    held_out: Vec<String>,
 }
 
 fn default_profile() -> String {
@@ -70,6 +77,8 @@ impl Default for RawMeta {
             seed: None,
             seeds: None,
             targets: Vec::new(),
+            experiment_targets: Vec::new(),
+            held_out: Vec::new(),
         }
     }
 }
@@ -109,6 +118,13 @@ pub struct StageSpec {
     pub fixed_seed: Option<u64>,
     /// Whether the chosen profile overlays any of this stage's params (for error locations).
     pub params_overlaid: bool,
+    /// The params as `[stages.NAME]` declares them, before any profile: checked by themselves
+    /// too, so a mistyped base value that a profile happens to overlay does not pass unseen.
+    pub base_params: toml::Table,
+    /// The params with the profile applied and before `--set` (for hints about valid values).
+    pub declared_params: toml::Table,
+    /// The `--set` overrides applied to this stage, in order.
+    pub overrides: Vec<Override>,
 }
 
 /// A parsed `pipeline.toml` with one profile applied.
@@ -121,6 +137,11 @@ pub struct Pipeline {
     pub default_seeds: Vec<u64>,
     /// What a make given no targets builds (empty: every stage).
     pub default_targets: Vec<String>,
+    /// What `osms exp run` builds when given no targets (a development stream's evaluations).
+    pub experiment_targets: Vec<String>,
+    /// Stages whose conditions are held out for the final tables: an experiment that reads
+    /// them is warned, since tuning on them would leak.
+    pub held_out: Vec<String>,
     pub stages: BTreeMap<String, StageSpec>,
     /// `[executor]`: where stages run (never part of a key).
     pub executor: ExecutorConfig,
@@ -208,11 +229,14 @@ impl Pipeline {
                     name,
                     kind: s.kind,
                     inputs: s.inputs,
+                    base_params: s.params.clone(),
+                    declared_params: toml::Table::new(),
                     params: s.params,
                     shards: s.shards.unwrap_or(1),
                     folds: s.folds,
                     fixed_seed: s.seed,
                     params_overlaid: false,
+                    overrides: Vec::new(),
                 },
             );
         }
@@ -241,6 +265,9 @@ impl Pipeline {
                 }
             }
         }
+        for stage in stages.values_mut() {
+            stage.declared_params = stage.params.clone();
+        }
         let names: Vec<&str> = stages.keys().map(String::as_str).collect();
         raw.executor
             .validate(&names, &|keys| key_location(path, &source, &doc, keys))?;
@@ -250,11 +277,34 @@ impl Pipeline {
             profiles,
             default_seeds,
             default_targets: raw.pipeline.targets,
+            experiment_targets: raw.pipeline.experiment_targets,
+            held_out: raw.pipeline.held_out,
             stages,
             executor: raw.executor,
             source,
             doc,
         })
+    }
+
+    /// Applies `--set` overrides on top of the profile, in order (a later one wins). Their
+    /// params are checked when the plan parses them into the kinds' types.
+    pub fn apply(&mut self, overrides: &[Override]) -> Result<()> {
+        for o in overrides {
+            let names: Vec<String> = self.stages.keys().cloned().collect();
+            let stage = self
+                .stages
+                .get_mut(&o.stage)
+                .ok_or_else(|| unknown_stage(o, &names))?;
+            match &o.field {
+                Field::Param(path) => set_path(&mut stage.params, path, o.value.clone(), o)?,
+                Field::Shards => {
+                    stage.shards = u32::try_from(o.integer("shards", 1)?).unwrap_or(u32::MAX)
+                }
+                Field::Seed => stage.fixed_seed = Some(o.integer("seed", 0)? as u64),
+            }
+            stage.overrides.push(o.clone());
+        }
+        Ok(())
     }
 
     /// The location of the deepest key of `keys` that exists in the file.

@@ -8,7 +8,8 @@ use osms_store::Hash;
 use serde::Serialize;
 
 use crate::error::{Error, Result, list};
-use crate::kind::{DynKind, Fold, KindInfo, Member, ParsedParams, Registry};
+use crate::kind::{DynKind, Fold, KindInfo, Member, ParamError, ParsedParams, Registry};
+use crate::overrides::{Field, Override};
 use crate::pipeline::Pipeline;
 
 /// One stage of the graph, independent of the run seed.
@@ -34,6 +35,9 @@ pub struct PlannedStage {
     /// params, seed rule, folds, input wiring): independent of any computed content, so
     /// identical on every platform.
     pub definition: Hash,
+    /// `~k` for a variant of the stage that a sweep's point k introduced ([`Plan::merge`]):
+    /// part of how its instances are shown and targeted, never of its keys or streams.
+    pub variant: Option<String>,
 }
 
 /// Which folds of a folded upstream an input takes.
@@ -68,8 +72,15 @@ pub struct Plan {
     pub default_seeds: Vec<u64>,
     /// The targets of a make given none (empty: every stage).
     pub default_targets: Vec<String>,
+    /// The targets of an experiment given none.
+    pub experiment_targets: Vec<String>,
+    /// `[pipeline] held_out`: stages experiments should not read.
+    pub held_out: Vec<String>,
     /// `[executor]` of the pipeline (a user config may overlay it).
     pub executor: crate::executor::ExecutorConfig,
+    /// Whether a make of this plan records what it built as the instances' heads (what
+    /// `status` compares against). Off for experiments, whose variants leave them be.
+    pub record_heads: bool,
     index: BTreeMap<String, usize>,
 }
 
@@ -171,26 +182,7 @@ impl Plan {
                 ));
             }
 
-            let params_value = toml::Value::Table(spec.params.clone());
-            let params = kind.parse_params(params_value).map_err(|e| {
-                let shown = if e.path.is_empty() {
-                    String::new()
-                } else {
-                    format!(" `{}`", e.path.join("."))
-                };
-                let mut path = e.path.clone();
-                // serde reports an unknown field at its parent; point at the field itself.
-                if e.message.starts_with("unknown field")
-                    && let Some(field) = e.message.split('`').nth(1)
-                {
-                    path.push(field.to_string());
-                }
-                Error::invalid(
-                    pipeline.locate_param(&name, &path),
-                    format!("{stage_desc}, param{shown}: {}", e.message),
-                    None,
-                )
-            })?;
+            let params = parse_params(pipeline, &name, &stage_desc, kind.as_ref())?;
 
             let mut inputs = Vec::new();
             for slot in info.inputs {
@@ -368,19 +360,27 @@ impl Plan {
                 role,
                 seed_dependent,
                 definition,
+                variant: None,
             });
         }
-        for target in &pipeline.default_targets {
-            let name = target.split(['#', '@']).next().unwrap_or_default();
-            if !index.contains_key(name) {
-                return Err(Error::invalid(
-                    pipeline.locate(&["pipeline", "targets"]),
-                    format!("[pipeline] targets: `{target}` is not a declared stage"),
-                    Some(format!(
-                        "declared stages are {}",
-                        crate::error::list(index.keys())
-                    )),
-                ));
+        let lists = [
+            ("targets", &pipeline.default_targets),
+            ("experiment_targets", &pipeline.experiment_targets),
+            ("held_out", &pipeline.held_out),
+        ];
+        for (field, targets) in lists {
+            for target in targets {
+                let name = target.split(['#', '@']).next().unwrap_or_default();
+                if !index.contains_key(name) {
+                    return Err(Error::invalid(
+                        pipeline.locate(&["pipeline", field]),
+                        format!("[pipeline] {field}: `{target}` is not a declared stage"),
+                        Some(format!(
+                            "declared stages are {}",
+                            crate::error::list(index.keys())
+                        )),
+                    ));
+                }
             }
         }
         Ok(Plan {
@@ -388,9 +388,69 @@ impl Plan {
             profile: pipeline.profile.clone(),
             default_seeds: pipeline.default_seeds.clone(),
             default_targets: pipeline.default_targets.clone(),
+            experiment_targets: pipeline.experiment_targets.clone(),
+            held_out: pipeline.held_out.clone(),
             executor: pipeline.executor.clone(),
+            record_heads: true,
             index,
         })
+    }
+
+    /// One graph for the points of a sweep: a stage whose definition is the same in several
+    /// points is planned once (so its instances build once), and one that differs becomes a
+    /// variant `name~k`, k the first point that declares it so. Keys and random streams are
+    /// those of each point's own plan. Returns, per point, its stage names -> merged indices.
+    pub fn merge(points: Vec<Plan>) -> Result<(Plan, Vec<BTreeMap<String, usize>>)> {
+        let mut points = points.into_iter();
+        let mut merged = points
+            .next()
+            .ok_or_else(|| Error::usage("a sweep needs at least one point"))?;
+        merged.record_heads = false;
+        let first = merged.index.clone();
+        let mut maps = vec![first];
+        for (k, plan) in points.enumerate() {
+            let mut map: BTreeMap<String, usize> = BTreeMap::new();
+            let mut local: Vec<usize> = Vec::with_capacity(plan.stages.len());
+            for mut stage in plan.stages {
+                for input in &mut stage.inputs {
+                    input.upstream = local[input.upstream];
+                }
+                let same = merged
+                    .stages
+                    .iter()
+                    .position(|m| m.name == stage.name && m.definition == stage.definition);
+                let at = match same {
+                    Some(at) => at,
+                    None => {
+                        stage.variant = Some(format!("~{}", k + 1));
+                        merged.index.insert(
+                            format!("{}~{}", stage.name, k + 1),
+                            merged.stages.len(),
+                        );
+                        merged.stages.push(stage);
+                        merged.stages.len() - 1
+                    }
+                };
+                map.insert(merged.stages[at].name.clone(), at);
+                local.push(at);
+            }
+            maps.push(map);
+        }
+        Ok((merged, maps))
+    }
+
+    /// `target` (`name`, `name#k`, `name@s`) of one sweep point, as the merged plan names it.
+    pub fn point_target(&self, map: &BTreeMap<String, usize>, target: &str) -> String {
+        let cut = target.find(['#', '@']).unwrap_or(target.len());
+        let (name, rest) = target.split_at(cut);
+        match map.get(name) {
+            Some(&i) => format!("{}{}{rest}", self.stages[i].name, self.variant(i)),
+            None => target.to_string(),
+        }
+    }
+
+    fn variant(&self, stage: usize) -> &str {
+        self.stages[stage].variant.as_deref().unwrap_or("")
     }
 
     pub fn stage_index(&self, name: &str) -> Option<usize> {
@@ -460,7 +520,12 @@ impl Plan {
     /// How instances are named to people: `stage`, `stage#fold`, `stage@seed`,
     /// `stage#fold@seed`. The name without `@seed` also names the instance's random streams.
     pub fn display(&self, id: InstanceId) -> String {
-        format!("{}{}", self.stages[id.stage].name, id.member().suffix())
+        format!(
+            "{}{}{}",
+            self.stages[id.stage].name,
+            self.variant(id.stage),
+            id.member().suffix()
+        )
     }
 
     /// The name that names an instance's random streams: the stage, with `#fold` for folds.
@@ -616,6 +681,114 @@ impl Plan {
             }
         }
         Hash::from(h.finalize())
+    }
+}
+
+/// A stage's params parsed into its kind's type. An error names the `--set` that reaches the
+/// field if one does, else the line of pipeline.toml. The declaration without the profile is
+/// parsed too, so a wrong base value hidden by the profile's overlay is still an error.
+fn parse_params(
+    pipeline: &Pipeline,
+    name: &str,
+    stage_desc: &str,
+    kind: &dyn DynKind,
+) -> Result<ParsedParams> {
+    let spec = &pipeline.stages[name];
+    let field_path = |e: &ParamError| {
+        let mut path = e.path.clone();
+        // serde reports an unknown field at its parent; point at the field itself.
+        if e.message.starts_with("unknown field")
+            && let Some(field) = e.message.split('`').nth(1)
+            && path.last().map(String::as_str) != Some(field)
+        {
+            path.push(field.to_string());
+        }
+        path
+    };
+    let shown = |path: &[String]| {
+        if path.is_empty() {
+            String::new()
+        } else {
+            format!(" `{}`", path.join("."))
+        }
+    };
+    let parsed = kind.parse_params(toml::Value::Table(spec.params.clone()));
+    let e = match parsed {
+        Ok(params) => {
+            if spec.params_overlaid
+                && let Err(e) = kind.parse_params(toml::Value::Table(spec.base_params.clone()))
+                // The profile may supply what the base leaves out.
+                && !e.message.starts_with("missing field")
+            {
+                let path = field_path(&e);
+                let mut keys = vec!["stages", name, "params"];
+                keys.extend(path.iter().map(String::as_str));
+                return Err(Error::invalid(
+                    pipeline.locate(&keys),
+                    format!(
+                        "{stage_desc}, param{} as [stages.{name}] declares it: {}",
+                        shown(&path),
+                        e.message
+                    ),
+                    Some(format!(
+                        "profile `{}` overlays this param, but the declaration must hold by itself (other profiles read it)",
+                        pipeline.profile
+                    )),
+                ));
+            }
+            return Ok(params);
+        }
+        Err(e) => e,
+    };
+    let path = field_path(&e);
+    let reaches = |o: &&Override| match &o.field {
+        Field::Param(p) => p.starts_with(&path) || path.starts_with(p),
+        _ => false,
+    };
+    let message = format!("{stage_desc}, param{}: {}", shown(&path), e.message);
+    match spec.overrides.iter().rev().find(reaches) {
+        Some(o) => {
+            let declared = kind
+                .parse_params(toml::Value::Table(spec.declared_params.clone()))
+                .ok();
+            Err(Error::invalid(
+                None,
+                format!("{}: {message}", o.desc()),
+                Some(valid_here(declared.as_ref().map(|p| &p.json), &path, name)),
+            ))
+        }
+        None => Err(Error::invalid(
+            pipeline.locate_param(name, &path),
+            message,
+            None,
+        )),
+    }
+}
+
+/// What the stage's params hold around `path`, for an override that missed: the fields of its
+/// parent table and the value in force.
+fn valid_here(declared: Option<&serde_json::Value>, path: &[String], stage: &str) -> String {
+    let Some(root) = declared else {
+        return format!("`osms show {stage}` prints the stage's params");
+    };
+    let (parent_path, field) = match path.split_last() {
+        Some((field, parent)) => (parent, Some(field)),
+        None => (path, None),
+    };
+    let parent = parent_path.iter().try_fold(root, |v, k| v.get(k));
+    let current = field.and_then(|f| parent.and_then(|p| p.get(f)));
+    let prefix = |k: &str| {
+        let mut p = parent_path.to_vec();
+        p.push(k.to_string());
+        format!("{stage}.{}", p.join("."))
+    };
+    match (current, parent.and_then(|p| p.as_object())) {
+        (Some(v), _) => format!("`{}` is {v} now", prefix(field.map_or("", |f| f.as_str()))),
+        (None, Some(fields)) => format!(
+            "the fields here are {}",
+            list(fields.keys().map(|k| prefix(k)))
+        ),
+        (None, None) => format!("`osms show {stage}` prints the stage's params"),
     }
 }
 

@@ -256,6 +256,8 @@ impl Summarize for Evaluation {
             "rollouts": self.rows.len(),
             "success_rate": all.as_ref().map(|l| l.success_rate),
             "completion_rate": all.as_ref().map(|l| l.completion_rate),
+            "f_max_n": all.as_ref().and_then(|l| l.max_force_n),
+            "follow_through_m": all.as_ref().and_then(|l| l.follow_through_m),
         })
     }
 

@@ -47,6 +47,10 @@ pub struct Selection {
     /// A seed sweep: the seed-dependent stages once per seed, the rest shared
     #[arg(long, value_delimiter = ',', value_name = "S,S,...")]
     pub seeds: Option<Vec<u64>>,
+    /// Override a knob for this command: a param by its dotted path, or `shards`/`seed`
+    /// (repeatable; applied after the profile; see "Experiments" in README.md)
+    #[arg(long = "set", value_name = "STAGE.PATH=VALUE")]
+    pub set: Vec<String>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -71,8 +75,11 @@ pub enum Command {
     Ls(JsonArg),
     /// Re-hash every object in the store and report damage
     Verify(JsonArg),
-    /// Remove objects that no current stage key reaches
+    /// Remove objects that no current stage key and no named experiment reaches
     Gc(GcArgs),
+    /// Named experiments: run variants of the pipeline (overrides, sweeps) and compare them
+    #[command(subcommand)]
+    Exp(ExpCommand),
     /// Check the set-up: MuJoCo, store, pipeline, platform class
     Doctor(JsonArg),
     /// List the stage kinds this osms knows, with their inputs and code versions
@@ -83,6 +90,77 @@ pub enum Command {
     /// Build one submitted instance or shard (run by Slurm jobs of `make --executor slurm`)
     #[command(hide = true)]
     RunTask(RunTaskArgs),
+}
+
+#[derive(Debug, Subcommand)]
+pub enum ExpCommand {
+    /// Build the targets under overrides and sweeps, and record what each point produced
+    Run(ExpRunArgs),
+    /// Compare experiments: one row per experiment (per sweep point), its knobs and metrics
+    Show(ExpShowArgs),
+    /// Two experiments (or points, `NAME/k`) side by side: knobs, metric deltas, shared work
+    Diff(ExpDiffArgs),
+    /// Forget experiments; their artifacts go at the next `osms gc` unless something else keeps them
+    Rm(ExpRmArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ExpRunArgs {
+    /// The experiment's name (letters, digits, `_`, `-`, `.`)
+    pub name: String,
+    /// Stages to build [default: the pipeline's `experiment_targets`]
+    pub targets: Vec<String>,
+    #[command(flatten)]
+    pub selection: Selection,
+    /// Sweep a knob over values (repeatable: the points are the product of the axes)
+    #[arg(long, value_name = "STAGE.PATH=A,B,...")]
+    pub sweep: Vec<String>,
+    /// Replace an experiment of this name
+    #[arg(long)]
+    pub force: bool,
+    /// Show what would be built, build and record nothing
+    #[arg(long, short = 'n')]
+    pub dry_run: bool,
+    /// Worker threads [default: all cores]
+    #[arg(long, short = 'j')]
+    pub jobs: Option<usize>,
+    /// Print the experiment's record as JSON on stdout
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ExpShowArgs {
+    /// Experiments to show [default: all]
+    pub names: Vec<String>,
+    /// Metrics: keys of the targets' summaries (`osms show`), with the short names `success`,
+    /// `completion`, `f_max`, and `train_secs`/`wall_secs` from the build records
+    #[arg(long, value_delimiter = ',', default_value = "success,completion,f_max,train_secs")]
+    pub metrics: Vec<String>,
+    /// Print JSON on stdout
+    #[arg(long, conflicts_with = "csv")]
+    pub json: bool,
+    /// Print CSV on stdout (one line per row)
+    #[arg(long)]
+    pub csv: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ExpDiffArgs {
+    /// An experiment, or one point of a sweep as `NAME/k`
+    pub a: String,
+    /// The other
+    pub b: String,
+    #[arg(long, value_delimiter = ',', default_value = "success,completion,f_max,train_secs")]
+    pub metrics: Vec<String>,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ExpRmArgs {
+    #[arg(required = true)]
+    pub names: Vec<String>,
 }
 
 #[derive(Debug, Subcommand)]

@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, Result, bail};
+use osms_make::overrides::Override;
 use osms_make::{Pipeline, Plan, Registry};
 use osms_store::Store;
 
@@ -46,7 +47,17 @@ impl Context {
     }
 
     pub fn plan(&self, profile: Option<&str>) -> Result<Plan> {
-        let pipeline = Pipeline::load(&self.pipeline_path, profile)?;
+        self.plan_with(profile, &[])
+    }
+
+    /// The plan of a selection: its profile, with its `--set` overrides applied.
+    pub fn selected_plan(&self, selection: &Selection) -> Result<Plan> {
+        self.plan_with(selection.profile.as_deref(), &parse_overrides(&selection.set)?)
+    }
+
+    pub fn plan_with(&self, profile: Option<&str>, overrides: &[Override]) -> Result<Plan> {
+        let mut pipeline = Pipeline::load(&self.pipeline_path, profile)?;
+        pipeline.apply(overrides)?;
         Ok(Plan::new(&pipeline, &self.registry)?)
     }
 
@@ -63,6 +74,14 @@ impl Context {
             _ => plan.default_seeds.clone(),
         }
     }
+}
+
+/// `--set` arguments, each `STAGE.PATH=VALUE`.
+pub fn parse_overrides(texts: &[String]) -> Result<Vec<Override>> {
+    Ok(texts
+        .iter()
+        .map(|t| t.parse::<Override>())
+        .collect::<std::result::Result<_, _>>()?)
 }
 
 fn find_pipeline() -> Result<PathBuf> {

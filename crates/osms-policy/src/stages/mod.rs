@@ -1,11 +1,12 @@
 //! The policy crate's stage kinds, one file each: the teacher (`teacher`, `eval_teacher`,
 //! `teacher_table`), its datasets (`collect`, `osw_windows`) and the students (`student`,
-//! `eval_student`, `error_pairs`).
+//! `eval_student`, `error_pairs`) and `evaluate`, any of the three policies on a condition set.
 
 mod collect;
 mod error_pairs;
 mod eval_student;
 mod eval_teacher;
+mod evaluate;
 mod osw_windows;
 mod student;
 mod teacher;
@@ -15,6 +16,7 @@ pub use collect::{CollectParams, CollectStage, DatasetRole};
 pub use error_pairs::{ErrorPairsParams, ErrorPairsStage, PairsPrepared};
 pub use eval_student::{EvalStudentParams, EvalStudentStage};
 pub use eval_teacher::{EvalTeacherParams, EvalTeacherStage};
+pub use evaluate::{EvaluateParams, EvaluateStage, Evaluated};
 pub use osw_windows::OswWindowsStage;
 pub use student::StudentStage;
 pub use teacher::{TeacherParams, TeacherStage};
@@ -48,6 +50,7 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register(OswWindowsStage)
         .register(StudentStage)
         .register_itemised(EvalStudentStage)
+        .register_itemised(EvaluateStage)
         .register_itemised(ErrorPairsStage);
 }
 

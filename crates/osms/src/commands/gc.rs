@@ -63,6 +63,10 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
             planned.extend(s.key);
         }
     }
+    // Named experiments keep every instance they recorded until `osms exp rm`.
+    let experiments = osms_make::experiment::kept_keys(&store)?;
+    let kept_by_experiments = experiments.iter().filter(|k| !keep.contains(*k)).count();
+    keep.extend(experiments);
     let report = store.gc(&keep, &planned, args.dry_run)?;
     if args.json {
         print_json(&report)?;
@@ -78,13 +82,18 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
             }
         }
         eprintln!(
-            "osms gc: {verb} {} objects ({}) and {} index records; kept {} objects reachable from profiles {} at seeds {:?}",
+            "osms gc: {verb} {} objects ({}) and {} index records; kept {} objects reachable from profiles {} at seeds {:?}{}",
             report.objects_removed.len(),
             human_bytes(report.bytes_removed),
             report.records_removed.len(),
             report.objects_kept,
             profiles.join(", "),
-            seeds
+            seeds,
+            if kept_by_experiments == 0 {
+                String::new()
+            } else {
+                format!(" and {kept_by_experiments} instance(s) only named experiments hold")
+            }
         );
     }
     Ok(ExitCode::SUCCESS)

@@ -34,7 +34,7 @@ pub(super) struct Resolved {
 /// or a key or content-hash prefix.
 pub(super) fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Result<Resolved> {
     // The plan first: a mistyped --pipeline must not leave a new store beside it.
-    let plan = ctx.plan(selection.profile.as_deref())?;
+    let plan = ctx.selected_plan(selection)?;
     let store = ctx.store()?;
     let (records, _) = store.records()?;
     let name = target.split(['@', '#']).next().unwrap_or(target);
@@ -308,7 +308,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     // A report written by stage name carries its provenance, as `osms make` writes it.
     let by_name = args.target.split(['@', '#']).next() == Some(record.stage.as_str());
     if super::report::REPORT_KINDS.contains(&record.kind.as_str()) && by_name {
-        let plan = ctx.plan(args.selection.profile.as_deref())?;
+        let plan = ctx.selected_plan(&args.selection)?;
         let seeds = Context::seeds(&args.selection, &plan);
         let written = super::report::write(ctx, &plan, &store, &record.stage, &seeds, &dir)?;
         let written: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();

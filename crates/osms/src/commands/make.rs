@@ -15,7 +15,7 @@ use crate::progress::MakeObserver;
 
 pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     let started = Instant::now();
-    let plan = ctx.plan(args.selection.profile.as_deref())?;
+    let plan = ctx.selected_plan(&args.selection)?;
     if let Some(problem) = foreign_mujoco(&plan, osms_sim::MUJOCO_PINNED) {
         bail!("{problem}");
     }
@@ -111,8 +111,12 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         }
     }
     if failed.is_empty() {
-        if !args.dry_run {
+        if !args.dry_run && args.selection.set.is_empty() {
             write_reports(ctx, &plan, &store, &report, &seeds)?;
+        } else if !args.dry_run && !ctx.quiet && has_report(&plan) {
+            eprintln!(
+                "osms make: report/ left as pipeline.toml makes it, since --set is in force;                  `osms export report --set ... --out DIR` writes this variant's"
+            );
         }
         Ok(ExitCode::SUCCESS)
     } else {
@@ -301,6 +305,12 @@ fn write_reports(
         }
     }
     Ok(())
+}
+
+fn has_report(plan: &Plan) -> bool {
+    plan.stages
+        .iter()
+        .any(|s| report::REPORT_KINDS.contains(&s.info.name))
 }
 
 /// Why `plan` must not be built with the MuJoCo that is loaded, if it must not: a stage steps

@@ -2,6 +2,7 @@
 
 mod data;
 mod doctor;
+mod exp;
 mod gc;
 mod inspect;
 mod make;
@@ -40,6 +41,7 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
         Command::Ls(args) => inspect::ls(&ctx, args.json),
         Command::Verify(args) => verify::run(&ctx, args.json),
         Command::Gc(args) => gc::run(&ctx, &args),
+        Command::Exp(command) => exp::run(&ctx, command),
         Command::World(crate::cli::WorldCommand::Dump(args)) => world::dump(&ctx, &args),
         Command::RunTask(args) => task::run(&ctx, &args),
         Command::Doctor(_) | Command::Kinds(_) => unreachable!("handled above"),

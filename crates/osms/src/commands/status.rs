@@ -11,7 +11,7 @@ use crate::commands::print_json;
 use crate::context::Context;
 
 pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
-    let plan = ctx.plan(args.selection.profile.as_deref())?;
+    let plan = ctx.selected_plan(&args.selection)?;
     let store = ctx.store()?;
     let seeds = Context::seeds(&args.selection, &plan);
     let statuses = osms_make::status(&plan, &store, &args.targets, &seeds)?;
@@ -109,7 +109,7 @@ fn describe_cluster(c: &ClusterStatus) -> String {
 }
 
 pub fn why(ctx: &Context, args: &WhyArgs) -> Result<ExitCode> {
-    let plan = ctx.plan(args.selection.profile.as_deref())?;
+    let plan = ctx.selected_plan(&args.selection)?;
     let store = ctx.store()?;
     let seeds = Context::seeds(&args.selection, &plan);
     let lineage = osms_make::why(&plan, &store, &args.target, &seeds)?;

@@ -1,0 +1,123 @@
+//! `evaluate`: any policy on a condition set, for tuning on a development stream: the scripted
+//! catcher, a teacher or a student, whichever is wired.
+
+use osms_core::rng::StreamRng;
+use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
+use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
+use osms_sim::{Episode, NoHooks, RolloutSpec, World};
+use serde::{Deserialize, Serialize};
+
+use crate::artifacts::{StudentArtifact, Teacher};
+use crate::student::Student;
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvaluateParams {
+    /// How the rollouts run. The scripted catcher and a student run this spec (a student
+    /// with its own history length); a teacher runs its training task with this spec's
+    /// domain randomisation, as `eval_teacher` with `dr` set does.
+    pub rollout: RolloutSpec,
+    /// The scripted catcher's gains (used when neither a teacher nor a student is wired).
+    pub catcher: CatcherSpec,
+}
+
+/// The policy an `evaluate` stage rolls out.
+pub enum Evaluated {
+    Scripted,
+    Teacher(Box<Teacher>),
+    Student(Box<Student>, RolloutSpec),
+}
+
+/// One policy on every condition of a set; rollout `i` draws its domain randomisation from
+/// ("item", i) and a student's noise from ("policy", i), as the `eval_*` kinds do: under the
+/// same stage name and seed its rows are theirs (tests/tests/experiments.rs checks the scripted
+/// catcher's).
+pub struct EvaluateStage;
+impl ItemStage for EvaluateStage {
+    const KIND: &'static str = "evaluate";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<WorldArtifact>("world"),
+        Slot::one::<Conditions>("conditions"),
+        Slot::one::<Teacher>("teacher").optional(),
+        Slot::one::<StudentArtifact>("student").optional(),
+    ];
+    const DOC: &'static str = "any policy (scripted catcher, teacher or student, as wired) evaluated on a condition set";
+    type Params = EvaluateParams;
+    type Prepared = (World, Conditions, Evaluated);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
+    fn numerics() -> Vec<Numerics> {
+        super::numerics()
+    }
+    fn prepare(&self, ctx: &Ctx<'_, EvaluateParams>) -> Result<Self::Prepared, StageError> {
+        let p = ctx.params;
+        let policy = match (ctx.has_input("teacher"), ctx.has_input("student")) {
+            (true, true) => {
+                return Err(
+                    "`evaluate` rolls out one policy: wire `teacher` or `student`, not both".into(),
+                );
+            }
+            (true, false) => {
+                let mut teacher: Teacher = ctx.input("teacher")?;
+                teacher.task = teacher.task.with_dr(&Some(p.rollout.dr.clone()));
+                Evaluated::Teacher(Box::new(teacher))
+            }
+            (false, true) => {
+                let student = ctx.input::<StudentArtifact>("student")?.student;
+                let spec = student.rollout_spec(&p.rollout);
+                Evaluated::Student(Box::new(student), spec)
+            }
+            (false, false) => Evaluated::Scripted,
+        };
+        Ok((
+            ctx.input::<WorldArtifact>("world")?.world()?,
+            ctx.sharded("conditions")?,
+            policy,
+        ))
+    }
+    fn n_items(&self, _: &Ctx<'_, EvaluateParams>, p: &Self::Prepared) -> usize {
+        p.1.items.len()
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, EvaluateParams>,
+        (world, conditions, policy): &Self::Prepared,
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<EvalRow, StageError> {
+        let condition = conditions.items[index].clone();
+        let record = match policy {
+            Evaluated::Scripted => {
+                let p = ctx.params;
+                let mut catcher =
+                    ScriptedCatcher::new(p.catcher.clone(), p.rollout.control.clone());
+                Episode::new(world, &p.rollout, condition, rng.clone())
+                    .run(&mut catcher, &mut NoHooks)
+            }
+            Evaluated::Teacher(t) => {
+                crate::catch::rollout(world, &t.task, &t.agent, condition, rng.clone())
+            }
+            Evaluated::Student(student, spec) => crate::student::rollout(
+                world,
+                spec,
+                student,
+                condition,
+                rng.clone(),
+                ctx.rng("policy", index as u64),
+            ),
+        };
+        Ok(EvalRow::of(record))
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, EvaluateParams>,
+        _: Self::Prepared,
+        rows: Vec<EvalRow>,
+    ) -> Result<Evaluation, StageError> {
+        Ok(Evaluation { rows })
+    }
+}

@@ -1,0 +1,652 @@
+//! `osms exp`: named experiments. `run` plans every sweep point, merges them into one graph
+//! (shared upstream work builds once), builds it and records each point's instances; `show`
+//! and `diff` read those records and the artifacts' summaries, never logs.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Result, bail};
+use osms_core::table::{Cell, Column, Layout, Table, Unit, Value};
+use osms_make::experiment::{self, Axis, Experiment, RECORD_VERSION};
+use osms_make::{MakeOptions, Outcome, Plan, StoreObjects};
+use osms_store::Store;
+use serde::Serialize;
+
+use crate::EXIT_FAILURE;
+use crate::cli::{ExpCommand, ExpDiffArgs, ExpRmArgs, ExpRunArgs, ExpShowArgs};
+use crate::commands::make::foreign_mujoco;
+use crate::commands::print_json;
+use crate::context::{Context, parse_overrides};
+use crate::progress::MakeObserver;
+
+/// Kinds whose build time is training time (the `train_secs` metric).
+const TRAINING_KINDS: [&str; 3] = ["teacher", "student", "manifold"];
+
+pub fn run(ctx: &Context, command: ExpCommand) -> Result<ExitCode> {
+    match command {
+        ExpCommand::Run(args) => exp_run(ctx, &args),
+        ExpCommand::Show(args) => show(ctx, &args),
+        ExpCommand::Diff(args) => diff(ctx, &args),
+        ExpCommand::Rm(args) => rm(ctx, &args),
+    }
+}
+
+fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
+    let started = Instant::now();
+    experiment::check_name(&args.name)?;
+    let set = parse_overrides(&args.selection.set)?;
+    let axes: Vec<Axis> = args
+        .sweep
+        .iter()
+        .map(|a| a.parse::<Axis>())
+        .collect::<std::result::Result<_, _>>()?;
+    let mut knobs = BTreeSet::new();
+    for a in &axes {
+        if !knobs.insert(a.knob.clone()) {
+            bail!(
+                "--sweep names `{}` twice\nhint: list every value of a knob in one --sweep",
+                a.knob
+            );
+        }
+    }
+    // Every point is planned before anything runs: a bad value fails here, naming its --sweep.
+    let points = experiment::points(&axes);
+    let profile = args.selection.profile.as_deref();
+    let plans = points
+        .iter()
+        .map(|p| {
+            let mut all = set.clone();
+            all.extend(p.iter().cloned());
+            ctx.plan_with(profile, &all)
+        })
+        .collect::<Result<Vec<Plan>>>()?;
+    let targets = if args.targets.is_empty() {
+        plans[0].experiment_targets.clone()
+    } else {
+        args.targets.clone()
+    };
+    if targets.is_empty() {
+        bail!(
+            "no targets: name the stages to build, or set `experiment_targets` under [pipeline] in {}\nhint: a development stream's evaluation, e.g. `osms exp run {} dev_teacher`",
+            ctx.pipeline_path.display(),
+            args.name
+        );
+    }
+    let seeds = Context::seeds(&args.selection, &plans[0]);
+    let profile_name = plans[0].profile.clone();
+    let store = ctx.store()?;
+    if !args.force && !args.dry_run && experiment::load(&store, &args.name)?.is_some() {
+        bail!(
+            "experiment `{}` exists\nhint: `osms exp run {} --force ...` replaces it, `osms exp rm {}` forgets it",
+            args.name,
+            args.name,
+            args.name
+        );
+    }
+    let (plan, maps) = Plan::merge(plans)?;
+    if let Some(problem) = foreign_mujoco(&plan, osms_sim::MUJOCO_PINNED) {
+        bail!("{problem}");
+    }
+    let point_targets: Vec<Vec<String>> = maps
+        .iter()
+        .map(|m| targets.iter().map(|t| plan.point_target(m, t)).collect())
+        .collect();
+    let all_targets: Vec<String> = point_targets.iter().flatten().cloned().collect();
+    let needed = plan.instances(&all_targets, &seeds)?;
+    let read: BTreeSet<&str> = needed
+        .iter()
+        .map(|id| plan.stages[id.stage].name.as_str())
+        .collect();
+    let reads_held_out: Vec<String> = plan
+        .held_out
+        .iter()
+        .filter(|h| read.contains(h.as_str()))
+        .cloned()
+        .collect();
+    if !reads_held_out.is_empty() && !ctx.quiet {
+        eprintln!(
+            "warning: experiment `{}` reads the held-out stage(s) {}: choosing a knob on them leaks the final tables' conditions\nhint: target a development stream (`[pipeline] experiment_targets`: {})",
+            args.name,
+            reads_held_out.join(", "),
+            if plan.experiment_targets.is_empty() {
+                "none declared".to_string()
+            } else {
+                plan.experiment_targets.join(", ")
+            }
+        );
+    }
+    if !ctx.quiet && points.len() > 1 {
+        for (k, p) in points.iter().enumerate() {
+            let shown: Vec<String> = p.iter().map(|o| o.to_string()).collect();
+            eprintln!("point {k}: {}", shown.join(" "));
+        }
+    }
+
+    let jobs = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    let opts = MakeOptions {
+        targets: all_targets,
+        seeds: seeds.clone(),
+        jobs,
+        dry_run: args.dry_run,
+    };
+    let observer = MakeObserver {
+        show_progress: ctx.progress,
+        quiet: ctx.quiet,
+        verbose: ctx.verbose,
+    };
+    let report = osms_make::make(&plan, &store, &opts, &observer)?;
+    let built = report.count(|o| matches!(o, Outcome::Built { .. }));
+    let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
+    let would = report.count(|o| matches!(o, Outcome::WouldBuild { .. }));
+    let failed = report.failed();
+    if args.dry_run {
+        if !ctx.quiet {
+            eprintln!(
+                "osms exp run {}: {} point(s); {would} instance(s) would be built, {cached} cached (nothing recorded)",
+                args.name,
+                points.len()
+            );
+        }
+        if args.json {
+            print_json(&serde_json::json!({ "make": report }))?;
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
+
+    let set_texts: Vec<String> = set.iter().map(|o| o.to_string()).collect();
+    let mut recorded = Vec::with_capacity(points.len());
+    for (k, point) in points.iter().enumerate() {
+        let target_stages: Vec<usize> = targets
+            .iter()
+            .filter_map(|t| maps[k].get(t.split(['#', '@']).next().unwrap_or(t)).copied())
+            .collect();
+        let mut overrides = set_texts.clone();
+        overrides.extend(point.iter().map(|o| o.to_string()));
+        recorded.push(experiment::point_record(
+            &plan,
+            &report,
+            &point_targets[k],
+            &seeds,
+            &target_stages,
+            point.iter().map(|o| o.value_text()).collect(),
+            overrides,
+        )?);
+    }
+    let exp = Experiment {
+        version: RECORD_VERSION,
+        name: args.name.clone(),
+        profile: profile_name,
+        targets,
+        seeds,
+        set: set_texts,
+        axes: axes.iter().map(|a| a.knob.clone()).collect(),
+        points: recorded,
+        reads_held_out,
+    };
+    {
+        let _lock = store.lock(|| {
+            eprintln!("waiting for another osms process to release the store lock...")
+        })?;
+        experiment::save(&store, &exp)?;
+    }
+    if args.json {
+        print_json(&serde_json::json!({ "experiment": exp, "make": report }))?;
+    }
+    if !ctx.quiet {
+        eprintln!(
+            "osms exp run {}: {} point(s), {built} built, {cached} cached{} in {:.2}s; `osms exp show {}` compares",
+            args.name,
+            exp.points.len(),
+            if failed.is_empty() {
+                String::new()
+            } else {
+                format!(", {} failed", failed.len())
+            },
+            started.elapsed().as_secs_f64(),
+            args.name
+        );
+    }
+    if failed.is_empty() {
+        Ok(ExitCode::SUCCESS)
+    } else {
+        eprintln!(
+            "error: {} stage(s) failed: {}",
+            failed.len(),
+            failed.join(", ")
+        );
+        Ok(ExitCode::from(EXIT_FAILURE))
+    }
+}
+
+/// One row of `exp show`: an experiment, or one point of a sweep.
+#[derive(Debug, Clone, Serialize)]
+struct Row {
+    experiment: String,
+    /// The point's index in a sweep (`None` for an experiment of one point).
+    point: Option<usize>,
+    profile: String,
+    seeds: Vec<u64>,
+    /// Knob -> value for every override in force.
+    params: BTreeMap<String, String>,
+    /// Metric column -> its values (one per run seed and target instance).
+    metrics: BTreeMap<String, Vec<f64>>,
+    /// Summed build wall time of every instance of the point, shared upstream included.
+    wall_secs: f64,
+    /// Instances that failed: the metrics are partial.
+    failed: Vec<String>,
+    /// Stage keys of the point's instances (for `diff`), not printed.
+    #[serde(skip)]
+    keys: BTreeSet<osms_store::Hash>,
+}
+
+impl Row {
+    fn label(&self) -> String {
+        match self.point {
+            Some(k) => format!("{}/{k}", self.experiment),
+            None => self.experiment.clone(),
+        }
+    }
+}
+
+/// A summary field as a number: `success`, `completion` and `f_max` are short for the
+/// evaluations' `success_rate`, `completion_rate` and `f_max_n`; a dotted name reaches into
+/// nested fields (`last_tenth.success_rate`).
+fn summary_metric(summary: &serde_json::Value, metric: &str) -> Option<f64> {
+    let long = match metric {
+        "success" => "success_rate",
+        "completion" => "completion_rate",
+        "f_max" => "f_max_n",
+        other => other,
+    };
+    [metric, long].iter().find_map(|name| {
+        name.split('.')
+            .try_fold(summary, |v, k| v.get(k))
+            .and_then(serde_json::Value::as_f64)
+    })
+}
+
+fn rows_of(
+    ctx: &Context,
+    store: &Store,
+    exp: &Experiment,
+    metrics: &[String],
+) -> Result<Vec<Row>> {
+    let objects = StoreObjects(store);
+    let mut rows = Vec::new();
+    for (k, point) in exp.points.iter().enumerate() {
+        let target_stages: BTreeSet<&str> = point
+            .instances
+            .iter()
+            .filter(|i| i.target)
+            .map(|i| i.stage.as_str())
+            .collect();
+        let column = |metric: &str, stage: &str| {
+            if target_stages.len() == 1 {
+                metric.to_string()
+            } else {
+                format!("{metric} ({stage})")
+            }
+        };
+        let mut values: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+        let mut wall_secs = 0.0;
+        let mut train_secs = 0.0;
+        for i in &point.instances {
+            let record = store.record(&i.key)?;
+            let secs = record.as_ref().map_or(0.0, |r| r.wall_time_secs);
+            wall_secs += secs;
+            if TRAINING_KINDS.contains(&i.kind.as_str()) {
+                train_secs += secs;
+            }
+            if !i.target {
+                continue;
+            }
+            let wanted: Vec<&String> = metrics
+                .iter()
+                .filter(|m| !matches!(m.as_str(), "train_secs" | "wall_secs"))
+                .collect();
+            if wanted.is_empty() {
+                continue;
+            }
+            let Some(kind) = ctx.registry.get(&i.kind) else {
+                continue;
+            };
+            let bytes = store.get(&i.content_hash).map_err(|e| {
+                anyhow::anyhow!(
+                    "experiment `{}`: the artifact of `{}` is not readable ({e})\nhint: `osms exp run {} --force ...` builds it again",
+                    exp.name,
+                    i.instance,
+                    exp.name
+                )
+            })?;
+            let summary = kind
+                .summarize(&bytes, &objects)
+                .map_err(|e| anyhow::anyhow!("`{}`: {e}", i.instance))?;
+            for m in wanted {
+                if let Some(v) = summary_metric(&summary, m) {
+                    values.entry(column(m, &i.stage)).or_default().push(v);
+                }
+            }
+        }
+        for m in metrics {
+            match m.as_str() {
+                "train_secs" => {
+                    values.insert(m.clone(), vec![train_secs]);
+                }
+                "wall_secs" => {
+                    values.insert(m.clone(), vec![wall_secs]);
+                }
+                _ => {}
+            }
+        }
+        rows.push(Row {
+            experiment: exp.name.clone(),
+            point: (exp.points.len() > 1).then_some(k),
+            profile: exp.profile.clone(),
+            seeds: exp.seeds.clone(),
+            params: point.knobs().into_iter().collect(),
+            metrics: values,
+            wall_secs,
+            failed: point.failed.clone(),
+            keys: point.instances.iter().map(|i| i.key).collect(),
+        });
+    }
+    Ok(rows)
+}
+
+fn load_named(store: &Store, names: &[String]) -> Result<Vec<Experiment>> {
+    if names.is_empty() {
+        return Ok(experiment::load_all(store)?);
+    }
+    names
+        .iter()
+        .map(|n| {
+            experiment::load(store, n)?.ok_or_else(|| unknown_experiment(store, n))
+        })
+        .collect()
+}
+
+fn unknown_experiment(store: &Store, name: &str) -> anyhow::Error {
+    let known = experiment::names(store).unwrap_or_default();
+    anyhow::anyhow!(
+        "no experiment `{name}` in {}\nhint: {}",
+        store.root().display(),
+        if known.is_empty() {
+            "there are none yet; `osms exp run NAME ...` records one".to_string()
+        } else {
+            format!("experiments are {}", known.join(", "))
+        }
+    )
+}
+
+fn unit_of(metric: &str) -> Unit {
+    let base = metric.split(" (").next().unwrap_or(metric);
+    match base {
+        "success" | "completion" => Unit::Percent,
+        m if m.ends_with("_rate") => Unit::Percent,
+        m if m.ends_with("_secs") => Unit::Number(1),
+        _ => Unit::Number(3),
+    }
+}
+
+/// The rows as one table: a column per knob that any row sets, then the metrics, then the
+/// wall time.
+fn table(rows: &[Row], metrics: &[String]) -> Table {
+    let mut knobs: Vec<&String> = Vec::new();
+    for r in rows {
+        for k in r.params.keys() {
+            if !knobs.contains(&k) {
+                knobs.push(k);
+            }
+        }
+    }
+    let mut metric_columns: Vec<&String> = Vec::new();
+    for m in metrics {
+        for r in rows {
+            for c in r.metrics.keys() {
+                let matches = c == m || c.starts_with(&format!("{m} ("));
+                if matches && !metric_columns.contains(&c) {
+                    metric_columns.push(c);
+                }
+            }
+        }
+    }
+    let mut columns: Vec<Column> = knobs.iter().map(|k| Column::new(*k, Unit::Text)).collect();
+    columns.extend(metric_columns.iter().map(|m| Column::new(*m, unit_of(m))));
+    columns.push(Column::new("wall_secs", Unit::Number(1)));
+    let mut t = Table::new("experiments", "Experiments", columns);
+    for r in rows {
+        let mut cells: Vec<Cell> = knobs
+            .iter()
+            .map(|k| Cell::text(r.params.get(*k).cloned().unwrap_or_else(|| "-".into())))
+            .collect();
+        cells.extend(metric_columns.iter().map(|m| {
+            Cell::ours(match r.metrics.get(*m) {
+                None => Value::Missing,
+                Some(v) if v.len() == 1 => Value::One(v[0]),
+                Some(v) => Value::Seeds(v.clone()),
+            })
+        }));
+        cells.push(Cell::one(r.wall_secs));
+        let label = if r.failed.is_empty() {
+            r.label()
+        } else {
+            format!("{} (incomplete)", r.label())
+        };
+        t.push(label, cells);
+    }
+    t.with_note(
+        "`-`: the pipeline's value. Metrics over several run seeds (or folds) read mean ± sd; wall_secs sums the build time of every instance of the row, shared upstream included.",
+    )
+}
+
+fn show(ctx: &Context, args: &ExpShowArgs) -> Result<ExitCode> {
+    let store = ctx.store()?;
+    let exps = load_named(&store, &args.names)?;
+    let mut rows = Vec::new();
+    for e in &exps {
+        rows.extend(rows_of(ctx, &store, e, &args.metrics)?);
+    }
+    if args.json {
+        print_json(&serde_json::json!({ "rows": rows }))?;
+    } else if args.csv {
+        print!("{}", table(&rows, &args.metrics).wide_csv("experiment"));
+    } else if rows.is_empty() {
+        if !ctx.quiet {
+            eprintln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
+        }
+    } else {
+        print!(
+            "{}",
+            table(&rows, &args.metrics).markdown_with(Layout::plain("experiment"))
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `NAME` (an experiment of one point) or `NAME/k`.
+fn row_named(ctx: &Context, store: &Store, spec: &str, metrics: &[String]) -> Result<Row> {
+    let (name, point) = match spec.rsplit_once('/') {
+        Some((n, k)) => match k.parse::<usize>() {
+            Ok(k) => (n, Some(k)),
+            Err(_) => bail!("`{spec}`: `{k}` is not a point\nhint: write NAME/0, NAME/1, ..."),
+        },
+        None => (spec, None),
+    };
+    let exp = experiment::load(store, name)?.ok_or_else(|| unknown_experiment(store, name))?;
+    let n = exp.points.len();
+    let rows = rows_of(ctx, store, &exp, metrics)?;
+    match (point, n) {
+        (None, 1) => Ok(rows.into_iter().next().expect("one point")),
+        (None, _) => bail!(
+            "experiment `{name}` has {n} points\nhint: name one: {name}/0 .. {name}/{}",
+            n - 1
+        ),
+        (Some(k), _) if k < n => Ok(rows.into_iter().nth(k).expect("point k")),
+        (Some(k), _) => bail!(
+            "experiment `{name}` has points 0 to {}, not {k}",
+            n.saturating_sub(1)
+        ),
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct Diff {
+    a: String,
+    b: String,
+    /// Knob -> (value in a, value in b), for the knobs whose values differ (`None`: the
+    /// pipeline's value).
+    params: BTreeMap<String, (Option<String>, Option<String>)>,
+    /// Metric -> (mean in a, mean in b, b - a).
+    metrics: BTreeMap<String, (Option<f64>, Option<f64>, Option<f64>)>,
+    shared_instances: usize,
+    instances: (usize, usize),
+}
+
+fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
+    let store = ctx.store()?;
+    let a = row_named(ctx, &store, &args.a, &args.metrics)?;
+    let b = row_named(ctx, &store, &args.b, &args.metrics)?;
+    let knobs: BTreeSet<&String> = a.params.keys().chain(b.params.keys()).collect();
+    let params = knobs
+        .into_iter()
+        .filter(|k| a.params.get(*k) != b.params.get(*k))
+        .map(|k| (k.clone(), (a.params.get(k).cloned(), b.params.get(k).cloned())))
+        .collect();
+    let mean = |v: Option<&Vec<f64>>| {
+        v.filter(|v| !v.is_empty())
+            .map(|v| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    let columns: BTreeSet<&String> = a.metrics.keys().chain(b.metrics.keys()).collect();
+    let metrics = columns
+        .into_iter()
+        .map(|m| {
+            let (x, y) = (mean(a.metrics.get(m)), mean(b.metrics.get(m)));
+            let delta = x.zip(y).map(|(x, y)| y - x);
+            (m.clone(), (x, y, delta))
+        })
+        .collect();
+    let d = Diff {
+        a: a.label(),
+        b: b.label(),
+        params,
+        metrics,
+        shared_instances: a.keys.intersection(&b.keys).count(),
+        instances: (a.keys.len(), b.keys.len()),
+    };
+    if args.json {
+        print_json(&d)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let mut knobs = Table::new(
+        "params",
+        "Knobs that differ",
+        vec![Column::new(&d.a, Unit::Text), Column::new(&d.b, Unit::Text)],
+    );
+    let shown = |v: &Option<String>| Cell::text(v.clone().unwrap_or_else(|| "-".into()));
+    for (k, (x, y)) in &d.params {
+        knobs.push(k, vec![shown(x), shown(y)]);
+    }
+    let mut deltas = Table::new(
+        "metrics",
+        "Metrics",
+        vec![
+            Column::new(&d.a, Unit::Number(4)),
+            Column::new(&d.b, Unit::Number(4)),
+            Column::new("b - a", Unit::Number(4)),
+        ],
+    );
+    for (m, (x, y, delta)) in &d.metrics {
+        deltas.push(m, vec![Cell::opt(*x), Cell::opt(*y), Cell::opt(*delta)]);
+    }
+    if d.params.is_empty() {
+        println!("the same knobs\n");
+    } else {
+        println!("{}", knobs.markdown_with(Layout::plain("knob")));
+    }
+    println!("{}", deltas.markdown_with(Layout::plain("metric")));
+    println!(
+        "shared instances: {} ({} in {}, {} in {})",
+        d.shared_instances, d.instances.0, d.a, d.instances.1, d.b
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn rm(ctx: &Context, args: &ExpRmArgs) -> Result<ExitCode> {
+    let store = ctx.store()?;
+    for name in &args.names {
+        if experiment::load(&store, name)?.is_none() {
+            return Err(unknown_experiment(&store, name));
+        }
+    }
+    let _lock = store
+        .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
+    for name in &args.names {
+        experiment::remove(&store, name)?;
+        if !ctx.quiet {
+            eprintln!("osms exp rm: forgot `{name}`; `osms gc` removes what only it kept");
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn short_metric_names_reach_the_summaries_fields() {
+        let s = serde_json::json!({
+            "success_rate": 0.5, "completion_rate": 0.25, "f_max_n": 12.0,
+            "last_tenth": { "return": 3.0 }, "rollouts": 40
+        });
+        assert_eq!(summary_metric(&s, "success"), Some(0.5));
+        assert_eq!(summary_metric(&s, "completion"), Some(0.25));
+        assert_eq!(summary_metric(&s, "f_max"), Some(12.0));
+        assert_eq!(summary_metric(&s, "rollouts"), Some(40.0));
+        assert_eq!(summary_metric(&s, "last_tenth.return"), Some(3.0));
+        assert_eq!(summary_metric(&s, "missing"), None);
+        assert_eq!(unit_of("success (eval)"), Unit::Percent);
+        assert_eq!(unit_of("train_secs"), Unit::Number(1));
+    }
+
+    fn row(point: Option<usize>, params: &[(&str, &str)], metrics: &[(&str, &[f64])]) -> Row {
+        Row {
+            experiment: "e".into(),
+            point,
+            profile: "tiny".into(),
+            seeds: vec![0, 1],
+            params: params
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect(),
+            metrics: metrics
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_vec()))
+                .collect(),
+            wall_secs: 2.0,
+            failed: vec![],
+            keys: BTreeSet::new(),
+        }
+    }
+
+    #[test]
+    fn the_table_has_a_column_per_knob_and_metric_and_reads_mean_sd_over_seeds() {
+        let rows = [
+            row(Some(0), &[("s.steps", "10")], &[("success", &[0.5, 0.7])]),
+            row(Some(1), &[("s.steps", "20"), ("t.lr", "0.1")], &[("success", &[0.9])]),
+        ];
+        let t = table(&rows, &["success".into()]);
+        let md = t.markdown_with(Layout::plain("experiment"));
+        assert!(
+            md.starts_with("| experiment | s.steps | t.lr | success | wall_secs |"),
+            "{md}"
+        );
+        assert!(md.contains("| e/0 | 10 | - | 60.0% ± 14.1% | 2.0 |"), "{md}");
+        assert!(md.contains("| e/1 | 20 | 0.1 | 90.0% | 2.0 |"), "{md}");
+    }
+}
