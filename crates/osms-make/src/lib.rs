@@ -1,6 +1,6 @@
 //! The pipeline engine: pipeline.toml to a typed stage graph, the stage-kind API, stage keys, a
-//! sharded deterministic executor (local or Slurm), status, lineage, seed sweeps and cost
-//! estimates.
+//! sharded deterministic executor (local or Slurm), status, lineage, seed sweeps, overrides,
+//! named experiments and cost estimates.
 //!
 //! Entry points: [`Pipeline::load`] reads the declaration, [`Plan::new`] checks it against a
 //! [`Registry`] of stage kinds, [`make`] builds, [`status`] and [`why`] explain.
