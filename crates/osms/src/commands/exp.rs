@@ -20,7 +20,8 @@ use crate::commands::print_json;
 use crate::context::{Context, parse_overrides};
 use crate::progress::MakeObserver;
 
-/// Kinds whose build time is training time (the `train_secs` metric).
+/// Kinds whose build time is training time: `train_secs` of a target is the build time of the
+/// artifacts of these kinds it reads directly.
 const TRAINING_KINDS: [&str; 3] = ["teacher", "student", "manifold"];
 
 pub fn run(ctx: &Context, command: ExpCommand) -> Result<ExitCode> {
@@ -294,21 +295,40 @@ fn rows_of(
         };
         let mut values: BTreeMap<String, Vec<f64>> = BTreeMap::new();
         let mut wall_secs = 0.0;
-        let mut train_secs = 0.0;
+        // Build time of every trained artifact of the point, by content hash: `train_secs` of a
+        // target is that of the networks it reads directly (the student it evaluates).
+        let mut trained: BTreeMap<osms_store::Hash, f64> = BTreeMap::new();
+        let mut records = Vec::with_capacity(point.instances.len());
         for i in &point.instances {
             let record = store.record(&i.key)?;
             let secs = record.as_ref().map_or(0.0, |r| r.wall_time_secs);
             wall_secs += secs;
             if TRAINING_KINDS.contains(&i.kind.as_str()) {
-                train_secs += secs;
+                trained.insert(i.content_hash, secs);
             }
+            records.push(record);
+        }
+        let wanted: Vec<&String> = metrics
+            .iter()
+            .filter(|m| m.as_str() != "train_secs")
+            .collect();
+        for (i, record) in point.instances.iter().zip(&records) {
             if !i.target {
                 continue;
             }
-            let wanted: Vec<&String> = metrics
-                .iter()
-                .filter(|m| !matches!(m.as_str(), "train_secs" | "wall_secs"))
-                .collect();
+            if metrics.iter().any(|m| m == "train_secs") {
+                let secs: Vec<f64> = record
+                    .iter()
+                    .flat_map(|r| r.inputs.iter())
+                    .filter_map(|(_, h)| trained.get(h).copied())
+                    .collect();
+                if !secs.is_empty() {
+                    values
+                        .entry(column("train_secs", &i.stage))
+                        .or_default()
+                        .push(secs.iter().sum());
+                }
+            }
             if wanted.is_empty() {
                 continue;
             }
@@ -326,21 +346,10 @@ fn rows_of(
             let summary = kind
                 .summarize(&bytes, &objects)
                 .map_err(|e| anyhow::anyhow!("`{}`: {e}", i.instance))?;
-            for m in wanted {
+            for m in &wanted {
                 if let Some(v) = summary_metric(&summary, m) {
                     values.entry(column(m, &i.stage)).or_default().push(v);
                 }
-            }
-        }
-        for m in metrics {
-            match m.as_str() {
-                "train_secs" => {
-                    values.insert(m.clone(), vec![train_secs]);
-                }
-                "wall_secs" => {
-                    values.insert(m.clone(), vec![wall_secs]);
-                }
-                _ => {}
             }
         }
         rows.push(Row {
@@ -388,7 +397,8 @@ fn unit_of(metric: &str) -> Unit {
     match base {
         "success" | "completion" => Unit::Percent,
         m if m.ends_with("_rate") => Unit::Percent,
-        m if m.ends_with("_secs") => Unit::Number(1),
+        m if m.ends_with("_secs") => Unit::Number(2),
+        "f_max" => Unit::Number(1),
         _ => Unit::Number(3),
     }
 }
@@ -427,7 +437,8 @@ fn table(rows: &[Row], metrics: &[String]) -> Table {
         cells.extend(metric_columns.iter().map(|m| {
             Cell::ours(match r.metrics.get(*m) {
                 None => Value::Missing,
-                Some(v) if v.len() == 1 => Value::One(v[0]),
+                // One value of a several-seed row is shown as such ("(1 seed)").
+                Some(v) if v.len() == 1 && r.seeds.len() == 1 => Value::One(v[0]),
                 Some(v) => Value::Seeds(v.clone()),
             })
         }));
