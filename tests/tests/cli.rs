@@ -376,7 +376,11 @@ fn store_files(p: &Project) -> BTreeMap<String, Vec<u8>> {
             if path.is_dir() {
                 walk(&path, root, out);
             } else {
-                let name = path.strip_prefix(root).unwrap_or(&path).display().to_string();
+                let name = path
+                    .strip_prefix(root)
+                    .unwrap_or(&path)
+                    .display()
+                    .to_string();
                 // The lock file and the stat cache are bookkeeping, rewritten by any reader.
                 if !name.ends_with(".lock") && !name.contains("stat-cache") {
                     out.insert(name, std::fs::read(&path).unwrap_or_default());
@@ -414,7 +418,11 @@ fn bad_overrides_exit_1_naming_the_field_and_leave_the_store_alone() {
             &["exp", "rm", "nope"],
         ],
     );
-    assert_eq!(store_files(&p), before, "a refused command changed the store");
+    assert_eq!(
+        store_files(&p),
+        before,
+        "a refused command changed the store"
+    );
     // A mistyped base value that the active profile overlays is still an error.
     p.write_pipeline(&EXP_PIPELINE.replace(
         "params = { n = 4, len = 2 }",
@@ -444,8 +452,15 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
     let run = json_of(&p.run(
         bin,
         &[
-            "exp", "run", "sw", "--sweep", "shifted.by=0.5,1,2", "--sweep", "again.by=10,20",
-            "--json", "-q",
+            "exp",
+            "run",
+            "sw",
+            "--sweep",
+            "shifted.by=0.5,1,2",
+            "--sweep",
+            "again.by=10,20",
+            "--json",
+            "-q",
         ],
     ));
     let mut built: BTreeMap<String, usize> = BTreeMap::new();
@@ -456,12 +471,23 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
             *built.entry(stage.to_string()).or_default() += 1;
         }
     }
-    let expected: BTreeMap<String, usize> = [("numbers", 1), ("shifted", 3), ("again", 6), ("total", 6)]
-        .map(|(s, n)| (s.to_string(), n))
-        .into();
+    let expected: BTreeMap<String, usize> =
+        [("numbers", 1), ("shifted", 3), ("again", 6), ("total", 6)]
+            .map(|(s, n)| (s.to_string(), n))
+            .into();
     assert_eq!(built, expected, "one graph: the shared numbers build once");
-    assert_eq!(run["experiment"]["points"].as_array().map(Vec::len), Some(6));
+    assert_eq!(
+        run["experiment"]["points"].as_array().map(Vec::len),
+        Some(6)
+    );
 
+    let listed = json_of(&p.run(bin, &["exp", "ls", "--json"]));
+    assert_eq!(listed[0]["name"], "sw");
+    assert_eq!(listed[0]["points"], 6);
+    assert_eq!(
+        listed[0]["sweep"],
+        serde_json::json!(["shifted.by", "again.by"])
+    );
     let show = json_of(&p.run(bin, &["exp", "show", "--json", "--metrics", "sum,count"]));
     let rows = show["rows"].as_array().expect("rows");
     assert_eq!(rows.len(), 6);
@@ -491,7 +517,9 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
         }
         let made = json_of(&p.run(
             bin,
-            &["make", "total", "--set", &set_a, "--set", &set_b, "--json", "-q"],
+            &[
+                "make", "total", "--set", &set_a, "--set", &set_b, "--json", "-q",
+            ],
         ));
         assert!(
             made["instances"]
@@ -504,12 +532,18 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
     }
     assert_eq!(seen, ["0.5 10", "0.5 20", "1 10", "1 20", "2 10", "2 20"]);
 
-    let diff = json_of(&p.run(bin, &["exp", "diff", "sw/0", "sw/1", "--json", "--metrics", "sum"]));
+    let diff = json_of(&p.run(
+        bin,
+        &["exp", "diff", "sw/0", "sw/1", "--json", "--metrics", "sum"],
+    ));
     assert_eq!(diff["params"]["again.by"], serde_json::json!(["10", "20"]));
     assert!(diff["params"].get("shifted.by").is_none(), "{diff}");
     assert_eq!(diff["shared_instances"], 2, "numbers and shifted: {diff}");
-    let delta = diff["metrics"]["sum"][2].as_f64().expect("delta");
-    assert!((delta - 10.0 * 8.0).abs() < 1e-9, "8 values shifted 10 further: {delta}");
+    let delta = diff["metrics"]["sum"]["delta"].as_f64().expect("delta");
+    assert!(
+        (delta - 10.0 * 8.0).abs() < 1e-9,
+        "8 values shifted 10 further: {delta}"
+    );
 
     // The name is taken; gc keeps what the experiment holds until it is forgotten.
     let again = p.run(bin, &["exp", "run", "sw"]);
@@ -518,7 +552,16 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
     let rebuilt = |p: &Project| {
         let made = json_of(&p.run(
             bin,
-            &["make", "total", "--set", "shifted.by=2", "--set", "again.by=20", "--json", "-q"],
+            &[
+                "make",
+                "total",
+                "--set",
+                "shifted.by=2",
+                "--set",
+                "again.by=20",
+                "--json",
+                "-q",
+            ],
         ));
         made["instances"]
             .as_array()
@@ -537,7 +580,11 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
     );
     assert_eq!(p.run(bin, &["exp", "rm", "sw"]).status.code(), Some(0));
     json_of(&p.run(bin, &["gc", "--json"]));
-    assert_eq!(rebuilt(&p), 3, "shifted, again and total went with the experiment");
+    assert_eq!(
+        rebuilt(&p),
+        3,
+        "shifted, again and total went with the experiment"
+    );
     let shown = json_of(&p.run(bin, &["exp", "show", "--json"]));
     assert_eq!(shown["rows"], serde_json::json!([]));
 }
@@ -553,5 +600,8 @@ fn an_experiment_that_reads_held_out_stages_is_warned() {
     );
     let (text, _) = transcript(&p, &["exp", "run", "clean", "--set", "again.by=3"]);
     assert!(!text.contains("warning"), "{text}");
-    assert!(text.contains("osms exp run clean: 1 point(s), 4 built"), "{text}");
+    assert!(
+        text.contains("osms exp run clean: 1 point(s), 4 built"),
+        "{text}"
+    );
 }

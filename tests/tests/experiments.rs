@@ -109,7 +109,11 @@ fn the_development_stream_shares_no_condition_with_the_held_out_set() {
     let bytes = |c: &osms_sim::TaskCondition| postcard::to_stdvec(c).expect("encode");
     let held: BTreeSet<Vec<u8>> = heldout.items.iter().map(bytes).collect();
     assert_eq!(held.len(), 3000, "the held-out set repeats a condition");
-    let shared = dev.items.iter().filter(|c| held.contains(&bytes(c))).count();
+    let shared = dev
+        .items
+        .iter()
+        .filter(|c| held.contains(&bytes(c)))
+        .count();
     assert_eq!(shared, 0, "{shared} development conditions are held out");
     // Not even one ω component (the launch, say) coincides.
     let launches: BTreeSet<String> = heldout
@@ -127,8 +131,9 @@ fn the_development_stream_shares_no_condition_with_the_held_out_set() {
 #[test]
 fn evaluate_rolls_out_the_scripted_catcher_as_eval_scripted_does() {
     // The same params, seed and stage name under the two kinds give the same rows.
-    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml"))
-        .expect("pipeline.toml");
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml"))
+            .expect("pipeline.toml");
     let dir = tempfile::tempdir().expect("dir");
     let path = dir.path().join("pipeline.toml");
     let store = Store::open(dir.path().join("store")).expect("store");

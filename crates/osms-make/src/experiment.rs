@@ -282,7 +282,12 @@ mod tests {
         let ps = points(&[a, b]);
         let shown: Vec<String> = ps
             .iter()
-            .map(|p| p.iter().map(|o| o.to_string()).collect::<Vec<_>>().join(" "))
+            .map(|p| {
+                p.iter()
+                    .map(|o| o.to_string())
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            })
             .collect();
         assert_eq!(
             shown,
@@ -312,7 +317,10 @@ mod tests {
         };
         assert_eq!(
             p.knobs(),
-            [("s.a".to_string(), "3".to_string()), ("t.b".into(), "2".into())]
+            [
+                ("s.a".to_string(), "3".to_string()),
+                ("t.b".into(), "2".into())
+            ]
         );
     }
 

@@ -8,8 +8,8 @@
 mod error;
 mod estimate;
 mod exec;
-pub mod experiment;
 pub mod executor;
+pub mod experiment;
 mod heads;
 mod kind;
 pub mod overrides;

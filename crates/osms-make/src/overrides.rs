@@ -105,9 +105,7 @@ impl FromStr for Override {
                 "--set `{text}`: {why}\nhint: write STAGE.PATH=VALUE, e.g. `--set student_ours.steps=2000` or `--set heldout.shards=2`"
             ))
         };
-        let (knob, value) = text
-            .split_once('=')
-            .ok_or_else(|| bad("no `=`".into()))?;
+        let (knob, value) = text.split_once('=').ok_or_else(|| bad("no `=`".into()))?;
         let mut parts: Vec<&str> = knob.trim().split('.').collect();
         if parts.len() < 2 || parts.iter().any(|p| p.is_empty()) {
             return Err(bad(format!(
@@ -165,7 +163,11 @@ pub(crate) fn set_path(
                         value_text(other),
                         path[depth + 1]
                     ),
-                    Some(format!("set `{}.{}` itself", o.stage, path[..=depth].join("."))),
+                    Some(format!(
+                        "set `{}.{}` itself",
+                        o.stage,
+                        path[..=depth].join(".")
+                    )),
                 ));
             }
         };
@@ -175,7 +177,10 @@ pub(crate) fn set_path(
 }
 
 /// The error of an override naming an undeclared stage.
-pub(crate) fn unknown_stage<'a>(o: &Override, stages: impl IntoIterator<Item = &'a String>) -> Error {
+pub(crate) fn unknown_stage<'a>(
+    o: &Override,
+    stages: impl IntoIterator<Item = &'a String>,
+) -> Error {
     Error::invalid(
         None,
         format!("{}: no stage `{}` in the pipeline", o.desc(), o.stage),
@@ -195,8 +200,14 @@ mod tests {
     fn values_are_toml_else_strings() {
         assert_eq!(parse("a.n=200").value, toml::Value::Integer(200));
         assert_eq!(parse("a.lr=1e-3").value, toml::Value::Float(1e-3));
-        assert_eq!(parse("a.dr=paper").value, toml::Value::String("paper".into()));
-        assert_eq!(parse("a.dr=\"paper\"").value, toml::Value::String("paper".into()));
+        assert_eq!(
+            parse("a.dr=paper").value,
+            toml::Value::String("paper".into())
+        );
+        assert_eq!(
+            parse("a.dr=\"paper\"").value,
+            toml::Value::String("paper".into())
+        );
         assert_eq!(parse("a.on=true").value, toml::Value::Boolean(true));
         let t = parse("a.dr={ actuation_noise = 0.05 }");
         assert_eq!(t.value["actuation_noise"].as_float(), Some(0.05));
@@ -216,7 +227,15 @@ mod tests {
             Field::Param(vec!["ppo".into(), "iterations".into()])
         );
         assert_eq!(parse("s.ppo.iterations=10").knob(), "s.ppo.iterations");
-        for bad in ["s", "s=1", "s.=1", ".n=1", "s..n=1", "s.inputs.world=w", "s.folds=2"] {
+        for bad in [
+            "s",
+            "s=1",
+            "s.=1",
+            ".n=1",
+            "s..n=1",
+            "s.inputs.world=w",
+            "s.folds=2",
+        ] {
             let err = bad.parse::<Override>().expect_err(bad).to_string();
             assert!(err.starts_with(&format!("--set `{bad}`: ")), "{err}");
             assert!(err.contains("hint: "), "{err}");
@@ -227,7 +246,13 @@ mod tests {
     fn set_path_creates_tables_and_refuses_to_descend_into_a_value() {
         let mut t: toml::Table = "n = 1\n[ppo]\nlr = 0.1\n".parse().expect("toml");
         let o = parse("s.ppo.iterations=5");
-        set_path(&mut t, &["ppo".into(), "iterations".into()], o.value.clone(), &o).expect("set");
+        set_path(
+            &mut t,
+            &["ppo".into(), "iterations".into()],
+            o.value.clone(),
+            &o,
+        )
+        .expect("set");
         set_path(&mut t, &["a".into(), "b".into()], o.value.clone(), &o).expect("set");
         assert_eq!(t["ppo"]["iterations"].as_integer(), Some(5));
         assert_eq!(t["ppo"]["lr"].as_float(), Some(0.1));
@@ -235,6 +260,9 @@ mod tests {
         let err = set_path(&mut t, &["n".into(), "x".into()], o.value.clone(), &o)
             .expect_err("n is a number")
             .to_string();
-        assert!(err.contains("param `n` of stage `s` is 1, not a table"), "{err}");
+        assert!(
+            err.contains("param `n` of stage `s` is 1, not a table"),
+            "{err}"
+        );
     }
 }

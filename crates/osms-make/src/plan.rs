@@ -423,10 +423,9 @@ impl Plan {
                     Some(at) => at,
                     None => {
                         stage.variant = Some(format!("~{}", k + 1));
-                        merged.index.insert(
-                            format!("{}~{}", stage.name, k + 1),
-                            merged.stages.len(),
-                        );
+                        merged
+                            .index
+                            .insert(format!("{}~{}", stage.name, k + 1), merged.stages.len());
                         merged.stages.push(stage);
                         merged.stages.len() - 1
                     }

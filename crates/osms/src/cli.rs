@@ -96,6 +96,8 @@ pub enum Command {
 pub enum ExpCommand {
     /// Build the targets under overrides and sweeps, and record what each point produced
     Run(ExpRunArgs),
+    /// List the experiments: name, profile, points, targets and knobs (reads their records only)
+    Ls(JsonArg),
     /// Compare experiments: one row per experiment (per sweep point), its knobs and metrics
     Show(ExpShowArgs),
     /// Two experiments (or points, `NAME/k`) side by side: knobs, metric deltas, shared work
@@ -129,6 +131,9 @@ pub struct ExpRunArgs {
     pub json: bool,
 }
 
+/// What `exp show` and `exp diff` compare when not told.
+const DEFAULT_METRICS: &str = "success,completion,f_max,train_secs";
+
 #[derive(Debug, Args)]
 pub struct ExpShowArgs {
     /// Experiments to show [default: all]
@@ -136,7 +141,7 @@ pub struct ExpShowArgs {
     /// Metrics: keys of the targets' summaries (`osms show`), with the short names `success`,
     /// `completion`, `f_max`, and `train_secs` (the build time of the networks a target reads,
     /// from the build records); the total build time is always shown
-    #[arg(long, value_delimiter = ',', default_value = "success,completion,f_max,train_secs")]
+    #[arg(long, value_delimiter = ',', default_value = DEFAULT_METRICS)]
     pub metrics: Vec<String>,
     /// Print JSON on stdout
     #[arg(long, conflicts_with = "csv")]
@@ -152,7 +157,7 @@ pub struct ExpDiffArgs {
     pub a: String,
     /// The other
     pub b: String,
-    #[arg(long, value_delimiter = ',', default_value = "success,completion,f_max,train_secs")]
+    #[arg(long, value_delimiter = ',', default_value = DEFAULT_METRICS)]
     pub metrics: Vec<String>,
     #[arg(long)]
     pub json: bool,

@@ -52,13 +52,25 @@ impl Context {
 
     /// The plan of a selection: its profile, with its `--set` overrides applied.
     pub fn selected_plan(&self, selection: &Selection) -> Result<Plan> {
-        self.plan_with(selection.profile.as_deref(), &parse_overrides(&selection.set)?)
+        self.plan_with(
+            selection.profile.as_deref(),
+            &parse_overrides(&selection.set)?,
+        )
     }
 
     pub fn plan_with(&self, profile: Option<&str>, overrides: &[Override]) -> Result<Plan> {
         let mut pipeline = Pipeline::load(&self.pipeline_path, profile)?;
         pipeline.apply(overrides)?;
         Ok(Plan::new(&pipeline, &self.registry)?)
+    }
+
+    /// Worker threads: `--jobs`, else every core.
+    pub fn jobs(requested: Option<usize>) -> usize {
+        requested.unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        })
     }
 
     /// Seeds of a selection: `--seeds`, else `--seed`, else the pipeline's run seeds.

@@ -35,6 +35,17 @@ impl Drop for Bar {
     }
 }
 
+impl MakeObserver {
+    /// The observer a command's global options ask for.
+    pub fn of(ctx: &crate::context::Context) -> Self {
+        MakeObserver {
+            show_progress: ctx.progress,
+            quiet: ctx.quiet,
+            verbose: ctx.verbose,
+        }
+    }
+}
+
 impl Observer for MakeObserver {
     fn waiting_for_lock(&self) {
         if !self.quiet {

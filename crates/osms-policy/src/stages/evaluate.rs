@@ -44,7 +44,8 @@ impl ItemStage for EvaluateStage {
         Slot::one::<Teacher>("teacher").optional(),
         Slot::one::<StudentArtifact>("student").optional(),
     ];
-    const DOC: &'static str = "any policy (scripted catcher, teacher or student, as wired) evaluated on a condition set";
+    const DOC: &'static str =
+        "any policy (scripted catcher, teacher or student, as wired) evaluated on a condition set";
     type Params = EvaluateParams;
     type Prepared = (World, Conditions, Evaluated);
     type Item = EvalRow;

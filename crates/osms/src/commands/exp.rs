@@ -27,6 +27,7 @@ const TRAINING_KINDS: [&str; 3] = ["teacher", "student", "manifold"];
 pub fn run(ctx: &Context, command: ExpCommand) -> Result<ExitCode> {
     match command {
         ExpCommand::Run(args) => exp_run(ctx, &args),
+        ExpCommand::Ls(args) => ls(ctx, args.json),
         ExpCommand::Show(args) => show(ctx, &args),
         ExpCommand::Diff(args) => diff(ctx, &args),
         ExpCommand::Rm(args) => rm(ctx, &args),
@@ -124,22 +125,14 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         }
     }
 
-    let jobs = args.jobs.unwrap_or_else(|| {
-        std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-    });
+    let jobs = Context::jobs(args.jobs);
     let opts = MakeOptions {
         targets: all_targets,
         seeds: seeds.clone(),
         jobs,
         dry_run: args.dry_run,
     };
-    let observer = MakeObserver {
-        show_progress: ctx.progress,
-        quiet: ctx.quiet,
-        verbose: ctx.verbose,
-    };
+    let observer = MakeObserver::of(ctx);
     let report = osms_make::make(&plan, &store, &opts, &observer)?;
     let built = report.count(|o| matches!(o, Outcome::Built { .. }));
     let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
@@ -164,7 +157,11 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
     for (k, point) in points.iter().enumerate() {
         let target_stages: Vec<usize> = targets
             .iter()
-            .filter_map(|t| maps[k].get(t.split(['#', '@']).next().unwrap_or(t)).copied())
+            .filter_map(|t| {
+                maps[k]
+                    .get(t.split(['#', '@']).next().unwrap_or(t))
+                    .copied()
+            })
             .collect();
         let mut overrides = set_texts.clone();
         overrides.extend(point.iter().map(|o| o.to_string()));
@@ -190,9 +187,8 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         reads_held_out,
     };
     {
-        let _lock = store.lock(|| {
-            eprintln!("waiting for another osms process to release the store lock...")
-        })?;
+        let _lock = store
+            .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
         experiment::save(&store, &exp)?;
     }
     if args.json {
@@ -222,6 +218,64 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         );
         Ok(ExitCode::from(EXIT_FAILURE))
     }
+}
+
+fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
+    let store = ctx.store()?;
+    let exps = experiment::load_all(&store)?;
+    if json {
+        let listed: Vec<serde_json::Value> = exps
+            .iter()
+            .map(|e| {
+                serde_json::json!({
+                    "name": e.name,
+                    "profile": e.profile,
+                    "points": e.points.len(),
+                    "seeds": e.seeds,
+                    "targets": e.targets,
+                    "set": e.set,
+                    "sweep": e.axes,
+                    "complete": e.points.iter().all(|p| p.failed.is_empty()),
+                })
+            })
+            .collect();
+        print_json(&listed)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let mut t = Table::new(
+        "experiments",
+        "Experiments",
+        vec![
+            Column::new("profile", Unit::Text),
+            Column::new("points", Unit::Count),
+            Column::new("seeds", Unit::Text),
+            Column::new("targets", Unit::Text),
+            Column::new("knobs", Unit::Text),
+        ],
+    );
+    for e in &exps {
+        let seeds: Vec<String> = e.seeds.iter().map(u64::to_string).collect();
+        let mut knobs = e.set.clone();
+        knobs.extend(e.axes.iter().map(|a| format!("{a}=(sweep)")));
+        t.push(
+            &e.name,
+            vec![
+                Cell::text(&e.profile),
+                Cell::one(e.points.len() as f64),
+                Cell::text(seeds.join(",")),
+                Cell::text(e.targets.join(" ")),
+                Cell::text(knobs.join(" ")),
+            ],
+        );
+    }
+    if exps.is_empty() {
+        if !ctx.quiet {
+            eprintln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
+        }
+    } else {
+        print!("{}", t.markdown_with(Layout::plain("experiment")));
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// One row of `exp show`: an experiment, or one point of a sweep.
@@ -271,12 +325,7 @@ fn summary_metric(summary: &serde_json::Value, metric: &str) -> Option<f64> {
     })
 }
 
-fn rows_of(
-    ctx: &Context,
-    store: &Store,
-    exp: &Experiment,
-    metrics: &[String],
-) -> Result<Vec<Row>> {
+fn rows_of(ctx: &Context, store: &Store, exp: &Experiment, metrics: &[String]) -> Result<Vec<Row>> {
     let objects = StoreObjects(store);
     let mut rows = Vec::new();
     for (k, point) in exp.points.iter().enumerate() {
@@ -373,9 +422,7 @@ fn load_named(store: &Store, names: &[String]) -> Result<Vec<Experiment>> {
     }
     names
         .iter()
-        .map(|n| {
-            experiment::load(store, n)?.ok_or_else(|| unknown_experiment(store, n))
-        })
+        .map(|n| experiment::load(store, n)?.ok_or_else(|| unknown_experiment(store, n)))
         .collect()
 }
 
@@ -505,6 +552,14 @@ fn row_named(ctx: &Context, store: &Store, spec: &str, metrics: &[String]) -> Re
     }
 }
 
+/// One metric in two rows: the means and b - a.
+#[derive(Debug, Serialize)]
+struct Delta {
+    a: Option<f64>,
+    b: Option<f64>,
+    delta: Option<f64>,
+}
+
 #[derive(Debug, Serialize)]
 struct Diff {
     a: String,
@@ -512,8 +567,7 @@ struct Diff {
     /// Knob -> (value in a, value in b), for the knobs whose values differ (`None`: the
     /// pipeline's value).
     params: BTreeMap<String, (Option<String>, Option<String>)>,
-    /// Metric -> (mean in a, mean in b, b - a).
-    metrics: BTreeMap<String, (Option<f64>, Option<f64>, Option<f64>)>,
+    metrics: BTreeMap<String, Delta>,
     shared_instances: usize,
     instances: (usize, usize),
 }
@@ -526,7 +580,12 @@ fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
     let params = knobs
         .into_iter()
         .filter(|k| a.params.get(*k) != b.params.get(*k))
-        .map(|k| (k.clone(), (a.params.get(k).cloned(), b.params.get(k).cloned())))
+        .map(|k| {
+            (
+                k.clone(),
+                (a.params.get(k).cloned(), b.params.get(k).cloned()),
+            )
+        })
         .collect();
     let mean = |v: Option<&Vec<f64>>| {
         v.filter(|v| !v.is_empty())
@@ -538,7 +597,7 @@ fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
         .map(|m| {
             let (x, y) = (mean(a.metrics.get(m)), mean(b.metrics.get(m)));
             let delta = x.zip(y).map(|(x, y)| y - x);
-            (m.clone(), (x, y, delta))
+            (m.clone(), Delta { a: x, b: y, delta })
         })
         .collect();
     let d = Diff {
@@ -571,8 +630,8 @@ fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
             Column::new("b - a", Unit::Number(4)),
         ],
     );
-    for (m, (x, y, delta)) in &d.metrics {
-        deltas.push(m, vec![Cell::opt(*x), Cell::opt(*y), Cell::opt(*delta)]);
+    for (m, v) in &d.metrics {
+        deltas.push(m, vec![Cell::opt(v.a), Cell::opt(v.b), Cell::opt(v.delta)]);
     }
     if d.params.is_empty() {
         println!("the same knobs\n");
@@ -622,7 +681,8 @@ mod tests {
         assert_eq!(summary_metric(&s, "last_tenth.return"), Some(3.0));
         assert_eq!(summary_metric(&s, "missing"), None);
         assert_eq!(unit_of("success (eval)"), Unit::Percent);
-        assert_eq!(unit_of("train_secs"), Unit::Number(1));
+        assert_eq!(unit_of("train_secs"), Unit::Number(2));
+        assert_eq!(unit_of("f_max"), Unit::Number(1));
     }
 
     fn row(point: Option<usize>, params: &[(&str, &str)], metrics: &[(&str, &[f64])]) -> Row {
@@ -649,7 +709,11 @@ mod tests {
     fn the_table_has_a_column_per_knob_and_metric_and_reads_mean_sd_over_seeds() {
         let rows = [
             row(Some(0), &[("s.steps", "10")], &[("success", &[0.5, 0.7])]),
-            row(Some(1), &[("s.steps", "20"), ("t.lr", "0.1")], &[("success", &[0.9])]),
+            row(
+                Some(1),
+                &[("s.steps", "20"), ("t.lr", "0.1")],
+                &[("success", &[0.9])],
+            ),
         ];
         let t = table(&rows, &["success".into()]);
         let md = t.markdown_with(Layout::plain("experiment"));
@@ -657,7 +721,13 @@ mod tests {
             md.starts_with("| experiment | s.steps | t.lr | success | wall_secs |"),
             "{md}"
         );
-        assert!(md.contains("| e/0 | 10 | - | 60.0% ± 14.1% | 2.0 |"), "{md}");
-        assert!(md.contains("| e/1 | 20 | 0.1 | 90.0% | 2.0 |"), "{md}");
+        assert!(
+            md.contains("| e/0 | 10 | - | 60.0% ± 14.1% | 2.0 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| e/1 | 20 | 0.1 | 90.0% (1 seed) | 2.0 |"),
+            "{md}"
+        );
     }
 }

@@ -21,11 +21,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     }
     let store = ctx.store()?;
     let seeds = Context::seeds(&args.selection, &plan);
-    let jobs = args.jobs.unwrap_or_else(|| {
-        std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-    });
+    let jobs = Context::jobs(args.jobs);
     let targets = if args.targets.is_empty() {
         plan.default_targets.clone()
     } else {
@@ -37,11 +33,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         jobs,
         dry_run: args.dry_run,
     };
-    let observer = MakeObserver {
-        show_progress: ctx.progress,
-        quiet: ctx.quiet,
-        verbose: ctx.verbose,
-    };
+    let observer = MakeObserver::of(ctx);
     let config = executor_config(&plan)?;
     let executor = args.executor.or(config.kind).unwrap_or(ExecutorKind::Local);
     // A dry run submits nothing: it is the same plan whatever the executor.
