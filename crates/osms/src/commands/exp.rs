@@ -498,7 +498,7 @@ fn table(rows: &[Row], metrics: &[String]) -> Table {
         t.push(label, cells);
     }
     t.with_note(
-        "`-`: the pipeline's value. Metrics over several run seeds (or folds) read mean ± sd; wall_secs sums the build time of every instance of the row, shared upstream included.",
+        "`-` under a knob: the pipeline's value; under a metric: none (no catch completed, say, so no f_max). Metrics over several run seeds read mean ± sd; wall_secs sums the build time of every instance of the row, shared upstream included.",
     )
 }
 
