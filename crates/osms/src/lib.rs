@@ -1,6 +1,6 @@
-//! The osms command line: make (local or Slurm), status, why, show, ls, export, verify, gc, doctor,
-//! kinds, export-dataset, replay, render and world dump; it registers every stage kind and writes
-//! report directories with their provenance.
+//! The osms command line: make (local or Slurm), status, why, show, ls, export, verify, gc, exp
+//! (named experiments), doctor, kinds, export-dataset, replay, render and world dump; it registers
+//! every stage kind and writes report directories with their provenance.
 //!
 //! [`main_with`] runs the command line with any [`Registry`], so end-to-end tests can drive the
 //! same code with stage kinds of their own; [`registry`] holds the kinds osms ships.
