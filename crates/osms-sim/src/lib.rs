@@ -16,6 +16,7 @@ mod error;
 pub mod ffi;
 pub mod metrics;
 pub mod mjcf;
+pub mod reach;
 pub mod replay;
 pub mod robot;
 pub mod spec;
