@@ -65,9 +65,11 @@ fn the_probe_follows_through_further_than_the_catcher_that_holds_its_arm() {
             control.clone(),
         ))
     });
-    let mut report = |label: &str, control: ControlSpec, weight: f64| -> Vec<f64> {
-        let mut spec = RolloutSpec::default();
-        spec.control = control.clone();
+    let report = |label: &str, control: ControlSpec, weight: f64| -> Vec<f64> {
+        let spec = RolloutSpec {
+            control: control.clone(),
+            ..RolloutSpec::default()
+        };
         let l = follow_through(&world, &spec, &conditions, &mut || {
             Box::new(FollowThroughProbe::new(
                 CatcherSpec::default(),
