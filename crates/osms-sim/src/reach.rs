@@ -7,17 +7,22 @@
 use crate::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
 use crate::control::{Action, ControlSpec, N_ARM};
 use crate::episode::{Policy, PolicyView};
+use crate::vec3::{norm, sub};
 
 /// Damping of the follow-through's damped-least-squares step (as the teacher's channel).
 pub const FOLLOW_THROUGH_DAMPING: f64 = 0.05;
 
 /// The scripted catcher until first contact, then every arm channel at full scale along the
-/// frozen incoming direction (the hand keeps closing as the catcher closes it).
+/// frozen incoming direction (the hand keeps closing as the catcher closes it). With
+/// `start_distance_m`, the palm already starts moving along the object's velocity once the
+/// object is that close, as a velocity-matching catch would.
 pub struct FollowThroughProbe {
     catcher: ScriptedCatcher,
     /// Weight of the palm's orientation against its position in the follow-through's IK
     /// (see [`palm_motion_channels`]).
     pub orientation_weight: f64,
+    pub start_distance_m: Option<f64>,
+    started: bool,
 }
 
 impl FollowThroughProbe {
@@ -25,20 +30,38 @@ impl FollowThroughProbe {
         FollowThroughProbe {
             catcher: ScriptedCatcher::new(catcher, control),
             orientation_weight,
+            start_distance_m: None,
+            started: false,
         }
+    }
+
+    /// The same, moving from when the object is `distance` from the palm.
+    pub fn starting_at(mut self, distance: f64) -> Self {
+        self.start_distance_m = Some(distance);
+        self
     }
 }
 
 impl Policy for FollowThroughProbe {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let mut action = self.catcher.act(view);
-        if let Some(contact) = view.first_contact {
-            let g = palm_motion_channels(
-                view,
-                contact.incoming_dir,
-                self.orientation_weight,
-                FOLLOW_THROUGH_DAMPING,
-            );
+        let dir = match view.first_contact {
+            Some(contact) => Some(contact.incoming_dir),
+            None => {
+                let ids = &view.world.ids;
+                let (o, d) = (ids.object_qpos, ids.object_dof);
+                let (q, v) = (view.data.qpos(), view.data.qvel());
+                let palm = view.data.site_xpos()[ids.palm_site];
+                let gap = norm(sub([q[o], q[o + 1], q[o + 2]], palm));
+                let vel = [v[d], v[d + 1], v[d + 2]];
+                let speed = norm(vel);
+                self.started |= self.start_distance_m.is_some_and(|s| gap < s);
+                (self.started && speed > 1e-9).then(|| vel.map(|x| x / speed))
+            }
+        };
+        if let Some(dir) = dir {
+            let g =
+                palm_motion_channels(view, dir, self.orientation_weight, FOLLOW_THROUGH_DAMPING);
             action[..N_ARM].copy_from_slice(&g);
         }
         action

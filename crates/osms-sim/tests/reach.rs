@@ -49,6 +49,31 @@ fn follow_through(
         .collect()
 }
 
+/// The default world with the arm servos' force ranges and velocity gains scaled (the MJCF
+/// edited as text: the servo parameters are not part of `WorldSpec`).
+fn servo_world(force: f64, kv: f64) -> World {
+    let xml: Vec<String> = osms_sim::ObjectVariant::all()
+        .into_iter()
+        .map(|v| {
+            let mut text = osms_sim::mjcf::world_xml(&WorldSpec::default(), v);
+            for f in [50.0, 30.0, 20.0] {
+                text = text.replace(
+                    &format!("forcerange=\"-{f} {f}\""),
+                    &format!("forcerange=\"-{0} {0}\"", f * force),
+                );
+            }
+            for kp in [1500.0, 1000.0, 800.0] {
+                text = text.replace(
+                    &format!("biasprm=\"0 -{kp} -{}\"", kp / 10.0),
+                    &format!("biasprm=\"0 -{kp} -{}\"", kp / 10.0 * kv),
+                );
+            }
+            text
+        })
+        .collect();
+    World::from_xml(WorldSpec::default(), xml).expect("world")
+}
+
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
 }
@@ -109,6 +134,56 @@ fn the_probe_follows_through_further_than_the_catcher_that_holds_its_arm() {
             &format!("probe, {rate} rad/step, orientation weight {weight}"),
             c,
             weight,
+        );
+    }
+    // Moving before contact, as a velocity-matching catch does.
+    for start in [0.2, 0.4] {
+        let spec = RolloutSpec::default();
+        let l = follow_through(&world, &spec, &conditions, &mut || {
+            Box::new(
+                FollowThroughProbe::new(CatcherSpec::default(), default.clone(), 0.3)
+                    .starting_at(start),
+            )
+        });
+        println!(
+            "{:<44} contacts {:>2}/{CONDITIONS}  ℓ_max mean {:.3} m  max {:.3}  ≥ 0.2 m: {}",
+            format!("probe moving from {start} m before contact"),
+            l.len(),
+            mean(&l),
+            l.iter().fold(0.0f64, |m, x| m.max(*x)),
+            l.iter().filter(|x| **x >= 0.2).count()
+        );
+    }
+    // Stronger arm servos (force ranges and velocity gains scaled) with faster targets.
+    for (rate, force, kv) in [
+        (0.12, 2.0, 1.0),
+        (0.12, 4.0, 1.0),
+        (0.24, 4.0, 1.0),
+        (0.36, 4.0, 1.0),
+        (0.24, 4.0, 0.5),
+        (0.36, 4.0, 0.5),
+    ] {
+        let strong = servo_world(force, kv);
+        let mut control = default.clone();
+        control.arm_max_delta_rad = rate;
+        let spec = RolloutSpec {
+            control: control.clone(),
+            ..RolloutSpec::default()
+        };
+        let l = follow_through(&strong, &spec, &conditions, &mut || {
+            Box::new(FollowThroughProbe::new(
+                CatcherSpec::default(),
+                control.clone(),
+                0.3,
+            ))
+        });
+        println!(
+            "{:<44} contacts {:>2}/{CONDITIONS}  ℓ_max mean {:.3} m  max {:.3}  ≥ 0.2 m: {}",
+            format!("probe, {rate} rad/step, force x{force}, kv x{kv}"),
+            l.len(),
+            mean(&l),
+            l.iter().fold(0.0f64, |m, x| m.max(*x)),
+            l.iter().filter(|x| **x >= 0.2).count()
         );
     }
     assert!(!probe.is_empty() && !held.is_empty(), "no contact at all");
