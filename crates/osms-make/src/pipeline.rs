@@ -116,19 +116,19 @@ pub struct StageSpec {
     /// `Some(n)`: the stage has n instances per run seed, `name#0` .. `name#n-1`.
     pub folds: Option<u32>,
     pub fixed_seed: Option<u64>,
-    /// Whether the chosen profile overlays any of this stage's params (for error locations).
-    pub params_overlaid: bool,
-    /// The params as `[stages.NAME]` declares them, before any profile: checked by themselves
-    /// too, so a mistyped base value that a profile happens to overlay does not pass unseen.
-    pub base_params: toml::Table,
-    /// The params with the profile applied and before `--set` (for hints about valid values).
-    pub declared_params: toml::Table,
+    /// The params as `[stages.NAME]` declares them, if the chosen profile overlays any: checked
+    /// by themselves too, so a mistyped base value that a profile happens to overlay does not
+    /// pass unseen.
+    pub base_params: Option<toml::Table>,
+    /// The params with the profile applied, if `--set` changed them (for hints about valid
+    /// values).
+    pub declared_params: Option<toml::Table>,
     /// The `--set` overrides applied to this stage, in order.
     pub overrides: Vec<Override>,
 }
 
 /// A parsed `pipeline.toml` with one profile applied.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Pipeline {
     pub path: PathBuf,
     pub profile: String,
@@ -229,13 +229,12 @@ impl Pipeline {
                     name,
                     kind: s.kind,
                     inputs: s.inputs,
-                    base_params: s.params.clone(),
-                    declared_params: toml::Table::new(),
+                    base_params: None,
+                    declared_params: None,
                     params: s.params,
                     shards: s.shards.unwrap_or(1),
                     folds: s.folds,
                     fixed_seed: s.seed,
-                    params_overlaid: false,
                     overrides: Vec::new(),
                 },
             );
@@ -255,7 +254,9 @@ impl Pipeline {
                         )),
                     ));
                 };
-                stage.params_overlaid = !overlay.params.is_empty();
+                if !overlay.params.is_empty() {
+                    stage.base_params = Some(stage.params.clone());
+                }
                 merge(&mut stage.params, &overlay.params);
                 if let Some(shards) = overlay.shards {
                     stage.shards = shards;
@@ -264,9 +265,6 @@ impl Pipeline {
                     stage.folds = Some(folds);
                 }
             }
-        }
-        for stage in stages.values_mut() {
-            stage.declared_params = stage.params.clone();
         }
         let names: Vec<&str> = stages.keys().map(String::as_str).collect();
         raw.executor
@@ -296,7 +294,12 @@ impl Pipeline {
                 .get_mut(&o.stage)
                 .ok_or_else(|| unknown_stage(o, &names))?;
             match &o.field {
-                Field::Param(path) => set_path(&mut stage.params, path, o.value.clone(), o)?,
+                Field::Param(path) => {
+                    if stage.declared_params.is_none() {
+                        stage.declared_params = Some(stage.params.clone());
+                    }
+                    set_path(&mut stage.params, path, o.value.clone(), o)?
+                }
                 Field::Shards => {
                     stage.shards = u32::try_from(o.integer("shards", 1)?).unwrap_or(u32::MAX)
                 }

@@ -714,8 +714,8 @@ fn parse_params(
     let parsed = kind.parse_params(toml::Value::Table(spec.params.clone()));
     let e = match parsed {
         Ok(params) => {
-            if spec.params_overlaid
-                && let Err(e) = kind.parse_params(toml::Value::Table(spec.base_params.clone()))
+            if let Some(base) = &spec.base_params
+                && let Err(e) = kind.parse_params(toml::Value::Table(base.clone()))
                 // The profile may supply what the base leaves out.
                 && !e.message.starts_with("missing field")
             {
@@ -747,9 +747,10 @@ fn parse_params(
     let message = format!("{stage_desc}, param{}: {}", shown(&path), e.message);
     match spec.overrides.iter().rev().find(reaches) {
         Some(o) => {
-            let declared = kind
-                .parse_params(toml::Value::Table(spec.declared_params.clone()))
-                .ok();
+            let declared = spec
+                .declared_params
+                .as_ref()
+                .and_then(|d| kind.parse_params(toml::Value::Table(d.clone())).ok());
             Err(Error::invalid(
                 None,
                 format!("{}: {message}", o.desc()),

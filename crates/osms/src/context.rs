@@ -59,7 +59,11 @@ impl Context {
     }
 
     pub fn plan_with(&self, profile: Option<&str>, overrides: &[Override]) -> Result<Plan> {
-        let mut pipeline = Pipeline::load(&self.pipeline_path, profile)?;
+        self.plan_of(Pipeline::load(&self.pipeline_path, profile)?, overrides)
+    }
+
+    /// The plan of a loaded pipeline with `overrides` applied.
+    pub fn plan_of(&self, mut pipeline: Pipeline, overrides: &[Override]) -> Result<Plan> {
         pipeline.apply(overrides)?;
         Ok(Plan::new(&pipeline, &self.registry)?)
     }

@@ -7,15 +7,15 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Result, bail};
+use osms_core::stats::MeanSd;
 use osms_core::table::{Cell, Column, Layout, Table, Unit, Value};
 use osms_make::experiment::{self, Axis, Experiment, RECORD_VERSION};
-use osms_make::{MakeOptions, Outcome, Plan, StoreObjects};
+use osms_make::{MakeOptions, Observer, Outcome, Pipeline, Plan, StoreObjects};
 use osms_store::Store;
 use serde::Serialize;
 
-use crate::EXIT_FAILURE;
 use crate::cli::{ExpCommand, ExpDiffArgs, ExpRmArgs, ExpRunArgs, ExpShowArgs};
-use crate::commands::make::foreign_mujoco;
+use crate::commands::make::{failure_exit, foreign_mujoco};
 use crate::commands::print_json;
 use crate::context::{Context, parse_overrides};
 use crate::progress::MakeObserver;
@@ -54,13 +54,13 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
     }
     // Every point is planned before anything runs: a bad value fails here, naming its --sweep.
     let points = experiment::points(&axes);
-    let profile = args.selection.profile.as_deref();
+    let pipeline = Pipeline::load(&ctx.pipeline_path, args.selection.profile.as_deref())?;
     let plans = points
         .iter()
         .map(|p| {
             let mut all = set.clone();
             all.extend(p.iter().cloned());
-            ctx.plan_with(profile, &all)
+            ctx.plan_of(pipeline.clone(), &all)
         })
         .collect::<Result<Vec<Plan>>>()?;
     let targets = if args.targets.is_empty() {
@@ -187,8 +187,7 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         reads_held_out,
     };
     {
-        let _lock = store
-            .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
+        let _lock = store.lock(|| observer.waiting_for_lock())?;
         experiment::save(&store, &exp)?;
     }
     if args.json {
@@ -208,16 +207,7 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
             args.name
         );
     }
-    if failed.is_empty() {
-        Ok(ExitCode::SUCCESS)
-    } else {
-        eprintln!(
-            "error: {} stage(s) failed: {}",
-            failed.len(),
-            failed.join(", ")
-        );
-        Ok(ExitCode::from(EXIT_FAILURE))
-    }
+    Ok(failure_exit(&failed))
 }
 
 fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
@@ -326,65 +316,77 @@ fn summary_metric(summary: &serde_json::Value, metric: &str) -> Option<f64> {
 }
 
 fn rows_of(ctx: &Context, store: &Store, exp: &Experiment, metrics: &[String]) -> Result<Vec<Row>> {
+    (0..exp.points.len())
+        .map(|k| point_row(ctx, store, exp, k, metrics))
+        .collect()
+}
+
+/// The row of point `k`: its knobs, the metrics of its targets' summaries and build records.
+fn point_row(
+    ctx: &Context,
+    store: &Store,
+    exp: &Experiment,
+    k: usize,
+    metrics: &[String],
+) -> Result<Row> {
     let objects = StoreObjects(store);
-    let mut rows = Vec::new();
-    for (k, point) in exp.points.iter().enumerate() {
-        let target_stages: BTreeSet<&str> = point
-            .instances
-            .iter()
-            .filter(|i| i.target)
-            .map(|i| i.stage.as_str())
-            .collect();
-        let column = |metric: &str, stage: &str| {
-            if target_stages.len() == 1 {
-                metric.to_string()
-            } else {
-                format!("{metric} ({stage})")
-            }
-        };
-        let mut values: BTreeMap<String, Vec<f64>> = BTreeMap::new();
-        let mut wall_secs = 0.0;
-        // Build time of every trained artifact of the point, by content hash: `train_secs` of a
-        // target is that of the networks it reads directly (the student it evaluates).
-        let mut trained: BTreeMap<osms_store::Hash, f64> = BTreeMap::new();
-        let mut records = Vec::with_capacity(point.instances.len());
-        for i in &point.instances {
-            let record = store.record(&i.key)?;
-            let secs = record.as_ref().map_or(0.0, |r| r.wall_time_secs);
-            wall_secs += secs;
-            if TRAINING_KINDS.contains(&i.kind.as_str()) {
-                trained.insert(i.content_hash, secs);
-            }
-            records.push(record);
+    let point = &exp.points[k];
+    let wanted: Vec<&String> = metrics
+        .iter()
+        .filter(|m| m.as_str() != "train_secs")
+        .collect();
+    let target_stages: BTreeSet<&str> = point
+        .instances
+        .iter()
+        .filter(|i| i.target)
+        .map(|i| i.stage.as_str())
+        .collect();
+    let column = |metric: &str, stage: &str| {
+        if target_stages.len() == 1 {
+            metric.to_string()
+        } else {
+            format!("{metric} ({stage})")
         }
-        let wanted: Vec<&String> = metrics
-            .iter()
-            .filter(|m| m.as_str() != "train_secs")
-            .collect();
-        for (i, record) in point.instances.iter().zip(&records) {
-            if !i.target {
-                continue;
+    };
+    let mut values: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut wall_secs = 0.0;
+    // Build time of every trained artifact of the point, by content hash: `train_secs` of a
+    // target is that of the networks it reads directly (the student it evaluates).
+    let mut trained: BTreeMap<osms_store::Hash, f64> = BTreeMap::new();
+    let mut records = Vec::with_capacity(point.instances.len());
+    for i in &point.instances {
+        let record = store.record(&i.key)?;
+        let secs = record.as_ref().map_or(0.0, |r| r.wall_time_secs);
+        wall_secs += secs;
+        if TRAINING_KINDS.contains(&i.kind.as_str()) {
+            trained.insert(i.content_hash, secs);
+        }
+        records.push(record);
+    }
+    for (i, record) in point.instances.iter().zip(&records) {
+        if !i.target {
+            continue;
+        }
+        if metrics.iter().any(|m| m == "train_secs") {
+            let secs: Vec<f64> = record
+                .iter()
+                .flat_map(|r| r.inputs.iter())
+                .filter_map(|(_, h)| trained.get(h).copied())
+                .collect();
+            if !secs.is_empty() {
+                values
+                    .entry(column("train_secs", &i.stage))
+                    .or_default()
+                    .push(secs.iter().sum());
             }
-            if metrics.iter().any(|m| m == "train_secs") {
-                let secs: Vec<f64> = record
-                    .iter()
-                    .flat_map(|r| r.inputs.iter())
-                    .filter_map(|(_, h)| trained.get(h).copied())
-                    .collect();
-                if !secs.is_empty() {
-                    values
-                        .entry(column("train_secs", &i.stage))
-                        .or_default()
-                        .push(secs.iter().sum());
-                }
-            }
-            if wanted.is_empty() {
-                continue;
-            }
-            let Some(kind) = ctx.registry.get(&i.kind) else {
-                continue;
-            };
-            let bytes = store.get(&i.content_hash).map_err(|e| {
+        }
+        if wanted.is_empty() {
+            continue;
+        }
+        let Some(kind) = ctx.registry.get(&i.kind) else {
+            continue;
+        };
+        let bytes = store.get(&i.content_hash).map_err(|e| {
                 anyhow::anyhow!(
                     "experiment `{}`: the artifact of `{}` is not readable ({e})\nhint: `osms exp run {} --force ...` builds it again",
                     exp.name,
@@ -392,28 +394,26 @@ fn rows_of(ctx: &Context, store: &Store, exp: &Experiment, metrics: &[String]) -
                     exp.name
                 )
             })?;
-            let summary = kind
-                .summarize(&bytes, &objects)
-                .map_err(|e| anyhow::anyhow!("`{}`: {e}", i.instance))?;
-            for m in &wanted {
-                if let Some(v) = summary_metric(&summary, m) {
-                    values.entry(column(m, &i.stage)).or_default().push(v);
-                }
+        let summary = kind
+            .summarize(&bytes, &objects)
+            .map_err(|e| anyhow::anyhow!("`{}`: {e}", i.instance))?;
+        for m in &wanted {
+            if let Some(v) = summary_metric(&summary, m) {
+                values.entry(column(m, &i.stage)).or_default().push(v);
             }
         }
-        rows.push(Row {
-            experiment: exp.name.clone(),
-            point: (exp.points.len() > 1).then_some(k),
-            profile: exp.profile.clone(),
-            seeds: exp.seeds.clone(),
-            params: point.knobs().into_iter().collect(),
-            metrics: values,
-            wall_secs,
-            failed: point.failed.clone(),
-            keys: point.instances.iter().map(|i| i.key).collect(),
-        });
     }
-    Ok(rows)
+    Ok(Row {
+        experiment: exp.name.clone(),
+        point: (exp.points.len() > 1).then_some(k),
+        profile: exp.profile.clone(),
+        seeds: exp.seeds.clone(),
+        params: point.knobs().into_iter().collect(),
+        metrics: values,
+        wall_secs,
+        failed: point.failed.clone(),
+        keys: point.instances.iter().map(|i| i.key).collect(),
+    })
 }
 
 fn load_named(store: &Store, names: &[String]) -> Result<Vec<Experiment>> {
@@ -537,14 +537,13 @@ fn row_named(ctx: &Context, store: &Store, spec: &str, metrics: &[String]) -> Re
     };
     let exp = experiment::load(store, name)?.ok_or_else(|| unknown_experiment(store, name))?;
     let n = exp.points.len();
-    let rows = rows_of(ctx, store, &exp, metrics)?;
     match (point, n) {
-        (None, 1) => Ok(rows.into_iter().next().expect("one point")),
+        (None, 1) => point_row(ctx, store, &exp, 0, metrics),
         (None, _) => bail!(
             "experiment `{name}` has {n} points\nhint: name one: {name}/0 .. {name}/{}",
             n - 1
         ),
-        (Some(k), _) if k < n => Ok(rows.into_iter().nth(k).expect("point k")),
+        (Some(k), _) if k < n => point_row(ctx, store, &exp, k, metrics),
         (Some(k), _) => bail!(
             "experiment `{name}` has points 0 to {}, not {k}",
             n.saturating_sub(1)
@@ -587,10 +586,7 @@ fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
             )
         })
         .collect();
-    let mean = |v: Option<&Vec<f64>>| {
-        v.filter(|v| !v.is_empty())
-            .map(|v| v.iter().sum::<f64>() / v.len() as f64)
-    };
+    let mean = |v: Option<&Vec<f64>>| v.and_then(|v| MeanSd::of(v)).map(|s| s.mean);
     let columns: BTreeSet<&String> = a.metrics.keys().chain(b.metrics.keys()).collect();
     let metrics = columns
         .into_iter()
@@ -653,8 +649,7 @@ fn rm(ctx: &Context, args: &ExpRmArgs) -> Result<ExitCode> {
             return Err(unknown_experiment(&store, name));
         }
     }
-    let _lock = store
-        .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
+    let _lock = store.lock(|| MakeObserver::of(ctx).waiting_for_lock())?;
     for name in &args.names {
         experiment::remove(&store, name)?;
         if !ctx.quiet {

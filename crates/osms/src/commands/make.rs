@@ -107,18 +107,25 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             write_reports(ctx, &plan, &store, &report, &seeds)?;
         } else if !args.dry_run && !ctx.quiet && has_report(&plan) {
             eprintln!(
-                "osms make: report/ left as pipeline.toml makes it, since --set is in force;                  `osms export report --set ... --out DIR` writes this variant's"
+                "osms make: report/ left as pipeline.toml makes it, since --set is in force; \
+                 `osms export report --set ... --out DIR` writes this variant's"
             );
         }
-        Ok(ExitCode::SUCCESS)
-    } else {
-        eprintln!(
-            "error: {} stage(s) failed: {}",
-            failed.len(),
-            failed.join(", ")
-        );
-        Ok(ExitCode::from(EXIT_FAILURE))
     }
+    Ok(failure_exit(&failed))
+}
+
+/// Success, or exit 1 after naming the instances that failed.
+pub(crate) fn failure_exit(failed: &[&str]) -> ExitCode {
+    if failed.is_empty() {
+        return ExitCode::SUCCESS;
+    }
+    eprintln!(
+        "error: {} stage(s) failed: {}",
+        failed.len(),
+        failed.join(", ")
+    );
+    ExitCode::from(EXIT_FAILURE)
 }
 
 /// The core-hours of what a dry run would build, from the measured builds of every profile.
