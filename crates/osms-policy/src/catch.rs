@@ -300,8 +300,7 @@ fn follow_through_direction(view: &PolicyView<'_>) -> [f64; 3] {
     if let Some(c) = view.first_contact {
         return c.incoming_dir;
     }
-    let (v, d) = (view.data.qvel(), view.world.ids.object_dof);
-    let v = [v[d], v[d + 1], v[d + 2]];
+    let v = view.object.vel;
     let n = norm(v).max(1e-12);
     [v[0] / n, v[1] / n, v[2] / n]
 }

@@ -211,3 +211,64 @@ fn a_condition_that_cannot_be_drawn_is_an_error_not_condition_zero() {
         "{err}"
     );
 }
+
+/// The teacher reads the object through the rollout's observation delay (paper 5: delays are
+/// randomised during teacher training): two rollouts that differ only in that delay give the
+/// teacher other inputs, so other actions, from the step the delay first hides.
+#[test]
+fn the_teachers_action_changes_when_only_the_observation_delay_changes() {
+    use osms_policy::catch::TeacherQuery;
+    use osms_sim::control::DrDraw;
+    use osms_sim::{Action, Policy, PolicyView};
+
+    struct Recording<'q, 'a> {
+        query: &'q mut TeacherQuery<'a>,
+        actions: Vec<Action>,
+    }
+    impl Policy for Recording<'_, '_> {
+        fn act(&mut self, view: &PolicyView<'_>) -> Action {
+            let a = self.query.act(view);
+            self.actions.push(a);
+            a
+        }
+    }
+
+    let world = world();
+    let spec = CatchTaskSpec::default();
+    let task = CatchTask::new(&world, spec.clone(), 4, "test", "delay").expect("task");
+    let agent = lively_agent(&task);
+    let condition = task.condition(0).expect("condition");
+    let actions = |delay: u32| -> Vec<Action> {
+        let draw = DrDraw {
+            observation_delay_steps: delay,
+            ..DrDraw::none()
+        };
+        let mut episode = Episode::with_draw(
+            &world,
+            &spec.rollout,
+            condition.clone(),
+            draw,
+            rng::stream(4, "test", "delay-dr", 0),
+        );
+        let mut query = TeacherQuery::new(&agent, &spec);
+        let mut policy = Recording {
+            query: &mut query,
+            actions: Vec::new(),
+        };
+        for _ in 0..4 {
+            assert!(episode.step(&mut policy, &mut NoHooks), "the episode ended early");
+            let phase = *episode.record().phase.last().expect("a recorded step");
+            policy.query.observe_phase(phase);
+        }
+        policy.actions
+    };
+    let (now, late) = (actions(0), actions(1));
+    assert_eq!(
+        now[0], late[0],
+        "at the first step both delays see the same (initial) state"
+    );
+    for k in 1..now.len() {
+        assert_ne!(now[k], late[k], "step {k}: the delay changed nothing");
+    }
+    assert_eq!(actions(1), late, "the same delay gives the same actions");
+}

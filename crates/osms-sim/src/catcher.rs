@@ -4,7 +4,8 @@
 //! damped-least-squares IK on MuJoCo's site Jacobian, closes the fingers when the object
 //! arrives and then holds the arm. The wrist's servo tower, which stands above the palm's base,
 //! stops an object sliding across the palm. It makes no attempt to soften the impact: that is
-//! what the teacher has to learn.
+//! what the teacher has to learn. It reads the object through the rollout's observation delay
+//! and noise ([`crate::episode::ObservedObject`]); the contact count it closes on is exact.
 
 use serde::{Deserialize, Serialize};
 
@@ -158,11 +159,8 @@ impl Policy for ScriptedCatcher {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let data = view.data;
         let ids = &view.world.ids;
-        let qpos = data.qpos();
-        let qvel = data.qvel();
-        let (o, d) = (ids.object_qpos, ids.object_dof);
-        let p = [qpos[o], qpos[o + 1], qpos[o + 2]];
-        let v = [qvel[d], qvel[d + 1], qvel[d + 2]];
+        // The object as observed (delayed, noisy), as the student sees it; the robot is exact.
+        let (p, v) = (view.object.pos, view.object.vel);
         let palm = data.site_xpos()[ids.palm_site];
         let normal = palm_normal(&data.site_xmat()[ids.palm_site]);
 

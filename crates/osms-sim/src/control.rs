@@ -22,16 +22,17 @@ pub type Action = [f64; N_ACTION];
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControlSpec {
-    /// Largest change of an arm joint target per control step (rad). 0.12 rad at 50 Hz is
-    /// 6 rad/s, about twice the xArm7's rated joint speed: at 3 rad/s the palm cannot cover the
-    /// paper's follow-through δ_ℓ = 0.2 m within Δt_eval = 0.2 s (docs/sim.md, deviations).
+    /// Largest change of an arm joint target per control step (rad). 0.15 rad at 50 Hz is
+    /// 7.5 rad/s, more than twice the xArm7's rated 3.14 rad/s joint speed (joints reach about
+    /// 7 rad/s in a follow-through): at the rated speed the palm cannot cover the paper's
+    /// ℓ_max ≈ 0.42 m within Δt_eval = 0.2 s (docs/sim.md, "Deviation: a faster arm").
     pub arm_max_delta_rad: f64,
 }
 
 impl Default for ControlSpec {
     fn default() -> Self {
         ControlSpec {
-            arm_max_delta_rad: 0.12,
+            arm_max_delta_rad: 0.15,
         }
     }
 }

@@ -60,13 +60,24 @@ impl Default for RolloutSpec {
 /// object position (3), previous executed action (24).
 pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + N_ACTION;
 /// Length of a privileged frame: arm and hand q, q̇ (48), object position, quaternion, linear
-/// and angular velocity (13), palm position, normal and velocity (9), admissible normal force
+/// and angular velocity (13, observed: delayed like the deployable frame's object position, the
+/// position with its noise), palm position, normal and velocity (9), admissible normal force
 /// and contact count (2), ω's mass and variant one-hot (11), time (1).
 pub const PRIVILEGED_LEN: usize = 48 + 13 + 9 + 2 + 11 + 1;
 /// Index of the admissible contact count in a privileged frame.
 pub const PRIVILEGED_CONTACT_COUNT: usize = 48 + 13 + 9 + 1;
 
-/// What a policy sees at a control step. Privileged policies may also read `data`.
+/// The object as a policy observes it: the state of `observation_delay_steps` control steps
+/// ago, the position with the observation noise. Privileged policies read the object through
+/// this, not through `data`, so the teacher's inputs carry the student's delay and noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObservedObject {
+    pub pos: [f64; 3],
+    pub vel: [f64; 3],
+}
+
+/// What a policy sees at a control step. Privileged policies may also read `data`, but not
+/// for the object's state (see [`ObservedObject`]).
 pub struct PolicyView<'a> {
     pub step: usize,
     pub time_secs: f64,
@@ -74,6 +85,8 @@ pub struct PolicyView<'a> {
     /// The last `history_steps` deployable frames, oldest first, ending with `deployable`.
     pub history: &'a VecDeque<Vec<f64>>,
     pub privileged: &'a [f64],
+    /// The object's observed position and velocity (the privileged frame's, delayed and noisy).
+    pub object: ObservedObject,
     pub world: &'a World,
     pub condition: &'a TaskCondition,
     /// The first admissible hand–object contact, once it has happened (in an earlier control
@@ -193,7 +206,9 @@ struct Controller {
     targets: [f64; N_ACTION],
     executed: Action,
     pending_actions: VecDeque<Action>,
-    pending_object_pos: VecDeque<[f64; 3]>,
+    /// The object's position, quaternion and velocities (13) of the last steps, newest last:
+    /// the observation delay's queue.
+    pending_object: VecDeque<[f64; 13]>,
     history: VecDeque<Vec<f64>>,
 }
 
@@ -351,7 +366,7 @@ impl<'w> Episode<'w> {
             targets: posture,
             executed: hold,
             pending_actions: VecDeque::from(vec![hold; dr.actuation_delay_steps as usize]),
-            pending_object_pos: VecDeque::new(),
+            pending_object: VecDeque::new(),
             history: VecDeque::new(),
         };
         let record = RolloutRecord::empty(condition.clone(), dr.clone());
@@ -453,10 +468,22 @@ impl<'w> Episode<'w> {
             ids.arm_dof.map(|dof| rows[r * qvel.len() + dof])
         });
 
+        // The object as observed: delayed, the position noisy.
+        let state: [f64; 13] = std::array::from_fn(|i| if i < 7 { qpos[o + i] } else { qvel[d + i - 7] });
+        self.controller.pending_object.push_back(state);
+        while self.controller.pending_object.len() > self.dr.observation_delay_steps as usize + 1 {
+            self.controller.pending_object.pop_front();
+        }
+        let mut observed = self.controller.pending_object[0];
+        let noise = self.spec.dr.object_position_noise_m;
+        if noisy && noise > 0.0 {
+            for c in &mut observed[..3] {
+                *c += noise * rng::normal(&mut self.rng);
+            }
+        }
         let mut privileged = Vec::with_capacity(PRIVILEGED_LEN);
         privileged.extend_from_slice(&robot);
-        privileged.extend(&qpos[o..o + 7]);
-        privileged.extend(&qvel[d..d + 6]);
+        privileged.extend(observed);
         privileged.extend(palm_pos);
         privileged.extend(normal);
         privileged.extend(palm_vel);
@@ -467,22 +494,9 @@ impl<'w> Episode<'w> {
             .extend((0..10).map(|v| f64::from(u8::from(v == self.condition.variant.index()))));
         privileged.push(self.data.time());
 
-        // Deployable: the object's position only, delayed and noisy.
-        self.controller.pending_object_pos.push_back(object_pos);
-        while self.controller.pending_object_pos.len()
-            > self.dr.observation_delay_steps as usize + 1
-        {
-            self.controller.pending_object_pos.pop_front();
-        }
-        let mut seen = self.controller.pending_object_pos[0];
-        let noise = self.spec.dr.object_position_noise_m;
-        if noisy && noise > 0.0 {
-            for c in &mut seen {
-                *c += noise * rng::normal(&mut self.rng);
-            }
-        }
+        // Deployable: the observed object's position only.
         let mut deployable = robot;
-        deployable.extend(seen);
+        deployable.extend(&observed[..3]);
         deployable.extend(self.controller.executed);
         Frame {
             deployable,
@@ -491,6 +505,10 @@ impl<'w> Episode<'w> {
             palm_vel,
             object_pos,
             object_vel,
+            observed: ObservedObject {
+                pos: [observed[0], observed[1], observed[2]],
+                vel: [observed[7], observed[8], observed[9]],
+            },
             arm_targets: std::array::from_fn(|i| self.controller.targets[i]),
             palm_jacobian,
         }
@@ -519,6 +537,7 @@ impl<'w> Episode<'w> {
             deployable: &frame.deployable,
             history: &self.controller.history,
             privileged: &frame.privileged,
+            object: frame.observed,
             world: self.world,
             condition: &self.condition,
             first_contact: self.evaluator.first_contact(),
@@ -619,11 +638,13 @@ impl<'w> Episode<'w> {
         };
         let intended = row(&record.intended, N_ACTION);
         let executed = row(&record.executed, N_ACTION);
-        // The deployable frame's noisy object position is the record's: it is an observation,
-        // not a state, and drew from the stream.
+        // The observed object position is the record's: it is an observation, not a state,
+        // and drew from the stream. The deployable and privileged frames share it.
         let seen = 48..51;
-        for (c, v) in frame.deployable[seen.clone()].iter_mut().enumerate() {
-            *v = f64::from(record.deployable[k * DEPLOYABLE_LEN + seen.start + c]);
+        for c in 0..3 {
+            let v = f64::from(record.deployable[k * DEPLOYABLE_LEN + seen.start + c]);
+            frame.deployable[seen.start + c] = v;
+            frame.privileged[seen.start + c] = v;
         }
         let n = record.physics_steps[k];
         if n == 0 {
@@ -843,6 +864,7 @@ struct Frame {
     palm_vel: [f64; 3],
     object_pos: [f64; 3],
     object_vel: [f64; 3],
+    observed: ObservedObject,
     /// The arm's servo targets in force when the step starts, before its action moves them.
     arm_targets: [f64; N_ARM],
     palm_jacobian: [[f64; N_ARM]; 6],

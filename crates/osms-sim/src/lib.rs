@@ -35,7 +35,7 @@ pub use world::{GeomClass, Ids, World};
 /// The numerics version of osms-sim: bump it whenever world, control, episode or metrics code
 /// may change the bytes of an artifact built by simulation, so no stale artifact stays cached.
 /// It enters the keys of every kind that simulates (with MuJoCo's own version).
-pub const NUMERICS_VERSION: u32 = 1;
+pub const NUMERICS_VERSION: u32 = 2;
 
 /// The MuJoCo release osms is pinned to (scripts/setup-mujoco installs it).
 pub const MUJOCO_PINNED: &str = "3.17.0";

@@ -22,6 +22,8 @@ pub struct FollowThroughProbe {
     /// (see [`palm_motion_channels`]).
     pub orientation_weight: f64,
     pub start_distance_m: Option<f64>,
+    /// How long after first contact the palm keeps moving: Δt_eval by default.
+    pub window_secs: f64,
     started: bool,
 }
 
@@ -31,6 +33,7 @@ impl FollowThroughProbe {
             catcher: ScriptedCatcher::new(catcher, control),
             orientation_weight,
             start_distance_m: None,
+            window_secs: crate::metrics::SuccessSpec::default().eval_window_secs,
             started: false,
         }
     }
@@ -46,14 +49,14 @@ impl Policy for FollowThroughProbe {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let mut action = self.catcher.act(view);
         let dir = match view.first_contact {
+            // Past the evaluation window the arm holds its targets, as a catch that ends its
+            // follow-through does, instead of folding onto itself.
+            Some(contact) if view.time_secs - contact.time_secs > self.window_secs => None,
             Some(contact) => Some(contact.incoming_dir),
             None => {
-                let ids = &view.world.ids;
-                let (o, d) = (ids.object_qpos, ids.object_dof);
-                let (q, v) = (view.data.qpos(), view.data.qvel());
-                let palm = view.data.site_xpos()[ids.palm_site];
-                let gap = norm(sub([q[o], q[o + 1], q[o + 2]], palm));
-                let vel = [v[d], v[d + 1], v[d + 2]];
+                let palm = view.data.site_xpos()[view.world.ids.palm_site];
+                let gap = norm(sub(view.object.pos, palm));
+                let vel = view.object.vel;
                 let speed = norm(vel);
                 self.started |= self.start_distance_m.is_some_and(|s| gap < s);
                 (self.started && speed > 1e-9).then(|| vel.map(|x| x / speed))

@@ -1,13 +1,12 @@
-//! The world's reachable follow-through (crate::reach): after first contact the probe drives
-//! the palm along the incoming direction as fast as the control allows; the rollout's own
-//! evaluator measures ℓ_max within Δt_eval. Prints the distribution, so the figure behind
-//! docs/sim.md's "arm target rate" deviation is reproducible: `cargo test -p osms-sim --test
-//! reach -- --nocapture`.
+//! The world's reachable follow-through (crate::reach): the probe drives the palm along the
+//! object's flight as fast as the control allows, from shortly before contact to the end of
+//! Δt_eval; the rollout's own evaluator measures ℓ_max. Prints the distribution, so the
+//! figures behind docs/sim.md's "a faster arm" deviation are reproducible: `cargo test -p
+//! osms-sim --test reach -- --nocapture`.
 
 use osms_core::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::conditions::sample;
-use osms_sim::control::ControlSpec;
 use osms_sim::episode::{Episode, NoHooks, Policy, RolloutSpec};
 use osms_sim::reach::FollowThroughProbe;
 use osms_sim::{ConditionSpec, TaskCondition, World, WorldSpec};
@@ -49,37 +48,22 @@ fn follow_through(
         .collect()
 }
 
-/// The default world with the arm servos' force ranges and velocity gains scaled (the MJCF
-/// edited as text: the servo parameters are not part of `WorldSpec`).
-fn servo_world(force: f64, kv: f64) -> World {
-    let xml: Vec<String> = osms_sim::ObjectVariant::all()
-        .into_iter()
-        .map(|v| {
-            let mut text = osms_sim::mjcf::world_xml(&WorldSpec::default(), v);
-            for f in [50.0, 30.0, 20.0] {
-                text = text.replace(
-                    &format!("forcerange=\"-{f} {f}\""),
-                    &format!("forcerange=\"-{0} {0}\"", f * force),
-                );
-            }
-            for kp in [1500.0, 1000.0, 800.0] {
-                text = text.replace(
-                    &format!("biasprm=\"0 -{kp} -{}\"", kp / 10.0),
-                    &format!("biasprm=\"0 -{kp} -{}\"", kp / 10.0 * kv),
-                );
-            }
-            text
-        })
-        .collect();
-    World::from_xml(WorldSpec::default(), xml).expect("world")
-}
-
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
+fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// How far before contact the probe starts moving along the object's flight (m), as a
+/// velocity-matching catch does; the measured optimum of 0.2–0.6 m (docs/sim.md).
+const START_M: f64 = 0.35;
+
 #[test]
-fn the_probe_follows_through_further_than_the_catcher_that_holds_its_arm() {
+fn the_world_lets_a_palm_follow_through_the_papers_distance_within_the_window() {
     let world = World::new(WorldSpec::default()).expect("world");
     let conditions = conditions(&world);
     let spec = RolloutSpec::default();
@@ -90,107 +74,57 @@ fn the_probe_follows_through_further_than_the_catcher_that_holds_its_arm() {
             control.clone(),
         ))
     });
-    let report = |label: &str, control: ControlSpec, weight: f64| -> Vec<f64> {
-        let spec = RolloutSpec {
-            control: control.clone(),
-            ..RolloutSpec::default()
-        };
-        let l = follow_through(&world, &spec, &conditions, &mut || {
-            Box::new(FollowThroughProbe::new(
-                CatcherSpec::default(),
-                control.clone(),
-                weight,
-            ))
-        });
+    let probe = |weight: f64, start: Option<f64>| {
+        follow_through(&world, &spec, &conditions, &mut || {
+            let p = FollowThroughProbe::new(CatcherSpec::default(), control.clone(), weight);
+            Box::new(match start {
+                Some(d) => p.starting_at(d),
+                None => p,
+            })
+        })
+    };
+    let row = |label: &str, l: &[f64]| {
         let (lo, hi) = l.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), x| {
             (lo.min(*x), hi.max(*x))
         });
         println!(
-            "{label:<44} contacts {:>2}/{CONDITIONS}  ℓ_max mean {:.3} m  min {:.3}  max {:.3}  ≥ 0.2 m: {}",
+            "{label:<52} contacts {:>2}/{CONDITIONS}  ℓ_max mean {:.3} m  median {:.3}  min {:.3}  max {:.3}  ≥ 0.4 m: {}",
             l.len(),
-            mean(&l),
+            mean(l),
+            median(l),
             lo,
             hi,
-            l.iter().filter(|x| **x >= 0.2).count()
+            l.iter().filter(|x| **x >= 0.4).count()
         );
-        l
     };
-    println!(
-        "{:<44} contacts {:>2}/{CONDITIONS}  ℓ_max mean {:.3} m",
-        "scripted catcher (arm held after closing)",
-        held.len(),
-        mean(&held)
-    );
-    let default = ControlSpec::default();
-    let probe = report(
-        "probe, default control, orientation weight 0.3",
-        default.clone(),
-        0.3,
-    );
-    for (rate, weight) in [(0.06, 0.3), (0.24, 0.3), (default.arm_max_delta_rad, 0.0)] {
-        let mut c = default.clone();
-        c.arm_max_delta_rad = rate;
-        report(
-            &format!("probe, {rate} rad/step, orientation weight {weight}"),
-            c,
-            weight,
-        );
-    }
-    // Moving before contact, as a velocity-matching catch does.
-    for start in [0.2, 0.4] {
-        let spec = RolloutSpec::default();
-        let l = follow_through(&world, &spec, &conditions, &mut || {
-            Box::new(
-                FollowThroughProbe::new(CatcherSpec::default(), default.clone(), 0.3)
-                    .starting_at(start),
-            )
-        });
-        println!(
-            "{:<44} contacts {:>2}/{CONDITIONS}  ℓ_max mean {:.3} m  max {:.3}  ≥ 0.2 m: {}",
-            format!("probe moving from {start} m before contact"),
-            l.len(),
-            mean(&l),
-            l.iter().fold(0.0f64, |m, x| m.max(*x)),
-            l.iter().filter(|x| **x >= 0.2).count()
-        );
-    }
-    // Stronger arm servos (force ranges and velocity gains scaled) with faster targets.
-    for (rate, force, kv) in [
-        (0.12, 2.0, 1.0),
-        (0.12, 4.0, 1.0),
-        (0.24, 4.0, 1.0),
-        (0.36, 4.0, 1.0),
-        (0.24, 4.0, 0.5),
-        (0.36, 4.0, 0.5),
-    ] {
-        let strong = servo_world(force, kv);
-        let mut control = default.clone();
-        control.arm_max_delta_rad = rate;
-        let spec = RolloutSpec {
-            control: control.clone(),
-            ..RolloutSpec::default()
+    row("scripted catcher (arm held after closing)", &held);
+    for (weight, start) in [(0.3, None), (0.0, None), (0.3, Some(START_M))] {
+        let label = match start {
+            Some(d) => format!("probe from {d} m before contact, orientation weight {weight}"),
+            None => format!("probe from contact, orientation weight {weight}"),
         };
-        let l = follow_through(&strong, &spec, &conditions, &mut || {
-            Box::new(FollowThroughProbe::new(
-                CatcherSpec::default(),
-                control.clone(),
-                0.3,
-            ))
-        });
-        println!(
-            "{:<44} contacts {:>2}/{CONDITIONS}  ℓ_max mean {:.3} m  max {:.3}  ≥ 0.2 m: {}",
-            format!("probe, {rate} rad/step, force x{force}, kv x{kv}"),
-            l.len(),
-            mean(&l),
-            l.iter().fold(0.0f64, |m, x| m.max(*x)),
-            l.iter().filter(|x| **x >= 0.2).count()
-        );
+        row(&label, &probe(weight, start));
     }
-    assert!(!probe.is_empty() && !held.is_empty(), "no contact at all");
+    let best = probe(0.0, Some(START_M));
+    row(
+        &format!("probe from {START_M} m before contact, orientation weight 0"),
+        &best,
+    );
     assert!(
-        mean(&probe) > mean(&held) + 0.05,
-        "the probe's follow-through ({:.3} m) is not clearly beyond the held arm's ({:.3} m)",
-        mean(&probe),
+        best.len() * 4 >= conditions.len() * 3,
+        "only {} of {} probe rollouts reached the hand",
+        best.len(),
+        conditions.len()
+    );
+    // δ_ℓ = 0.2 m is the criterion; the paper's teacher averages ℓ_max = 0.42 m.
+    assert!(
+        median(&best) >= 0.4,
+        "the reachable follow-through's median is {:.3} m, short of 0.4 m",
+        median(&best)
+    );
+    assert!(
+        mean(&held) < 0.05,
+        "the catcher that holds its arm follows through {:.3} m",
         mean(&held)
     );
 }
