@@ -9,7 +9,7 @@
 
 use osms_core::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
-use osms_sim::control::DrSpec;
+use osms_sim::control::{DrSpec, hold_action};
 use osms_sim::episode::{PRIVILEGED_LEN, Snapshot};
 use osms_sim::vec3::{norm, sub};
 use osms_sim::{
@@ -85,6 +85,11 @@ pub struct CatchTaskSpec {
     /// control step allows: executed arm = clamp(prior + s · r + u · g). Without it PPO has to
     /// discover the Jacobian-dependent joint combination of a follow-through by itself.
     pub follow_through_channel: bool,
+    /// Give the policy one more action channel c ∈ [-1, 1] over the whole hand: the executed
+    /// hand action moves by c · (closed − open) from the prior's (in action units), so the
+    /// policy can close earlier or later, or squeeze less, without exploring 17 absolute finger
+    /// targets. Its index follows the follow-through channel's.
+    pub grasp_channel: bool,
     /// Weight of the palm's orientation against its position when `g` is computed (see
     /// `osms_sim::catcher::palm_motion_channels`).
     pub palm_motion_orientation_weight: f64,
@@ -101,6 +106,7 @@ impl Default for CatchTaskSpec {
             from_scratch: false,
             residual_hand: false,
             follow_through_channel: true,
+            grasp_channel: false,
             palm_motion_orientation_weight: 0.3,
         }
     }
@@ -127,9 +133,12 @@ impl CatchTaskSpec {
         }
     }
 
-    /// The policy's action size: the residual channels and the follow-through channel.
+    /// The policy's action size: the residual channels, the follow-through channel and the
+    /// grasp channel.
     pub fn act_len(&self) -> usize {
-        self.residual_channels() + usize::from(self.follow_through_channel)
+        self.residual_channels()
+            + usize::from(self.follow_through_channel)
+            + usize::from(self.grasp_channel)
     }
 }
 
@@ -243,6 +252,17 @@ fn residual_action(
             );
             for (o, g) in out.iter_mut().zip(g) {
                 *o += u * g;
+            }
+        }
+    }
+    if spec.grasp_channel {
+        let at = residual_channels + usize::from(spec.follow_through_channel);
+        let c = f64::from(r.get(at).copied().unwrap_or(0.0));
+        if c != 0.0 {
+            let closed = hold_action(&spec.catcher.closed_hand_rad);
+            let open = hold_action(&spec.catcher.open_hand_rad);
+            for k in N_ARM..N_ACTION {
+                out[k] += c * (closed[k] - open[k]);
             }
         }
     }

@@ -14,8 +14,17 @@ fn world() -> World {
 #[test]
 fn a_zero_residual_reproduces_the_scripted_catcher() {
     let world = world();
-    let spec = CatchTaskSpec::default();
-    let task = CatchTask::new(&world, spec.clone(), 5, "test", "train").expect("task");
+    for grasp_channel in [false, true] {
+        let spec = CatchTaskSpec {
+            grasp_channel,
+            ..CatchTaskSpec::default()
+        };
+        zero_residual_is_the_prior(&world, &spec);
+    }
+}
+
+fn zero_residual_is_the_prior(world: &World, spec: &CatchTaskSpec) {
+    let task = CatchTask::new(world, spec.clone(), 5, "test", "train").expect("task");
     for index in 0..3 {
         let mut episode = task.start(index).expect("condition");
         let mut total = 0.0f32;
@@ -29,7 +38,7 @@ fn a_zero_residual_reproduces_the_scripted_catcher() {
         let ours = episode.finish();
         let condition = task.condition(index).expect("condition");
         let prior = Episode::new(
-            &world,
+            world,
             &spec.rollout,
             condition,
             rng::stream(5, "test", "train-dr", index),
@@ -86,6 +95,40 @@ fn a_short_teacher_training_is_identical_on_rerun_and_across_thread_counts() {
     let one = short_training(1);
     assert_eq!(one, short_training(1), "rerun");
     assert_eq!(one, short_training(2), "1 vs 2 threads");
+}
+
+/// The grasp channel at +1 closes the open hand at the first step (the prior keeps it open
+/// until the object is near); at −1 a closed prior's hand would open the same way.
+#[test]
+fn the_grasp_channel_moves_the_hand_from_open_to_closed() {
+    use osms_sim::control::hold_action;
+    let world = world();
+    let spec = CatchTaskSpec {
+        grasp_channel: true,
+        ..CatchTaskSpec::default()
+    };
+    let task = CatchTask::new(&world, spec.clone(), 5, "test", "grasp").expect("task");
+    let first_hand = |c: f32| {
+        let mut episode = task.start(0).expect("condition");
+        let mut act = vec![0.0f32; spec.act_len()];
+        act[spec.act_len() - 1] = c;
+        episode.step(&mut |_| act.clone());
+        episode.episode().record().intended[osms_sim::N_ARM..osms_sim::N_ACTION].to_vec()
+    };
+    let as_f32 = |a: osms_sim::Action| {
+        a[osms_sim::N_ARM..]
+            .iter()
+            .map(|x| *x as f32)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(
+        first_hand(0.0),
+        as_f32(hold_action(&spec.catcher.open_hand_rad))
+    );
+    assert_eq!(
+        first_hand(1.0),
+        as_f32(hold_action(&spec.catcher.closed_hand_rad))
+    );
 }
 
 /// An untrained agent whose actor is not zeroed, so the residual and the follow-through
@@ -256,7 +299,10 @@ fn the_teachers_action_changes_when_only_the_observation_delay_changes() {
             actions: Vec::new(),
         };
         for _ in 0..4 {
-            assert!(episode.step(&mut policy, &mut NoHooks), "the episode ended early");
+            assert!(
+                episode.step(&mut policy, &mut NoHooks),
+                "the episode ended early"
+            );
             let phase = *episode.record().phase.last().expect("a recorded step");
             policy.query.observe_phase(phase);
         }

@@ -469,7 +469,8 @@ impl<'w> Episode<'w> {
         });
 
         // The object as observed: delayed, the position noisy.
-        let state: [f64; 13] = std::array::from_fn(|i| if i < 7 { qpos[o + i] } else { qvel[d + i - 7] });
+        let state: [f64; 13] =
+            std::array::from_fn(|i| if i < 7 { qpos[o + i] } else { qvel[d + i - 7] });
         self.controller.pending_object.push_back(state);
         while self.controller.pending_object.len() > self.dr.observation_delay_steps as usize + 1 {
             self.controller.pending_object.pop_front();
