@@ -407,9 +407,13 @@ fn max_dev(c: &[Candidate]) -> f64 {
     c.iter().map(|c| c.deviation).fold(0.0, f64::max)
 }
 
+/// Relative error within which a matched set's largest deviation equals the target's.
+const MATCH_TOLERANCE: f64 = 1e-3;
+
 /// The scale s whose endpoints' largest deviation (with `floor`, the centre's) equals
 /// `target`: doubling until it is reached, then bisection. None when no scale up to 64 reaches
-/// it or the centre alone exceeds it.
+/// it, the centre alone exceeds it, or the deviation jumps over the target (a direction shrunk
+/// to stay in Z can make it discontinuous in s), so "matched" always means equal.
 fn match_scale(
     target: f64,
     floor: f64,
@@ -435,7 +439,8 @@ fn match_scale(
             hi = mid;
         }
     }
-    Some(hi)
+    let reached = eval(hi).max(floor);
+    ((reached - target).abs() < MATCH_TOLERANCE * target).then_some(hi)
 }
 
 /// Builds η for one window. `reference` is the geodesic set of the same rollout (required by
@@ -753,5 +758,11 @@ mod tests {
             "the centre is already farther"
         );
         assert_eq!(match_scale(1e9, 0.0, 40, f), None, "out of reach");
+        let step = |s: f64| if s < 1.0 { s } else { 5.0 };
+        assert_eq!(
+            match_scale(3.0, 0.0, 40, step),
+            None,
+            "a jump over the target is not a match"
+        );
     }
 }
