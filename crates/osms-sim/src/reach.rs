@@ -1,8 +1,9 @@
 //! The reachable follow-through: how far the palm can carry a caught object along its incoming
 //! direction within the evaluation window Δt_eval after first contact, when the arm does
 //! nothing but that at the fastest rate the control allows. The paper's teacher averages
-//! ℓ_max = 0.42 m; the success criterion asks for δ_ℓ = 0.2 m. This is the world's ceiling for
-//! any policy, measured with the same evaluator as every rollout.
+//! ℓ_max = 0.42 m; the success criterion asks for δ_ℓ = 0.2 m. What the probe reaches bounds
+//! the world's ceiling from below (a cleverer motion may reach further), measured with the same
+//! evaluator as every rollout.
 
 use crate::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
 use crate::control::{Action, ControlSpec, N_ARM};
@@ -13,7 +14,8 @@ use crate::vec3::{norm, sub};
 pub const FOLLOW_THROUGH_DAMPING: f64 = 0.05;
 
 /// The scripted catcher until first contact, then every arm channel at full scale along the
-/// frozen incoming direction (the hand keeps closing as the catcher closes it). With
+/// frozen incoming direction until Δt_eval has passed, then the arm holds its targets (the
+/// hand keeps closing as the catcher closes it). With
 /// `start_distance_m`, the palm already starts moving along the object's velocity once the
 /// object is that close, as a velocity-matching catch would.
 pub struct FollowThroughProbe {
