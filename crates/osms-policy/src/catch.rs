@@ -8,7 +8,10 @@
 //! prior. `from_scratch` drops the prior (r covers all 24 channels).
 
 use osms_core::rng;
-use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
+use osms_sim::catcher::{
+    CatcherSpec, PALM_MOTION_DAMPING, ScriptedCatcher, follow_through_direction,
+    palm_motion_channels,
+};
 use osms_sim::control::{DrSpec, hold_action};
 use osms_sim::episode::{PRIVILEGED_LEN, Snapshot};
 use osms_sim::vec3::{norm, sub};
@@ -145,9 +148,6 @@ impl CatchTaskSpec {
             + usize::from(self.grasp_channel)
     }
 }
-
-/// Damping of the least-squares solve behind the follow-through channel.
-const PALM_MOTION_DAMPING: f64 = 0.05;
 
 /// Observation: the privileged frame, the prior's action and the phase (one-hot).
 pub const OBS_LEN: usize = PRIVILEGED_LEN + N_ACTION + 5;
@@ -315,18 +315,6 @@ impl<'a> TeacherQuery<'a> {
     pub fn phase(&self) -> u8 {
         self.phase
     }
-}
-
-/// The direction the follow-through channel moves the palm along: after t_c the pre-contact
-/// incoming direction that ℓ_max and the reward measure along (frozen with the first contact),
-/// before it the object's current direction of flight.
-fn follow_through_direction(view: &PolicyView<'_>) -> [f64; 3] {
-    if let Some(c) = view.first_contact {
-        return c.incoming_dir;
-    }
-    let v = view.object.vel;
-    let n = norm(v).max(1e-12);
-    [v[0] / n, v[1] / n, v[2] / n]
 }
 
 /// A running catching episode with its reward bookkeeping.

@@ -134,6 +134,22 @@ pub fn dls_step(jac: &[[f64; N_ARM]; 6], err: [f64; 6], damping: f64) -> [f64; N
     std::array::from_fn(|k| (0..6).map(|r| jac[r][k] * y[r]).sum())
 }
 
+/// Damping of the damped-least-squares solve behind a follow-through (the teacher's
+/// follow-through channel and [`crate::reach::FollowThroughProbe`]).
+pub const PALM_MOTION_DAMPING: f64 = 0.05;
+
+/// The direction a follow-through moves the palm along: after t_c the pre-contact incoming
+/// direction that ℓ_max is measured along (frozen with the first contact), before it the
+/// observed object's direction of flight.
+pub fn follow_through_direction(view: &PolicyView<'_>) -> [f64; 3] {
+    if let Some(c) = view.first_contact {
+        return c.incoming_dir;
+    }
+    let v = view.object.vel;
+    let n = norm(v).max(1e-12);
+    [v[0] / n, v[1] / n, v[2] / n]
+}
+
 /// Arm action channels that move the palm along the unit vector `dir`, scaled so that the
 /// largest channel has magnitude 1 (the fastest such motion one control step allows). The
 /// angular rows of the Jacobian are weighted by `orientation_weight`: 1 holds the palm's

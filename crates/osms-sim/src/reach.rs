@@ -5,13 +5,13 @@
 //! the world's ceiling from below (a cleverer motion may reach further), measured with the same
 //! evaluator as every rollout.
 
-use crate::catcher::{CatcherSpec, ScriptedCatcher, palm_motion_channels};
+use crate::catcher::{
+    CatcherSpec, PALM_MOTION_DAMPING, ScriptedCatcher, follow_through_direction,
+    palm_motion_channels,
+};
 use crate::control::{Action, ControlSpec, N_ARM};
 use crate::episode::{Policy, PolicyView};
 use crate::vec3::{norm, sub};
-
-/// Damping of the follow-through's damped-least-squares step (as the teacher's channel).
-pub const FOLLOW_THROUGH_DAMPING: f64 = 0.05;
 
 /// The scripted catcher until first contact, then every arm channel at full scale along the
 /// frozen incoming direction until Δt_eval has passed, then the arm holds its targets (the
@@ -50,23 +50,20 @@ impl FollowThroughProbe {
 impl Policy for FollowThroughProbe {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let mut action = self.catcher.act(view);
-        let dir = match view.first_contact {
+        let moving = match view.first_contact {
             // Past the evaluation window the arm holds its targets, as a catch that ends its
             // follow-through does, instead of folding onto itself.
-            Some(contact) if view.time_secs - contact.time_secs > self.window_secs => None,
-            Some(contact) => Some(contact.incoming_dir),
+            Some(contact) => view.time_secs - contact.time_secs <= self.window_secs,
             None => {
                 let palm = view.data.site_xpos()[view.world.ids.palm_site];
                 let gap = norm(sub(view.object.pos, palm));
-                let vel = view.object.vel;
-                let speed = norm(vel);
                 self.started |= self.start_distance_m.is_some_and(|s| gap < s);
-                (self.started && speed > 1e-9).then(|| vel.map(|x| x / speed))
+                self.started
             }
         };
-        if let Some(dir) = dir {
-            let g =
-                palm_motion_channels(view, dir, self.orientation_weight, FOLLOW_THROUGH_DAMPING);
+        if moving {
+            let dir = follow_through_direction(view);
+            let g = palm_motion_channels(view, dir, self.orientation_weight, PALM_MOTION_DAMPING);
             action[..N_ARM].copy_from_slice(&g);
         }
         action
