@@ -8,13 +8,15 @@ the file the way robomimic does (data/demo_<i>, num_samples, env_args, mask/<key
 strings) and prints
 
   {"total": T, "env_args": {...}, "demos": [{"name", "num_samples", "actions_shape",
-   "states_shape" (or null), "obs_keys" (sorted), "first_action" (24 floats, null for an
+   "states_shape" (or null), "obs_keys" (sorted), "next_obs_keys" (sorted), "osms_keys"
+   (sorted), "task_index", "first_action" (24 floats, null for an
    empty demo), "last_reward", "last_done", "success", "variant",
    "first_state_first3" (or null)}, ...], "mask": {"train": [...], "valid": [...]}}
 
 with demos in index order (demo_0, demo_1, ..., demo_10). Exits 1 with a message on stderr
 when the layout is broken: missing groups, datasets or attributes, shapes that disagree with
-num_samples, num_samples not adding up to total, masks naming unknown demos.
+num_samples, num_samples not adding up to total, masks naming unknown demos, a next_obs
+that is not obs one step on (the last step repeating the last observation).
 Needs python3 with h5py and numpy (scripts/setup-python).
 """
 
@@ -106,6 +108,19 @@ def read_demo(data, name):
         if ds.ndim < 1 or ds.shape[0] != n:
             raise Broken(f"{ds.name}: shape {list(ds.shape)}, expected [{n}, ...]")
 
+    # robomimic's load_next_obs=True reads next_obs/<key> for every obs key.
+    next_obs = need(g, "next_obs", h5py.Group)
+    if sorted(next_obs.keys()) != sorted(obs.keys()):
+        raise Broken(f"{next_obs.name}: keys {sorted(next_obs.keys())}, obs has {sorted(obs.keys())}")
+    for key in obs:
+        o = np.array(obs[key])
+        nx = np.array(need(next_obs, key, h5py.Dataset))
+        if nx.shape != o.shape:
+            raise Broken(f"{g.name}/next_obs/{key}: shape {list(nx.shape)}, obs has {list(o.shape)}")
+        if n > 0 and not (np.array_equal(nx[:-1], o[1:]) and np.array_equal(nx[-1], o[-1])):
+            raise Broken(f"{g.name}/next_obs/{key} is not obs/{key} one step on")
+    osms = need(g, "osms", h5py.Group)
+
     success = attr(g, "success")
     if not isinstance(success, (bool, np.bool_)):
         raise Broken(f"{g.name}/success: expected a boolean, found {type(success).__name__}")
@@ -116,6 +131,9 @@ def read_demo(data, name):
         "actions_shape": list(actions.shape),
         "states_shape": states_shape,
         "obs_keys": sorted(obs.keys()),
+        "next_obs_keys": sorted(next_obs.keys()),
+        "osms_keys": sorted(osms.keys()),
+        "task_index": integer(attr(g, "task_index"), f"{g.name}/task_index"),
         "first_action": [float(x) for x in actions[0]] if n > 0 else None,
         "last_reward": float(rewards[n - 1]) if n > 0 else None,
         "last_done": int(dones[n - 1]) if n > 0 else None,

@@ -1361,16 +1361,19 @@ fn datasets_export_replay_and_render(made: &Made) {
     // Exports: twice the same bytes; what they say they wrote is there.
     let lerobot = out.path().join("lerobot");
     let robomimic = out.path().join("robomimic");
-    let export = |format: &str, dir: &Path, stage: &str| {
-        let o = ok(&[
+    let export_with = |format: &str, dir: &Path, stage: &str, extra: &[&str]| {
+        let dir = p(dir);
+        let mut args = vec![
             "export-dataset",
             stage,
             "--format",
             format,
             "--out",
-            &p(dir),
+            &dir,
             "--json",
-        ]);
+        ];
+        args.extend_from_slice(extra);
+        let o = ok(&args);
         let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
         let files: Vec<std::path::PathBuf> = v["files"]
             .as_array()
@@ -1384,6 +1387,7 @@ fn datasets_export_replay_and_render(made: &Made) {
             .map(|f| (f.clone(), std::fs::read(f).expect("written file")))
             .collect::<Vec<_>>()
     };
+    let export = |format: &str, dir: &Path, stage: &str| export_with(format, dir, stage, &[]);
     let first = export("lerobot", &lerobot, "d_r");
     assert_eq!(export("lerobot", &lerobot, "d_r"), first, "LeRobot bytes");
     let first = export("robomimic", &robomimic, "d_r");
@@ -1394,6 +1398,16 @@ fn datasets_export_replay_and_render(made: &Made) {
     );
     let dstar_dir = out.path().join("dstar");
     export("lerobot", &dstar_dir, "dstar");
+    // The privileged frame among the policy inputs, on request only.
+    let lerobot_privileged = out.path().join("lerobot-privileged");
+    let robomimic_privileged = out.path().join("robomimic-privileged");
+    export_with("lerobot", &lerobot_privileged, "d_r", &["--privileged-obs"]);
+    export_with(
+        "robomimic",
+        &robomimic_privileged,
+        "d_r",
+        &["--privileged-obs"],
+    );
 
     // Bad input: a clear error and nothing written.
     fails(
@@ -1495,6 +1509,32 @@ fn datasets_export_replay_and_render(made: &Made) {
     };
     let lr = osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&lerobot)]);
     assert_eq!(lr["frames"], frames);
+    // No privileged column under `observation.` unless asked for.
+    let observations = |v: &serde_json::Value| -> Vec<String> {
+        v["columns"]
+            .as_array()
+            .expect("columns")
+            .iter()
+            .filter_map(|c| c.as_str().filter(|c| c.starts_with("observation")))
+            .map(String::from)
+            .collect()
+    };
+    assert_eq!(observations(&lr), ["observation.state"]);
+    assert!(
+        lr["columns"]
+            .as_array()
+            .expect("columns")
+            .iter()
+            .any(|c| c == "osms.privileged")
+    );
+    assert_eq!(lr["info"]["osms"]["privileged_is_policy_input"], false);
+    let lrp =
+        osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&lerobot_privileged)]);
+    assert_eq!(
+        observations(&lrp),
+        ["observation.state", "observation.environment_state"]
+    );
+    assert_eq!(lrp["info"]["osms"]["privileged_is_policy_input"], true);
     assert_eq!(lr["action_shape"], serde_json::json!([frames, 24]));
     assert_eq!(lr["info"]["codebase_version"], "v3.0");
     assert_eq!(lr["info"]["fps"], 50);
@@ -1526,6 +1566,39 @@ fn datasets_export_replay_and_render(made: &Made) {
         assert_eq!(f32s(&d["first_action"]), r.executed[..24]);
         assert_eq!(d["success"], r.outcome.success());
         assert_eq!(d["last_done"], 1);
+        // The script checked next_obs[t] == obs[t + 1] for every key.
+        assert_eq!(d["next_obs_keys"], d["obs_keys"]);
+        assert!(
+            !d["obs_keys"]
+                .as_array()
+                .expect("keys")
+                .iter()
+                .any(|k| k == "privileged"),
+            "{d}"
+        );
+        assert!(
+            d["osms_keys"]
+                .as_array()
+                .expect("keys")
+                .iter()
+                .any(|k| k == "privileged")
+        );
+        assert_eq!(d["task_index"], r.condition.variant.index());
+    }
+    let rmp = osms_tests::python::run_script(
+        &python,
+        "read-robomimic.py",
+        &[&p(&robomimic_privileged.join("d_r.hdf5"))],
+    );
+    for d in rmp["demos"].as_array().expect("demos") {
+        assert!(
+            d["obs_keys"]
+                .as_array()
+                .expect("keys")
+                .iter()
+                .any(|k| k == "privileged")
+        );
+        assert_eq!(d["next_obs_keys"], d["obs_keys"]);
     }
     let masks = rm["mask"]["train"].as_array().expect("train").len()
         + rm["mask"]["valid"].as_array().expect("valid").len();
@@ -1562,4 +1635,9 @@ fn datasets_export_replay_and_render(made: &Made) {
     let demo_frames: usize = set.demos().map(|d| d.steps).sum();
     let ds = osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&dstar_dir)]);
     assert_eq!(ds["frames"], demo_frames);
+    // D_R and D_* give every variant the same task index: the fixed one.
+    assert_eq!(ds["tasks"], lr["tasks"]);
+    for v in osms_sim::ObjectVariant::all() {
+        assert_eq!(lr["tasks"][format!("catch the {v}")], v.index(), "{v}");
+    }
 }

@@ -40,12 +40,15 @@ pub enum Data<'a> {
     F64(Cow<'a, [f64]>),
     U8(Cow<'a, [u8]>),
     I64(Vec<i64>),
-    /// Columns `start..start + width` of a row-major `f32` matrix with `row` columns.
+    /// Columns `start..start + width` of a row-major `f32` matrix with `row` columns; with
+    /// `next`, of the rows from the second on and then the last again (an observation's
+    /// successor, as robomimic's `next_obs`).
     F32Columns {
         src: &'a [f32],
         row: usize,
         start: usize,
         width: usize,
+        next: bool,
     },
     /// Fixed-length, null-padded ASCII strings as wide as the longest (h5py reads `bytes`,
     /// as numpy's `dtype="S"` writes them).
@@ -150,6 +153,7 @@ impl Data<'_> {
                 row,
                 start,
                 width,
+                ..
             } if *row == 0 || !src.len().is_multiple_of(*row) || start + width > *row => {
                 return Err(Error::Hdf5(format!(
                     "columns {start}..{} of {} values in rows of {row}",
@@ -183,9 +187,17 @@ impl Data<'_> {
                 row,
                 start,
                 width,
+                next,
             } => {
                 let mut buf = Vec::with_capacity(CHUNK * 4);
-                for r in src.chunks_exact(*row) {
+                let rows = src.chunks_exact(*row);
+                let last = rows.clone().last();
+                let rows: Box<dyn Iterator<Item = &[f32]>> = if *next {
+                    Box::new(rows.skip(1).chain(last))
+                } else {
+                    Box::new(rows)
+                };
+                for r in rows {
                     for v in &r[*start..start + width] {
                         buf.extend_from_slice(&v.to_le_bytes());
                     }

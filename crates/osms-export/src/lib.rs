@@ -18,7 +18,7 @@ use osms_policy::osw::omega_features;
 use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN, RolloutSpec};
 use osms_sim::replay::{self, ReplayReport};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
-use osms_sim::{N_ACTION, RolloutRecord, World};
+use osms_sim::{N_ACTION, ObjectVariant, RolloutRecord, World};
 
 /// What an export failed on.
 #[derive(Debug, thiserror::Error)]
@@ -65,11 +65,42 @@ pub struct Provenance {
     pub profile: String,
 }
 
+/// What an export writes beyond what a deployable policy may read.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ExportOptions {
+    /// Put the privileged frame among the policy inputs (LeRobot's
+    /// `observation.environment_state`, robomimic's `obs/privileged`). Off by default: there
+    /// a library's default input features would feed a student the true object state, mass
+    /// and contact force, which no deployed policy has; the frame goes under osms's own keys
+    /// (`osms.privileged`, `osms/privileged`) instead.
+    pub privileged_obs: bool,
+}
+
+/// The task of every variant, in one fixed order: task index `i` is
+/// `ObjectVariant::all()[i]`, the same in every export of every dataset, so exports merge
+/// without remapping.
+pub fn tasks() -> Vec<(ObjectVariant, String)> {
+    ObjectVariant::all()
+        .into_iter()
+        .map(|v| (v, task_name(v)))
+        .collect()
+}
+
+/// A variant's task index (see [`tasks`]).
+pub fn task_index(variant: ObjectVariant) -> usize {
+    variant.index()
+}
+
+/// An episode's task: one per object variant.
+pub fn task_name(variant: ObjectVariant) -> String {
+    format!("catch the {variant}")
+}
+
 /// One exported episode: per-frame arrays flattened frame-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ExportEpisode {
-    /// The object variant, e.g. `sphere-small` (LeRobot's task: "catch the sphere-small").
-    pub variant: String,
+    /// The object variant (LeRobot's task: "catch the sphere-small").
+    pub variant: ObjectVariant,
     pub frames: usize,
     /// Deployable observation ([`STATE_NAMES`]), per frame.
     pub state: Vec<f32>,
@@ -255,7 +286,7 @@ pub fn rollout_episode(
     check_replay(index, &report)?;
     let state_size = states.first().map_or(0, Vec::len);
     Ok(ExportEpisode {
-        variant: record.condition.variant.to_string(),
+        variant: record.condition.variant,
         frames: record.steps,
         state: record.deployable.clone(),
         environment_state: (!record.privileged.is_empty()).then(|| record.privileged.clone()),
@@ -320,7 +351,7 @@ pub fn from_demo_set(
         for (e, entry) in group.demos.iter().enumerate() {
             let demo = &entry.demo;
             episodes.push(ExportEpisode {
-                variant: group.condition.variant.to_string(),
+                variant: group.condition.variant,
                 frames: demo.steps,
                 state: demo.deployable.clone(),
                 environment_state: None,

@@ -10,16 +10,20 @@
 //!     dones            i64 [N]   1 on the last frame
 //!     states           f64 [N, state_size]   mjSTATE_FULLPHYSICS (with physics only)
 //!     obs/<key>        f32 [N, width]: arm_qpos, arm_qvel, hand_qpos, hand_qvel, object_pos
-//!                      (observed: delayed and noisy), prev_action; privileged when kept
+//!                      (observed: delayed and noisy), prev_action; `privileged` only with
+//!                      `--privileged-obs`
+//!     next_obs/<key>   obs/<key> of the next step; the last step repeats the last observation
 //!     osms/            servo_targets f64 [N, 24] and physics_steps u8 [N] (with physics),
-//!                      phase u8 [N], intended_actions f32 [N, 24], omega f32 [OMEGA_LEN]
+//!                      phase u8 [N], intended_actions f32 [N, 24], omega f32 [OMEGA_LEN],
+//!                      privileged f32 [N, PRIVILEGED_LEN] when kept (and not in obs/)
 //! mask/train, mask/valid   demo names as fixed-length byte strings; valid: i % 10 == 9
 //! ```
 //!
 //! `env_args`' `type` is 0, which is none of robomimic's environment types: the file trains
-//! robomimic's algorithms from `obs` (there is no `next_obs` group, so load it with
-//! `load_next_obs=False`), and replays through osms's own scripts from `states`, the MJCF in
-//! `env_kwargs.mjcf` and the per-demo model edits, never through robomimic's env wrappers.
+//! robomimic's algorithms from `obs` and `next_obs` (`env_kwargs.deployable_obs_keys` lists
+//! what a deployable policy may read), and replays through osms's own scripts from `states`,
+//! the MJCF in `env_kwargs.mjcf` and the per-demo model edits, never through robomimic's env
+//! wrappers.
 //!
 //! Strings (attributes) are UTF-8 variable-length strings, as h5py writes a Python `str`;
 //! `success` is h5py's boolean enum. The bytes are a pure function of the [`ExportSet`].
@@ -38,7 +42,7 @@ use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
 
 use self::hdf5::{Attr, Data, Group};
-use crate::{Error, ExportEpisode, ExportSet};
+use crate::{Error, ExportEpisode, ExportOptions, ExportSet};
 
 /// `env_args.env_name`.
 pub const ENV_NAME: &str = "osms-catch";
@@ -66,14 +70,28 @@ const _: () = {
     );
 };
 
-/// Writes `set` as one robomimic HDF5 file at `path`.
-pub fn write(set: &ExportSet, path: &Path) -> Result<(), Error> {
+/// The privileged frame's dataset name, in `obs/` with `--privileged-obs`, else in `osms/`.
+pub const PRIVILEGED: &str = "privileged";
+
+/// Where the privileged frame goes under `options`, as a path in a demo group.
+pub fn privileged_path(options: ExportOptions) -> String {
+    let group = if options.privileged_obs {
+        "obs"
+    } else {
+        "osms"
+    };
+    format!("{group}/{PRIVILEGED}")
+}
+
+/// Writes `set` as one robomimic HDF5 file at `path`. The privileged frame, where the set has
+/// it, goes where `options` says ([`privileged_path`]).
+pub fn write(set: &ExportSet, path: &Path, options: ExportOptions) -> Result<(), Error> {
     crate::validate(set)?;
     for (i, e) in set.episodes.iter().enumerate() {
         check_episode(i, e)?;
     }
-    let env_args = env_args(set)?;
-    let root = build(set, env_args);
+    let env_args = env_args(set, options)?;
+    let root = build(set, env_args, options);
     let plan = hdf5::plan(&root)?;
     let file = File::create(path).map_err(|e| Error::io(path, e))?;
     plan.write(BufWriter::with_capacity(1 << 20, file))
@@ -139,6 +157,13 @@ struct EnvKwargs<'a> {
     substeps: u32,
     #[serde(skip_serializing_if = "Option::is_none")]
     state: Option<&'static str>,
+    /// The `obs/` keys a deployable policy may read.
+    deployable_obs_keys: Vec<&'static str>,
+    /// Where the privileged frame is, in each demo group (none: the set did not keep it).
+    privileged_obs_key: Option<String>,
+    /// Task `i`'s name; each demo's `task_index` attribute points here (the same in every
+    /// export).
+    tasks: Vec<String>,
     mjcf: Mjcf<'a>,
 }
 
@@ -151,7 +176,7 @@ impl serde::Serialize for Mjcf<'_> {
     }
 }
 
-fn env_args(set: &ExportSet) -> Result<String, Error> {
+fn env_args(set: &ExportSet, options: ExportOptions) -> Result<String, Error> {
     for (i, (name, _)) in set.mjcf.iter().enumerate() {
         if set.mjcf[..i].iter().any(|(n, _)| n == name) {
             return Err(Error::Format(format!(
@@ -173,19 +198,26 @@ fn env_args(set: &ExportSet) -> Result<String, Error> {
                 .iter()
                 .any(|e| e.physics.is_some())
                 .then_some("mjSTATE_FULLPHYSICS"),
+            deployable_obs_keys: OBS_KEYS.iter().map(|(k, _)| *k).collect(),
+            privileged_obs_key: set
+                .episodes
+                .iter()
+                .any(|e| e.environment_state.is_some())
+                .then(|| privileged_path(options)),
+            tasks: crate::tasks().into_iter().map(|(_, name)| name).collect(),
             mjcf: Mjcf(&set.mjcf),
         },
     };
     serde_json::to_string(&args).map_err(|e| Error::Format(format!("env_args: {e}")))
 }
 
-fn build(set: &ExportSet, env_args: String) -> Group<'_> {
+fn build(set: &ExportSet, env_args: String, options: ExportOptions) -> Group<'_> {
     let mut data = Group::new();
     let total: usize = set.episodes.iter().map(|e| e.frames).sum();
     data.attr("total", Attr::I64(total as i64));
     data.attr("env_args", Attr::Str(env_args));
     for (i, e) in set.episodes.iter().enumerate() {
-        data.group(&demo_name(i), demo(e));
+        data.group(&demo_name(i), demo(e, options));
     }
     let (valid, train): (Vec<usize>, Vec<usize>) =
         (0..set.episodes.len()).partition(|&i| is_valid(i));
@@ -200,11 +232,12 @@ fn build(set: &ExportSet, env_args: String) -> Group<'_> {
     root
 }
 
-fn demo(e: &ExportEpisode) -> Group<'_> {
+fn demo(e: &ExportEpisode, options: ExportOptions) -> Group<'_> {
     let n = e.frames;
     let mut g = Group::new();
     g.attr("num_samples", Attr::I64(n as i64));
-    g.attr("variant", Attr::Str(e.variant.clone()));
+    g.attr("variant", Attr::Str(e.variant.to_string()));
+    g.attr("task_index", Attr::I64(crate::task_index(e.variant) as i64));
     g.attr("success", Attr::Bool(e.success));
     g.attr("source", Attr::Str(e.source.clone()));
     g.attr("max_force_n", Attr::F64(e.max_force_n));
@@ -245,29 +278,41 @@ fn demo(e: &ExportEpisode) -> Group<'_> {
         );
     }
 
-    let mut obs = Group::new();
-    let mut start = 0;
-    for (key, width) in OBS_KEYS {
-        obs.dataset(
-            key,
-            &[n, width],
-            Data::F32Columns {
-                src: &e.state,
-                row: DEPLOYABLE_LEN,
-                start,
-                width,
-            },
-        );
-        start += width;
+    // obs and next_obs: the same columns, next_obs one row on.
+    for (group, next) in [("obs", false), ("next_obs", true)] {
+        let mut obs = Group::new();
+        let mut start = 0;
+        for (key, width) in OBS_KEYS {
+            obs.dataset(
+                key,
+                &[n, width],
+                Data::F32Columns {
+                    src: &e.state,
+                    row: DEPLOYABLE_LEN,
+                    start,
+                    width,
+                    next,
+                },
+            );
+            start += width;
+        }
+        if let Some(p) = &e.environment_state
+            && options.privileged_obs
+        {
+            obs.dataset(
+                PRIVILEGED,
+                &[n, PRIVILEGED_LEN],
+                Data::F32Columns {
+                    src: p,
+                    row: PRIVILEGED_LEN,
+                    start: 0,
+                    width: PRIVILEGED_LEN,
+                    next,
+                },
+            );
+        }
+        g.group(group, obs);
     }
-    if let Some(p) = &e.environment_state {
-        obs.dataset(
-            "privileged",
-            &[n, PRIVILEGED_LEN],
-            Data::F32(Cow::Borrowed(p)),
-        );
-    }
-    g.group("obs", obs);
 
     let mut osms = Group::new();
     if let Some(p) = &e.physics {
@@ -293,6 +338,15 @@ fn demo(e: &ExportEpisode) -> Group<'_> {
         );
     }
     osms.dataset("omega", &[OMEGA_LEN], Data::F32(Cow::Borrowed(&e.omega)));
+    if let Some(p) = &e.environment_state
+        && !options.privileged_obs
+    {
+        osms.dataset(
+            PRIVILEGED,
+            &[n, PRIVILEGED_LEN],
+            Data::F32(Cow::Borrowed(p)),
+        );
+    }
     g.group("osms", osms);
     g
 }
@@ -307,7 +361,9 @@ mod tests {
     fn episode(i: usize, frames: usize, physics: bool, privileged: bool) -> ExportEpisode {
         let f = |k: usize, salt: usize| (i * 1000 + k * 7 + salt) as f32 * 0.001;
         ExportEpisode {
-            variant: ["sphere-small", "cube", "cylinder"][i % 3].to_string(),
+            variant: ["sphere-small", "box-large", "cylinder-small"][i % 3]
+                .parse()
+                .expect("a variant"),
             frames,
             state: (0..frames * DEPLOYABLE_LEN).map(|k| f(k, 1)).collect(),
             environment_state: privileged
@@ -473,8 +529,8 @@ mod tests {
         for n in [0, 1, 12] {
             let s = set(n);
             let (a, b) = (dir.path().join("a.hdf5"), dir.path().join("b.hdf5"));
-            write(&s, &a).expect("write a");
-            write(&s, &b).expect("write b");
+            write(&s, &a, ExportOptions::default()).expect("write a");
+            write(&s, &b, ExportOptions::default()).expect("write b");
             let (a, b) = (std::fs::read(a).expect("a"), std::fs::read(b).expect("b"));
             assert_eq!(a, b, "{n} episodes");
         }
@@ -482,10 +538,16 @@ mod tests {
 
     #[test]
     fn lays_out_robomimic_groups_and_datasets() {
+        for privileged_obs in [false, true] {
+            lays_out(ExportOptions { privileged_obs });
+        }
+    }
+
+    fn lays_out(options: ExportOptions) {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("set.hdf5");
         let s = set(12);
-        write(&s, &path).expect("write");
+        write(&s, &path, options).expect("write");
         let file = std::fs::read(&path).expect("read");
         let objects = read::walk(&file);
 
@@ -513,10 +575,37 @@ mod tests {
                 objects.contains_key(&format!("{d}/states")),
                 e.physics.is_some()
             );
-            assert_eq!(
-                objects.contains_key(&format!("{d}/obs/privileged")),
-                e.environment_state.is_some()
-            );
+            // The privileged frame is under obs/ only with the flag, else under osms/.
+            let has = |path: &str| objects.contains_key(&format!("{d}/{path}"));
+            let kept = e.environment_state.is_some();
+            assert_eq!(has("obs/privileged"), kept && options.privileged_obs);
+            assert_eq!(has("next_obs/privileged"), kept && options.privileged_obs);
+            assert_eq!(has("osms/privileged"), kept && !options.privileged_obs);
+            assert!(attrs["task_index"].ends_with(&(e.variant.index() as i64).to_le_bytes()));
+            // next_obs[t] = obs[t + 1], the last step repeating the last observation.
+            for (key, _) in OBS_KEYS.iter().chain(
+                options
+                    .privileged_obs
+                    .then_some(&(PRIVILEGED, 0))
+                    .filter(|_| kept),
+            ) {
+                let rows = |group: &str| -> Vec<Vec<f32>> {
+                    let read::Obj::Dataset { shape, raw, .. } =
+                        &objects[&format!("{d}/{group}/{key}")]
+                    else {
+                        panic!("{group}/{key}")
+                    };
+                    assert_eq!(shape[0], e.frames as u64);
+                    f32s(raw)
+                        .chunks_exact(shape[1] as usize)
+                        .map(<[f32]>::to_vec)
+                        .collect()
+                };
+                let (obs, next) = (rows("obs"), rows("next_obs"));
+                let mut want = obs[1..].to_vec();
+                want.push(obs[e.frames - 1].clone());
+                assert_eq!(next, want, "{d} {key}");
+            }
             let read::Obj::Dataset { shape, raw, .. } = &objects[&format!("{d}/obs/object_pos")]
             else {
                 panic!("object_pos")
@@ -562,7 +651,8 @@ mod tests {
     fn env_args_is_robomimic_metadata() {
         let s = set(2);
         let v: serde_json::Value =
-            serde_json::from_str(&env_args(&s).expect("env_args")).expect("JSON");
+            serde_json::from_str(&env_args(&s, ExportOptions::default()).expect("env_args"))
+                .expect("JSON");
         assert_eq!(v["env_name"], "osms-catch");
         assert_eq!(v["type"], 0);
         let k = &v["env_kwargs"];
@@ -572,13 +662,41 @@ mod tests {
         assert_eq!(k["substeps"], 10);
         assert_eq!(k["state"], "mjSTATE_FULLPHYSICS");
         assert_eq!(k["mjcf"]["sphere-small"], "<mujoco model=\"a\"/>");
+        assert_eq!(
+            k["deployable_obs_keys"],
+            serde_json::json!([
+                "arm_qpos",
+                "arm_qvel",
+                "hand_qpos",
+                "hand_qvel",
+                "object_pos",
+                "prev_action"
+            ])
+        );
+        assert_eq!(k["privileged_obs_key"], "osms/privileged");
+        assert_eq!(k["tasks"][3], "catch the sphere-small");
+        let flagged: serde_json::Value = serde_json::from_str(
+            &env_args(
+                &s,
+                ExportOptions {
+                    privileged_obs: true,
+                },
+            )
+            .expect("env_args"),
+        )
+        .expect("JSON");
+        assert_eq!(
+            flagged["env_kwargs"]["privileged_obs_key"],
+            "obs/privileged"
+        );
         let mut demos = set(2);
         demos.mjcf.clear();
         for e in &mut demos.episodes {
             e.physics = None;
         }
         let v: serde_json::Value =
-            serde_json::from_str(&env_args(&demos).expect("env_args")).expect("JSON");
+            serde_json::from_str(&env_args(&demos, ExportOptions::default()).expect("env_args"))
+                .expect("JSON");
         assert!(v["env_kwargs"].get("state").is_none());
         assert_eq!(v["env_kwargs"]["mjcf"], serde_json::json!({}));
     }
@@ -590,16 +708,19 @@ mod tests {
         let mut s = set(3);
         s.episodes[1].phase = Some(vec![0; 1]);
         assert!(matches!(
-            write(&s, &path),
+            write(&s, &path, ExportOptions::default()),
             Err(Error::Episode { episode: 1, .. })
         ));
         let mut s = set(3);
         s.episodes[2].state.pop();
         assert!(matches!(
-            write(&s, &path),
+            write(&s, &path, ExportOptions::default()),
             Err(Error::Episode { episode: 2, .. })
         ));
         let missing = dir.path().join("no/such/dir/x.hdf5");
-        assert!(matches!(write(&set(1), &missing), Err(Error::Io { .. })));
+        assert!(matches!(
+            write(&set(1), &missing, ExportOptions::default()),
+            Err(Error::Io { .. })
+        ));
     }
 }

@@ -300,6 +300,12 @@ pub struct ExportDatasetArgs {
     /// Directory to write [default: exports/<profile>/<stage>-<format>/ beside pipeline.toml]
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
+    /// Put the privileged frame (true object state, mass, contact force, ...) among the policy
+    /// inputs: LeRobot's `observation.environment_state`, robomimic's `obs/privileged`.
+    /// Without it the frame is kept under `osms.privileged` / `osms/privileged`, which no
+    /// library feeds to a policy by default
+    #[arg(long)]
+    pub privileged_obs: bool,
     /// Print what was written as JSON on stdout
     #[arg(long)]
     pub json: bool,

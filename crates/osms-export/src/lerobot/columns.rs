@@ -9,7 +9,24 @@ use osms_sim::N_ACTION;
 use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
 
-use crate::{Error, ExportSet};
+use crate::{Error, ExportOptions, ExportSet};
+
+/// The key of the privileged frame where a policy reads it (`--privileged-obs`) ...
+pub const PRIVILEGED_OBS_KEY: &str = "observation.environment_state";
+/// ... and where it does not: LeRobot's `dataset_to_policy_features` maps only `observation*`
+/// and `action*` keys to policy inputs.
+pub const PRIVILEGED_KEY: &str = "osms.privileged";
+/// The keys a deployable policy may read (and `action`, its output).
+pub const DEPLOYABLE_KEYS: [&str; 1] = ["observation.state"];
+
+/// Where the privileged frame goes under `options`.
+pub fn privileged_key(options: ExportOptions) -> &'static str {
+    if options.privileged_obs {
+        PRIVILEGED_OBS_KEY
+    } else {
+        PRIVILEGED_KEY
+    }
+}
 
 /// The quantiles LeRobot's stats carry, by key.
 pub(super) const QUANTILES: [(&str, f64); 5] = [
@@ -19,11 +36,6 @@ pub(super) const QUANTILES: [(&str, f64); 5] = [
     ("q90", 0.90),
     ("q99", 0.99),
 ];
-
-/// An episode's LeRobot task: one per object variant.
-pub fn task_name(variant: &str) -> String {
-    format!("catch the {variant}")
-}
 
 /// Names of ω's features (`osms_policy::osw::omega_features`'s order).
 pub fn omega_names() -> Vec<String> {
@@ -41,7 +53,8 @@ pub fn omega_names() -> Vec<String> {
     n
 }
 
-/// Tasks in order of first appearance, and each episode's task index.
+/// Every variant's task in the fixed order of [`crate::tasks`] (LeRobot reads an episode's
+/// task by row position, so the table holds all ten, used or not), and each episode's index.
 pub(super) struct Tasks {
     pub(super) names: Vec<String>,
     pub(super) of_episode: Vec<usize>,
@@ -49,20 +62,14 @@ pub(super) struct Tasks {
 
 impl Tasks {
     pub(super) fn of(set: &ExportSet) -> Tasks {
-        let mut names: Vec<String> = Vec::new();
-        let mut of_episode = Vec::with_capacity(set.episodes.len());
-        for e in &set.episodes {
-            let name = task_name(&e.variant);
-            let k = match names.iter().position(|n| *n == name) {
-                Some(k) => k,
-                None => {
-                    names.push(name);
-                    names.len() - 1
-                }
-            };
-            of_episode.push(k);
+        Tasks {
+            names: crate::tasks().into_iter().map(|(_, name)| name).collect(),
+            of_episode: set
+                .episodes
+                .iter()
+                .map(|e| crate::task_index(e.variant))
+                .collect(),
         }
-        Tasks { names, of_episode }
     }
 }
 
@@ -280,7 +287,11 @@ pub(super) struct DataTable {
 }
 
 impl DataTable {
-    pub(super) fn build(set: &ExportSet, tasks: &Tasks) -> Result<DataTable, Error> {
+    pub(super) fn build(
+        set: &ExportSet,
+        tasks: &Tasks,
+        options: ExportOptions,
+    ) -> Result<DataTable, Error> {
         let eps = &set.episodes;
         let rows: usize = eps.iter().map(|e| e.frames).sum();
         let mut episode_rows = Vec::with_capacity(eps.len());
@@ -321,7 +332,7 @@ impl DataTable {
         )];
         if eps.iter().all(|e| e.environment_state.is_some()) {
             features.push(Feature::new(
-                "observation.environment_state",
+                privileged_key(options),
                 Values::F32(concat(&|e| e.environment_state.as_deref().unwrap_or(&[]))),
                 PRIVILEGED_LEN,
                 rows,
@@ -530,7 +541,7 @@ pub(super) fn episodes_table(set: &ExportSet, tasks: &Tasks, data: &DataTable) -
     let eps = &set.episodes;
     cols.push(Column::scalar(
         "osms.variant",
-        Values::Str(eps.iter().map(|e| e.variant.clone()).collect()),
+        Values::Str(eps.iter().map(|e| e.variant.to_string()).collect()),
     ));
     cols.push(Column::scalar(
         "osms.source",

@@ -8,8 +8,8 @@ use std::path::Path;
 
 use parquet::file::metadata::KeyValue;
 
-use super::columns::{DataTable, J, Tasks};
-use crate::{Error, ExportSet};
+use super::columns::{DEPLOYABLE_KEYS, DataTable, J, Tasks, privileged_key};
+use crate::{Error, ExportOptions, ExportSet};
 
 /// The LeRobot dataset format version written.
 pub const CODEBASE_VERSION: &str = "v3.0";
@@ -29,7 +29,7 @@ pub const DATA_PATH: &str = "data/chunk-000/file-000.parquet";
 pub(super) const DATA_PATH_TEMPLATE: &str =
     "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet";
 
-/// osms's provenance, in the Parquet footers (LeRobot warns of unknown `info.json` keys).
+/// osms's provenance, in the Parquet footers.
 pub(super) fn osms_metadata(set: &ExportSet) -> KeyValue {
     let v = serde_json::json!({
         "provenance": set.provenance,
@@ -81,7 +81,12 @@ pub(super) fn pandas_tasks_metadata() -> String {
     serde_json::to_string(&meta).unwrap_or_default()
 }
 
-pub(super) fn info_json(set: &ExportSet, tasks: &Tasks, data: &DataTable) -> J {
+pub(super) fn info_json(
+    set: &ExportSet,
+    tasks: &Tasks,
+    data: &DataTable,
+    options: ExportOptions,
+) -> J {
     let v = |x: serde_json::Value| J::Val(x);
     let features = data
         .features
@@ -121,6 +126,43 @@ pub(super) fn info_json(set: &ExportSet, tasks: &Tasks, data: &DataTable) -> J {
         ("data_path".into(), v(DATA_PATH_TEMPLATE.into())),
         ("video_path".into(), v(serde_json::Value::Null)),
         ("features".into(), J::Obj(features)),
+        ("osms".into(), osms_info(data, options)),
+    ])
+}
+
+/// What a reader of the files must know that LeRobot's own keys cannot say: which features a
+/// deployable policy may read, and where the privileged frame is (LeRobot's loader keeps
+/// `info.json` as a plain dictionary, so the extra key rides along).
+fn osms_info(data: &DataTable, options: ExportOptions) -> J {
+    let v = |x: serde_json::Value| J::Val(x);
+    let privileged = privileged_key(options);
+    let has = |key: &str| data.features.iter().any(|f| f.column.name == key);
+    J::Obj(vec![
+        (
+            "deployable_features".into(),
+            v(serde_json::json!(DEPLOYABLE_KEYS)),
+        ),
+        ("action_feature".into(), v("action".into())),
+        (
+            "privileged_feature".into(),
+            v(if has(privileged) {
+                privileged.into()
+            } else {
+                serde_json::Value::Null
+            }),
+        ),
+        (
+            "privileged_is_policy_input".into(),
+            v(serde_json::Value::Bool(
+                has(privileged) && options.privileged_obs,
+            )),
+        ),
+        (
+            "task_index".into(),
+            v(serde_json::json!(
+                "fixed: catch the <variant>, in osms's variant order; the same in every osms export"
+            )),
+        ),
     ])
 }
 

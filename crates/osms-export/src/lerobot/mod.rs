@@ -37,14 +37,17 @@ use self::layout::{
     pandas_tasks_metadata, write_json,
 };
 use self::parquet_writer::write_parquet;
-use crate::{Error, ExportSet};
+use crate::{Error, ExportOptions, ExportSet};
 
-pub use self::columns::{omega_names, task_name};
+pub use self::columns::{
+    DEPLOYABLE_KEYS, PRIVILEGED_KEY, PRIVILEGED_OBS_KEY, omega_names, privileged_key,
+};
 pub use self::layout::{CODEBASE_VERSION, ROBOT_TYPE};
 
 /// Writes `set` in LeRobot v3.0 layout into the directory `out`, empty but for hidden files
-/// (a writer's marker); returns the files written.
-pub fn write(set: &ExportSet, out: &Path) -> Result<Vec<PathBuf>, Error> {
+/// (a writer's marker); returns the files written. The privileged frame, where the set has
+/// it, goes where `options` says ([`privileged_key`]).
+pub fn write(set: &ExportSet, out: &Path, options: ExportOptions) -> Result<Vec<PathBuf>, Error> {
     crate::validate(set)?;
     check(set)?;
     let mut entries = fs::read_dir(out).map_err(|e| Error::io(out, e))?;
@@ -56,7 +59,7 @@ pub fn write(set: &ExportSet, out: &Path) -> Result<Vec<PathBuf>, Error> {
     }
 
     let tasks = Tasks::of(set);
-    let data = DataTable::build(set, &tasks)?;
+    let data = DataTable::build(set, &tasks, options)?;
 
     let mut written = Vec::new();
     for dir in ["meta/episodes/chunk-000", "data/chunk-000"] {
@@ -105,7 +108,7 @@ pub fn write(set: &ExportSet, out: &Path) -> Result<Vec<PathBuf>, Error> {
 
     // info.json and stats.json.
     let path = out.join(INFO_PATH);
-    write_json(&path, &info_json(set, &tasks, &data))?;
+    write_json(&path, &info_json(set, &tasks, &data, options))?;
     written.push(path);
     let path = out.join(STATS_PATH);
     let stats = J::Obj(
@@ -182,7 +185,7 @@ mod tests {
             (0..n).map(|i| seed + scale * i as f32).collect()
         };
         ExportEpisode {
-            variant: variant.into(),
+            variant: variant.parse().expect("a variant"),
             frames,
             state: ramp(frames * DEPLOYABLE_LEN, 0.001),
             environment_state: rollout.then(|| ramp(frames * PRIVILEGED_LEN, -0.002)),
@@ -221,7 +224,7 @@ mod tests {
     fn mixed() -> ExportSet {
         set(vec![
             episode("sphere-small", 5, 0.0, true),
-            episode("cube-large", 3, 1.0, false),
+            episode("box-large", 3, 1.0, false),
             episode("sphere-small", 4, 2.0, true),
         ])
     }
@@ -229,7 +232,7 @@ mod tests {
     fn rollouts() -> ExportSet {
         set(vec![
             episode("sphere-small", 6, 0.0, true),
-            episode("mug", 2, -1.0, true),
+            episode("capsule-small", 2, -1.0, true),
         ])
     }
 
@@ -259,7 +262,7 @@ mod tests {
     #[test]
     fn writes_the_v3_layout() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let files = write(&mixed(), dir.path()).expect("write");
+        let files = write(&mixed(), dir.path(), ExportOptions::default()).expect("write");
         let expected: Vec<PathBuf> = [DATA_PATH, EPISODES_PATH, INFO_PATH, STATS_PATH, TASKS_PATH]
             .iter()
             .map(|p| dir.path().join(p))
@@ -272,7 +275,7 @@ mod tests {
         assert_eq!(info["codebase_version"], "v3.0");
         assert_eq!(info["total_episodes"], 3);
         assert_eq!(info["total_frames"], 12);
-        assert_eq!(info["total_tasks"], 2);
+        assert_eq!(info["total_tasks"], 10, "every variant's task, used or not");
         assert_eq!(info["fps"], 50);
         assert_eq!(info["splits"]["train"], "0:3");
         assert!(info["video_path"].is_null());
@@ -347,7 +350,7 @@ mod tests {
         }
 
         let tasks = parquet(&dir.path().join(TASKS_PATH));
-        assert_eq!(tasks.metadata().file_metadata().num_rows(), 2);
+        assert_eq!(tasks.metadata().file_metadata().num_rows(), 10);
         assert_eq!(column_names(&tasks), ["task_index", "task"]);
         let kv = tasks
             .metadata()
@@ -374,29 +377,112 @@ mod tests {
     #[test]
     fn rollout_columns_when_every_episode_has_them() {
         let dir = tempfile::tempdir().expect("tempdir");
-        write(&rollouts(), dir.path()).expect("write");
+        write(&rollouts(), dir.path(), ExportOptions::default()).expect("write");
         let info = read_json(&dir.path().join(INFO_PATH));
         let f = &info["features"];
-        assert_eq!(
-            f["observation.environment_state"]["shape"],
-            serde_json::json!([PRIVILEGED_LEN])
-        );
         assert_eq!(
             f["osms.intended_action"]["shape"],
             serde_json::json!([N_ACTION])
         );
         assert_eq!(f["osms.phase"]["dtype"], "int64");
-        assert_eq!(info["total_tasks"], 2);
         let data = parquet(&dir.path().join(DATA_PATH));
         assert!(column_names(&data).iter().any(|c| c == "osms.phase"));
+    }
+
+    /// The privileged frame is a policy input only when asked for: LeRobot feeds every
+    /// `observation*` feature to a policy by default.
+    #[test]
+    fn the_privileged_frame_is_an_observation_only_with_the_flag() {
+        for privileged_obs in [false, true] {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let options = ExportOptions { privileged_obs };
+            write(&rollouts(), dir.path(), options).expect("write");
+            let info = read_json(&dir.path().join(INFO_PATH));
+            let features = info["features"].as_object().expect("features");
+            let mut observations: Vec<&str> = features
+                .keys()
+                .map(String::as_str)
+                .filter(|k| k.starts_with("observation"))
+                .collect();
+            observations.sort_unstable();
+            let key = if privileged_obs {
+                assert_eq!(
+                    observations,
+                    ["observation.environment_state", "observation.state"]
+                );
+                PRIVILEGED_OBS_KEY
+            } else {
+                assert_eq!(observations, ["observation.state"]);
+                PRIVILEGED_KEY
+            };
+            assert_eq!(features[key]["shape"], serde_json::json!([PRIVILEGED_LEN]));
+            let data = parquet(&dir.path().join(DATA_PATH));
+            let columns = column_names(&data);
+            assert!(columns.iter().any(|c| c == key), "{columns:?}");
+            let osms = &info["osms"];
+            assert_eq!(
+                osms["deployable_features"],
+                serde_json::json!(["observation.state"])
+            );
+            assert_eq!(osms["privileged_feature"], key);
+            assert_eq!(osms["privileged_is_policy_input"], privileged_obs);
+            let stats = read_json(&dir.path().join(STATS_PATH));
+            assert!(stats.get(key).is_some());
+        }
+        // A set without privileged frames says so.
+        let dir = tempfile::tempdir().expect("tempdir");
+        write(&mixed(), dir.path(), ExportOptions::default()).expect("write");
+        let info = read_json(&dir.path().join(INFO_PATH));
+        assert!(info["osms"]["privileged_feature"].is_null());
+    }
+
+    /// Two sets with the variants in different orders give every variant the same index.
+    #[test]
+    fn task_indices_are_the_same_in_every_export() {
+        let read_tasks = |set: &ExportSet| {
+            let dir = tempfile::tempdir().expect("tempdir");
+            write(set, dir.path(), ExportOptions::default()).expect("write");
+            let t = parquet(&dir.path().join(TASKS_PATH));
+            let mut rows = Vec::new();
+            for row in t.get_row_iter(None).expect("rows") {
+                let row = row.expect("row");
+                let cols: Vec<_> = row.get_column_iter().map(|(_, v)| v.to_string()).collect();
+                rows.push(cols);
+            }
+            let d = parquet(&dir.path().join(DATA_PATH));
+            let mut per_frame = Vec::new();
+            for row in d.get_row_iter(None).expect("rows") {
+                let row = row.expect("row");
+                let (_, v) = row
+                    .get_column_iter()
+                    .find(|(n, _)| n.as_str() == "task_index")
+                    .expect("task_index");
+                per_frame.push(v.to_string());
+            }
+            (rows, per_frame)
+        };
+        let (a, a_frames) = read_tasks(&mixed());
+        let (b, _) = read_tasks(&rollouts());
+        assert_eq!(a, b);
+        assert_eq!(a.len(), 10);
+        for (i, (variant, name)) in crate::tasks().iter().enumerate() {
+            assert_eq!(a[i], [i.to_string(), format!("\"{name}\"")]);
+            assert_eq!(crate::task_index(*variant), i);
+        }
+        // sphere-small (3) for 5 frames, box-large (0) for 3, sphere-small for 4.
+        let want: Vec<String> = [(3, 5), (0, 3), (3, 4)]
+            .iter()
+            .flat_map(|&(k, n)| std::iter::repeat_n(k.to_string(), n))
+            .collect();
+        assert_eq!(a_frames, want);
     }
 
     #[test]
     fn same_set_same_bytes() {
         let a = tempfile::tempdir().expect("tempdir");
         let b = tempfile::tempdir().expect("tempdir");
-        let fa = write(&mixed(), a.path()).expect("write");
-        let fb = write(&mixed(), b.path()).expect("write");
+        let fa = write(&mixed(), a.path(), ExportOptions::default()).expect("write");
+        let fb = write(&mixed(), b.path(), ExportOptions::default()).expect("write");
         assert_eq!(fa.len(), fb.len());
         for (x, y) in fa.iter().zip(&fb) {
             assert_eq!(x.strip_prefix(a.path()).ok(), y.strip_prefix(b.path()).ok());
@@ -413,36 +499,42 @@ mod tests {
     fn refuses_bad_input() {
         let dir = tempfile::tempdir().expect("tempdir");
         fs::write(dir.path().join("stale"), b"x").expect("stale");
-        assert!(matches!(write(&mixed(), dir.path()), Err(Error::Format(_))));
+        assert!(matches!(
+            write(&mixed(), dir.path(), ExportOptions::default()),
+            Err(Error::Format(_))
+        ));
 
         let dir = tempfile::tempdir().expect("tempdir");
         let mut s = mixed();
         s.episodes[2].intended_action = Some(vec![0.0; 3]);
         assert!(matches!(
-            write(&s, dir.path()),
+            write(&s, dir.path(), ExportOptions::default()),
             Err(Error::Episode { episode: 2, .. })
         ));
 
         let mut s = mixed();
         s.episodes[1].phase = Some(vec![0; 1]);
         assert!(matches!(
-            write(&s, dir.path()),
+            write(&s, dir.path(), ExportOptions::default()),
             Err(Error::Episode { episode: 1, .. })
         ));
 
         let mut s = mixed();
         s.episodes[0].state.pop();
         assert!(matches!(
-            write(&s, dir.path()),
+            write(&s, dir.path(), ExportOptions::default()),
             Err(Error::Episode { episode: 0, .. })
         ));
 
         assert!(matches!(
-            write(&set(Vec::new()), dir.path()),
+            write(&set(Vec::new()), dir.path(), ExportOptions::default()),
             Err(Error::Format(_))
         ));
 
         let missing = dir.path().join("missing");
-        assert!(matches!(write(&mixed(), &missing), Err(Error::Io { .. })));
+        assert!(matches!(
+            write(&mixed(), &missing, ExportOptions::default()),
+            Err(Error::Io { .. })
+        ));
     }
 }

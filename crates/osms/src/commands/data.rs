@@ -210,15 +210,18 @@ pub fn export_dataset(ctx: &Context, args: &ExportDatasetArgs) -> Result<ExitCod
         Contents::Demos(s) => osms_export::from_demo_set(source.provenance(), s, &world)
             .with_context(|| format!("cannot export {instance}"))?,
     };
+    let options = osms_export::ExportOptions {
+        privileged_obs: args.privileged_obs,
+    };
     let written = outdir::replace(&dir, MARKER, |partial| {
         let mut files = match args.format {
-            DatasetFormat::Lerobot => osms_export::lerobot::write(&set, partial)?
+            DatasetFormat::Lerobot => osms_export::lerobot::write(&set, partial, options)?
                 .into_iter()
                 .map(|p| p.strip_prefix(partial).map(Path::to_path_buf).unwrap_or(p))
                 .collect(),
             DatasetFormat::Robomimic => {
                 let name = PathBuf::from(format!("{}.hdf5", source.resolved.record.stage));
-                osms_export::robomimic::write(&set, &partial.join(&name))?;
+                osms_export::robomimic::write(&set, &partial.join(&name), options)?;
                 vec![name]
             }
         };
@@ -234,6 +237,7 @@ pub fn export_dataset(ctx: &Context, args: &ExportDatasetArgs) -> Result<ExitCod
             "episodes": set.episodes.len(),
             "frames": frames,
             "physics_states": set.episodes.iter().all(|e| e.physics.is_some()),
+            "privileged_obs": args.privileged_obs,
             "files": written,
         }))?;
     } else {
@@ -249,6 +253,20 @@ pub fn export_dataset(ctx: &Context, args: &ExportDatasetArgs) -> Result<ExitCod
         );
         for w in &written {
             println!("  {}", w.display());
+        }
+        if set.episodes.iter().any(|e| e.environment_state.is_some()) {
+            let at = match args.format {
+                DatasetFormat::Lerobot => osms_export::lerobot::privileged_key(options).to_string(),
+                DatasetFormat::Robomimic => osms_export::robomimic::privileged_path(options),
+            };
+            println!(
+                "the privileged frame is in {at}{}",
+                if options.privileged_obs {
+                    ", among the policy inputs (--privileged-obs)"
+                } else {
+                    ", not a policy input (--privileged-obs puts it among them)"
+                }
+            );
         }
     }
     Ok(ExitCode::SUCCESS)
