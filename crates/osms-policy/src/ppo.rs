@@ -36,6 +36,10 @@ pub struct PpoConfig {
     pub epochs: u32,
     pub minibatch: usize,
     pub lr: f32,
+    /// The learning rate falls linearly from `lr` at the first iteration to `lr` × this at the
+    /// last (1: constant). Late PPO updates on a near-deterministic policy move it far (clip
+    /// fractions of 0.4 by the end of a constant-rate run); a falling rate keeps the end stable.
+    pub lr_final_fraction: f32,
     pub max_grad_norm: f32,
     /// Initial log σ of the (state-independent) action noise.
     pub init_log_std: f32,
@@ -61,8 +65,14 @@ impl Default for PpoConfig {
             epochs: 4,
             minibatch: 256,
             lr: 3e-4,
+            // Tuned for the teacher on the development stream (docs/policy.md, issue 32): a
+            // falling rate and a small initial noise (σ = 0.08) took success from 69 % to 88 %.
+            lr_final_fraction: 0.1,
             max_grad_norm: 0.5,
-            init_log_std: -1.0,
+            // At σ = 0.37 (log σ = −1) the noise on the residual and the grasp channel drops
+            // 97 % of the prior's catches, so PPO first spends hundreds of iterations shrinking
+            // it; at σ = 0.08 the noisy prior still completes most catches.
+            init_log_std: -2.5,
             obs_clip: 5.0,
             zero_init_actor_output: true,
         }
@@ -295,6 +305,11 @@ pub fn train<T: Task>(
     let mut critic_opt = actor_opt.clone();
     let first = agent.curve.len() as u32;
     for iteration in first..first + config.iterations {
+        let done = f64::from(iteration - first) / f64::from(config.iterations.max(2) - 1);
+        let lr = (f64::from(config.lr) * (1.0 - done * (1.0 - f64::from(config.lr_final_fraction))))
+            as f32;
+        actor_opt.schedule = Schedule::Constant { lr };
+        critic_opt.schedule = Schedule::Constant { lr };
         let per = u64::from(config.episodes_per_iteration);
         let base = u64::from(iteration) * per;
         let frozen = &*agent;

@@ -79,6 +79,7 @@ fn config() -> PpoConfig {
         epochs: 4,
         minibatch: 128,
         lr: 1e-3,
+        lr_final_fraction: 1.0,
         init_log_std: -0.5,
         ..PpoConfig::default()
     }
@@ -123,4 +124,31 @@ fn training_is_identical_on_rerun_and_across_thread_counts() {
     let one = trained(1);
     assert_eq!(hash(&one), hash(&trained(1)), "rerun");
     assert_eq!(hash(&one), hash(&trained(2)), "1 vs 2 threads");
+}
+
+/// `lr_final_fraction` 0: the rate falls to zero at the last iteration, which therefore moves
+/// no weight, while the first iteration trains at the full rate (the same weights as a
+/// one-iteration run at a constant rate).
+#[test]
+fn a_rate_falling_to_zero_leaves_the_last_iteration_without_an_update() {
+    let run = |iterations: u32, lr_final_fraction: f32| {
+        let config = PpoConfig {
+            iterations,
+            lr_final_fraction,
+            ..config()
+        };
+        let mut agent = Agent::new(1, 1, &config, (3, "test")).expect("a valid agent");
+        train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {}).expect("trains");
+        agent
+    };
+    let weights = |a: &Agent| (a.actor.clone(), a.critic.clone(), a.log_std.clone());
+    let once = run(1, 1.0);
+    let twice = run(2, 0.0);
+    assert_eq!(weights(&twice), weights(&once));
+    let constant = run(2, 1.0);
+    assert_ne!(
+        weights(&constant),
+        weights(&once),
+        "a constant rate does move"
+    );
 }

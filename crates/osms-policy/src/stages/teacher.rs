@@ -49,6 +49,13 @@ impl Stage for TeacherStage {
                 "params.ppo: episodes_per_iteration and minibatch must be at least 1".into(),
             );
         }
+        if !(0.0..=1.0).contains(&p.ppo.lr_final_fraction) {
+            return Err(format!(
+                "params.ppo.lr_final_fraction: {} is not in [0, 1] (1 keeps the rate constant)",
+                p.ppo.lr_final_fraction
+            )
+            .into());
+        }
         let task = CatchTask::new(&world, p.task.clone(), seed, ctx.stage(), "train")?;
         let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, (seed, ctx.stage()))
             .map_err(|e| format!("params.ppo: {e}"))?;
