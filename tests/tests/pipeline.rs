@@ -1298,6 +1298,11 @@ fn baselines_reach_dstar_from_streams_of_their_own(made: &Made, hashes: &BTreeMa
     }
 }
 
+/// Whether the JSON array `list` holds the string `s`.
+fn lists(list: &serde_json::Value, s: &str) -> bool {
+    list.as_array().expect("an array").iter().any(|x| x == s)
+}
+
 /// `osms export-dataset`, `replay` and `render` on the tiny datasets through the real command
 /// line, with pyarrow, h5py and MuJoCo's own Python bindings as independent readers.
 fn datasets_export_replay_and_render(made: &Made) {
@@ -1520,13 +1525,7 @@ fn datasets_export_replay_and_render(made: &Made) {
             .collect()
     };
     assert_eq!(observations(&lr), ["observation.state"]);
-    assert!(
-        lr["columns"]
-            .as_array()
-            .expect("columns")
-            .iter()
-            .any(|c| c == "osms.privileged")
-    );
+    assert!(lists(&lr["columns"], "osms.privileged"));
     assert_eq!(lr["info"]["osms"]["privileged_is_policy_input"], false);
     let lrp =
         osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&lerobot_privileged)]);
@@ -1568,21 +1567,8 @@ fn datasets_export_replay_and_render(made: &Made) {
         assert_eq!(d["last_done"], 1);
         // The script checked next_obs[t] == obs[t + 1] for every key.
         assert_eq!(d["next_obs_keys"], d["obs_keys"]);
-        assert!(
-            !d["obs_keys"]
-                .as_array()
-                .expect("keys")
-                .iter()
-                .any(|k| k == "privileged"),
-            "{d}"
-        );
-        assert!(
-            d["osms_keys"]
-                .as_array()
-                .expect("keys")
-                .iter()
-                .any(|k| k == "privileged")
-        );
+        assert!(!lists(&d["obs_keys"], "privileged"), "{d}");
+        assert!(lists(&d["osms_keys"], "privileged"), "{d}");
         assert_eq!(d["task_index"], r.condition.variant.index());
     }
     let rmp = osms_tests::python::run_script(
@@ -1591,13 +1577,7 @@ fn datasets_export_replay_and_render(made: &Made) {
         &[&p(&robomimic_privileged.join("d_r.hdf5"))],
     );
     for d in rmp["demos"].as_array().expect("demos") {
-        assert!(
-            d["obs_keys"]
-                .as_array()
-                .expect("keys")
-                .iter()
-                .any(|k| k == "privileged")
-        );
+        assert!(lists(&d["obs_keys"], "privileged"), "{d}");
         assert_eq!(d["next_obs_keys"], d["obs_keys"]);
     }
     let masks = rm["mask"]["train"].as_array().expect("train").len()

@@ -191,13 +191,8 @@ impl Data<'_> {
             } => {
                 let mut buf = Vec::with_capacity(CHUNK * 4);
                 let rows = src.chunks_exact(*row);
-                let last = rows.clone().last();
-                let rows: Box<dyn Iterator<Item = &[f32]>> = if *next {
-                    Box::new(rows.skip(1).chain(last))
-                } else {
-                    Box::new(rows)
-                };
-                for r in rows {
+                let repeat = if *next { rows.clone().last() } else { None };
+                for r in rows.skip(usize::from(*next)).chain(repeat) {
                     for v in &r[*start..start + width] {
                         buf.extend_from_slice(&v.to_le_bytes());
                     }

@@ -76,17 +76,13 @@ pub struct ExportOptions {
     pub privileged_obs: bool,
 }
 
-/// The task of every variant, in one fixed order: task index `i` is
-/// `ObjectVariant::all()[i]`, the same in every export of every dataset, so exports merge
-/// without remapping.
-pub fn tasks() -> Vec<(ObjectVariant, String)> {
-    ObjectVariant::all()
-        .into_iter()
-        .map(|v| (v, task_name(v)))
-        .collect()
+/// Every variant's task, in one fixed order: task index `i` is `ObjectVariant::all()[i]`'s,
+/// the same in every export of every dataset, so exports merge without remapping.
+pub fn task_names() -> Vec<String> {
+    ObjectVariant::all().into_iter().map(task_name).collect()
 }
 
-/// A variant's task index (see [`tasks`]).
+/// A variant's task index (see [`task_names`]).
 pub fn task_index(variant: ObjectVariant) -> usize {
     variant.index()
 }

@@ -204,7 +204,7 @@ fn env_args(set: &ExportSet, options: ExportOptions) -> Result<String, Error> {
                 .iter()
                 .any(|e| e.environment_state.is_some())
                 .then(|| privileged_path(options)),
-            tasks: crate::tasks().into_iter().map(|(_, name)| name).collect(),
+            tasks: crate::task_names(),
             mjcf: Mjcf(&set.mjcf),
         },
     };

@@ -53,7 +53,7 @@ pub fn omega_names() -> Vec<String> {
     n
 }
 
-/// Every variant's task in the fixed order of [`crate::tasks`] (LeRobot reads an episode's
+/// Every variant's task in the fixed order of [`crate::task_names`] (LeRobot reads an episode's
 /// task by row position, so the table holds all ten, used or not), and each episode's index.
 pub(super) struct Tasks {
     pub(super) names: Vec<String>,
@@ -63,7 +63,7 @@ pub(super) struct Tasks {
 impl Tasks {
     pub(super) fn of(set: &ExportSet) -> Tasks {
         Tasks {
-            names: crate::tasks().into_iter().map(|(_, name)| name).collect(),
+            names: crate::task_names(),
             of_episode: set
                 .episodes
                 .iter()

@@ -465,9 +465,10 @@ mod tests {
         let (b, _) = read_tasks(&rollouts());
         assert_eq!(a, b);
         assert_eq!(a.len(), 10);
-        for (i, (variant, name)) in crate::tasks().iter().enumerate() {
+        for (i, variant) in osms_sim::ObjectVariant::all().into_iter().enumerate() {
+            let name = crate::task_name(variant);
             assert_eq!(a[i], [i.to_string(), format!("\"{name}\"")]);
-            assert_eq!(crate::task_index(*variant), i);
+            assert_eq!(crate::task_index(variant), i);
         }
         // sphere-small (3) for 5 frames, box-large (0) for 3, sphere-small for 4.
         let want: Vec<String> = [(3, 5), (0, 3), (3, 4)]
