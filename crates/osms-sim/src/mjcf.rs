@@ -278,8 +278,11 @@ fn object(x: &mut Xml, spec: &WorldSpec, variant: ObjectVariant) {
         crate::mjcf::OBJECT_BODY
     ));
     x.line("<freejoint name=\"object_free\"/>");
+    // Priority 1: every contact the object makes takes the object's friction, solref and
+    // condim. Without it MuJoCo takes the larger friction and averages the time constants, so
+    // the hand's defaults (friction 1, 0.02 s) swallowed the world's values and their DR.
     x.line(&format!(
-        "<geom name=\"object_geom\" type=\"{kind}\" size=\"{size_text}\" mass=\"{mass}\" friction=\"{} 0.005 0.0001\" condim=\"4\" solref=\"{} 1\" contype=\"8\" conaffinity=\"7\" rgba=\"0.2 0.5 0.9 1\"/>",
+        "<geom name=\"object_geom\" type=\"{kind}\" size=\"{size_text}\" mass=\"{mass}\" priority=\"1\" friction=\"{} 0.005 0.0001\" condim=\"4\" solref=\"{} 1\" contype=\"8\" conaffinity=\"7\" rgba=\"0.2 0.5 0.9 1\"/>",
         spec.friction, spec.contact_timeconst_secs
     ));
     x.close("body");

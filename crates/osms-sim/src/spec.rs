@@ -138,9 +138,10 @@ pub struct WorldSpec {
     /// Hand posture at rest (rad, in actuator order: wrist; thumb cmc, abd, mcp, dip; index,
     /// middle, ring, pinky abd, mcp, pip): a slightly curled open hand.
     pub hand_home_rad: [f64; 17],
-    /// Sliding friction of the object and the hand.
+    /// Sliding friction of every contact the object makes (its geom has contact priority).
     pub friction: f64,
-    /// Contact time constant of object contacts (s): softer contacts absorb impacts.
+    /// Contact time constant of every contact the object makes (s): softer contacts absorb
+    /// impacts.
     pub contact_timeconst_secs: f64,
 }
 
@@ -159,7 +160,7 @@ impl Default for WorldSpec {
                 0.0, 0.2, 0.2, // ring
                 0.0, 0.2, 0.2, // pinky
             ],
-            friction: 0.8,
+            friction: 1.0,
             contact_timeconst_secs: 0.01,
         }
     }
