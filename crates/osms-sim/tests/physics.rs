@@ -639,3 +639,75 @@ fn recorded_privileged_frames_carry_the_force_whatever_the_policy_reads() {
     }
     assert!(touching > 3, "{touching} steps with contact");
 }
+
+/// Notes the sliding friction and time constant of every contact between the object and a
+/// hand geom, as MuJoCo resolved them.
+#[derive(Default)]
+struct ContactParams {
+    seen: Vec<(f64, f64)>,
+}
+impl Hooks for ContactParams {
+    fn after_physics_step(&mut self, data: &MjData<Box<MjModel>>) {
+        let model = data.model();
+        let name = |g: i32| {
+            model
+                .id_to_name(MjtObjBase::mjOBJ_GEOM, g as usize)
+                .unwrap_or("")
+                .to_string()
+        };
+        for c in data.contact() {
+            let (a, b) = (name(c.geom[0]), name(c.geom[1]));
+            if (a == "object_geom" && b.starts_with("hand_"))
+                || (b == "object_geom" && a.starts_with("hand_"))
+            {
+                self.seen.push((c.friction[0], c.solref[0]));
+            }
+        }
+    }
+}
+
+/// The hand's geoms have friction 1 and MuJoCo's default time constant 0.02 s; without the
+/// object's contact priority MuJoCo would take the larger friction and average the time
+/// constants, and the world's values and their domain randomisation would not be the ones in
+/// force.
+#[test]
+fn the_worlds_friction_and_time_constant_govern_every_object_contact_with_their_dr() {
+    let w = World::new(WorldSpec {
+        friction: 0.6,
+        contact_timeconst_secs: 0.007,
+        ..WorldSpec::default()
+    })
+    .expect("world");
+    let mut spec = RolloutSpec::default();
+    spec.dr.friction_variation = 0.2;
+    spec.dr.contact_timeconst_variation = 0.3;
+    let n = w.home_palm_normal;
+    let palm = w.home_palm_pos;
+    let r = 0.025;
+    let target = [palm[0] + r * n[0], palm[1] + r * n[1], palm[2] + r * n[2]];
+    let from = [
+        palm[0] + 0.8 * n[0],
+        palm[1] + 0.8 * n[1],
+        palm[2] + 0.8 * n[2] + 0.2,
+    ];
+    let vel = launch_velocity(from, target, 0.25);
+    for seed in 0..3 {
+        let mut log = ContactParams::default();
+        let rec = Episode::new(
+            &w,
+            &spec,
+            throw(sphere_small(), from, vel),
+            rng::stream(0, "t", "x", seed),
+        )
+        .run(&mut open_hand(), &mut log);
+        assert_ne!(rec.dr.friction_scale, 1.0);
+        assert_ne!(rec.dr.contact_timeconst_scale, 1.0);
+        assert!(!log.seen.is_empty(), "seed {seed}: no hand contact");
+        let friction = 0.6 * rec.dr.friction_scale;
+        let timeconst = 0.007 * rec.dr.contact_timeconst_scale;
+        for &(f, t) in &log.seen {
+            assert!((f - friction).abs() < 1e-12, "friction {f} vs {friction}");
+            assert!((t - timeconst).abs() < 1e-12, "time constant {t} vs {timeconst}");
+        }
+    }
+}
