@@ -142,7 +142,7 @@ pub struct WorldSpec {
     pub friction: f64,
     /// Contact time constant of every contact the object makes (s): softer contacts absorb
     /// impacts. 0.015 s is what the contacts had before the object's contact priority (the
-    /// average of 0.01 s and the hand's 0.02 s); at 0.01 s the teacher lost 7–24 points on the
+    /// average of 0.01 s and the hand's 0.02 s); at 0.01 s the teacher lost 7–18 points on the
     /// development stream (docs/sim.md, "Contact parameters").
     pub contact_timeconst_secs: f64,
 }

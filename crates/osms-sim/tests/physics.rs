@@ -207,6 +207,35 @@ impl Policy for SeesContact {
     }
 }
 
+/// The names of a contact's two geoms.
+fn geom_names(
+    model: &MjModel,
+    c: &mujoco_rs::wrappers::mj_auxiliary::MjContact,
+) -> (String, String) {
+    let name = |g: i32| {
+        model
+            .id_to_name(MjtObjBase::mjOBJ_GEOM, g as usize)
+            .unwrap_or("")
+            .to_string()
+    };
+    (name(c.geom[0]), name(c.geom[1]))
+}
+
+/// The small sphere thrown from 0.8 m along the palm normal (0.2 m higher) to touch the palm
+/// centre after 0.25 s.
+fn palm_throw(w: &World) -> TaskCondition {
+    let n = w.home_palm_normal;
+    let palm = w.home_palm_pos;
+    let r = 0.025;
+    let target = [palm[0] + r * n[0], palm[1] + r * n[1], palm[2] + r * n[2]];
+    let from = [
+        palm[0] + 0.8 * n[0],
+        palm[1] + 0.8 * n[1],
+        palm[2] + 0.8 * n[2] + 0.2,
+    ];
+    throw(sphere_small(), from, launch_velocity(from, target, 0.25))
+}
+
 /// Sums admissible normal forces itself, from geom names and `mj_contactForce`.
 #[derive(Default)]
 struct ForceLog {
@@ -217,13 +246,7 @@ impl Hooks for ForceLog {
         let model = data.model();
         let mut total = 0.0;
         for (i, c) in data.contact().iter().enumerate() {
-            let name = |g: i32| {
-                model
-                    .id_to_name(MjtObjBase::mjOBJ_GEOM, g as usize)
-                    .unwrap_or("")
-                    .to_string()
-            };
-            let (a, b) = (name(c.geom[0]), name(c.geom[1]));
+            let (a, b) = geom_names(model, c);
             let hand =
                 |s: &str| s.starts_with("hand_") && s != "hand_adapter" && s != "hand_tower_geom";
             if (a == "object_geom" && hand(&b)) || (b == "object_geom" && hand(&a)) {
@@ -240,24 +263,9 @@ impl Hooks for ForceLog {
 fn f_max_equals_a_separate_summation_of_contact_normal_forces() {
     let w = world();
     let spec = RolloutSpec::default();
-    let n = w.home_palm_normal;
-    let palm = w.home_palm_pos;
-    let r = 0.025;
-    let target = [palm[0] + r * n[0], palm[1] + r * n[1], palm[2] + r * n[2]];
-    let from = [
-        palm[0] + 0.8 * n[0],
-        palm[1] + 0.8 * n[1],
-        palm[2] + 0.8 * n[2] + 0.2,
-    ];
-    let vel = launch_velocity(from, target, 0.25);
     let mut log = ForceLog::default();
-    let rec = Episode::new(
-        &w,
-        &spec,
-        throw(sphere_small(), from, vel),
-        rng::stream(0, "t", "x", 1),
-    )
-    .run(&mut open_hand(), &mut log);
+    let rec = Episode::new(&w, &spec, palm_throw(&w), rng::stream(0, "t", "x", 1))
+        .run(&mut open_hand(), &mut log);
     let t_c = rec.metrics.contact_time_secs.expect("contact");
     let window = spec.success.eval_window_secs;
     let expected = log
@@ -648,15 +656,8 @@ struct ContactParams {
 }
 impl Hooks for ContactParams {
     fn after_physics_step(&mut self, data: &MjData<Box<MjModel>>) {
-        let model = data.model();
-        let name = |g: i32| {
-            model
-                .id_to_name(MjtObjBase::mjOBJ_GEOM, g as usize)
-                .unwrap_or("")
-                .to_string()
-        };
         for c in data.contact() {
-            let (a, b) = (name(c.geom[0]), name(c.geom[1]));
+            let (a, b) = geom_names(data.model(), c);
             if (a == "object_geom" && b.starts_with("hand_"))
                 || (b == "object_geom" && a.starts_with("hand_"))
             {
@@ -681,25 +682,10 @@ fn the_worlds_friction_and_time_constant_govern_every_object_contact_with_their_
     let mut spec = RolloutSpec::default();
     spec.dr.friction_variation = 0.2;
     spec.dr.contact_timeconst_variation = 0.3;
-    let n = w.home_palm_normal;
-    let palm = w.home_palm_pos;
-    let r = 0.025;
-    let target = [palm[0] + r * n[0], palm[1] + r * n[1], palm[2] + r * n[2]];
-    let from = [
-        palm[0] + 0.8 * n[0],
-        palm[1] + 0.8 * n[1],
-        palm[2] + 0.8 * n[2] + 0.2,
-    ];
-    let vel = launch_velocity(from, target, 0.25);
     for seed in 0..3 {
         let mut log = ContactParams::default();
-        let rec = Episode::new(
-            &w,
-            &spec,
-            throw(sphere_small(), from, vel),
-            rng::stream(0, "t", "x", seed),
-        )
-        .run(&mut open_hand(), &mut log);
+        let rec = Episode::new(&w, &spec, palm_throw(&w), rng::stream(0, "t", "x", seed))
+            .run(&mut open_hand(), &mut log);
         assert_ne!(rec.dr.friction_scale, 1.0);
         assert_ne!(rec.dr.contact_timeconst_scale, 1.0);
         assert!(!log.seen.is_empty(), "seed {seed}: no hand contact");
@@ -707,7 +693,10 @@ fn the_worlds_friction_and_time_constant_govern_every_object_contact_with_their_
         let timeconst = 0.007 * rec.dr.contact_timeconst_scale;
         for &(f, t) in &log.seen {
             assert!((f - friction).abs() < 1e-12, "friction {f} vs {friction}");
-            assert!((t - timeconst).abs() < 1e-12, "time constant {t} vs {timeconst}");
+            assert!(
+                (t - timeconst).abs() < 1e-12,
+                "time constant {t} vs {timeconst}"
+            );
         }
     }
 }
