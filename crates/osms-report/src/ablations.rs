@@ -172,6 +172,7 @@ pub fn refine_repair_claim(t: &Table) -> Claim {
             None => Verdict::NotChecked,
         },
         evidence: format!("task success / policy f_max: {evidence}"),
+        comparisons: vec![],
     }
 }
 
@@ -203,6 +204,7 @@ pub fn generator_claim(t: &Table) -> Claim {
             None => Verdict::NotChecked,
         },
         evidence: format!("direct < unconditional < Euclidean < geodesic needed: {}", parts.join("; ")),
+        comparisons: vec![],
     }
 }
 

@@ -1,18 +1,35 @@
-//! The claims check: each qualitative claim of the paper, and whether this run's tables bear
-//! it out, with the seed spread. Verdicts compare means; the evidence gives the numbers and,
-//! for comparisons of students, in how many run seeds the order holds (seed by seed).
+//! The claims check: each qualitative claim of the paper, decided by 95 % confidence intervals
+//! on differences between this run's policies (docs/report.md, "Claims check").
+//!
+//! Success is compared rollout by rollout on the same held-out conditions, over the run seeds
+//! ([`paired_difference`]); f_max over catch completions, which differ between policies, without
+//! pairing ([`unpaired_difference`]); demonstration coverage and repair as two proportions
+//! ([`proportion_difference`]). A claim **holds** when its interval excludes 0 in the paper's
+//! direction, is **contradicted** when it excludes 0 the other way and is **unresolved** when it
+//! spans 0; each says the smallest difference this run could have resolved.
 
 use serde::{Deserialize, Serialize};
 
-use crate::tables::{COVERAGE, POLICY_F_MAX, REPAIR_RATE, TABLE2_ROWS, TABLE3_ROWS, TASK_SUCCESS};
+use crate::tables::TABLE3_ROWS;
+use osms_core::stats::{
+    Decision, Difference, paired_difference, proportion_difference, unpaired_difference,
+};
 use osms_core::table::{Cell, Column, Layout, Table, Unit, Value, format_value};
+use osms_policy::artifacts::ConstructionStats;
+use osms_sim::artifacts::Evaluation;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Verdict {
+    /// Every interval behind the claim excludes 0 in the paper's direction.
     Holds,
+    /// An interval excludes 0 against the paper.
+    Contradicted,
+    /// The intervals span 0: this run cannot tell.
+    Unresolved,
+    /// Compared by means only, without an interval (the ablations' claims).
     DoesNotHold,
-    /// The tables this claim needs are not part of this report (e.g. the ablations).
+    /// The data this claim needs are not part of this report (e.g. the ablations).
     NotChecked,
 }
 
@@ -20,8 +37,20 @@ impl Verdict {
     pub fn text(self) -> &'static str {
         match self {
             Verdict::Holds => "holds",
+            Verdict::Contradicted => "contradicted",
+            Verdict::Unresolved => "unresolved",
             Verdict::DoesNotHold => "does not hold",
             Verdict::NotChecked => "not checked",
+        }
+    }
+}
+
+impl From<Decision> for Verdict {
+    fn from(d: Decision) -> Self {
+        match d {
+            Decision::Holds => Verdict::Holds,
+            Decision::Contradicted => Verdict::Contradicted,
+            Decision::Unresolved => Verdict::Unresolved,
         }
     }
 }
@@ -31,235 +60,374 @@ pub struct Claim {
     pub claim: String,
     pub verdict: Verdict,
     pub evidence: String,
+    /// The differences behind the verdict (none for claims checked by means or not checked).
+    #[serde(default)]
+    pub comparisons: Vec<Comparison>,
 }
 
-const TEACHER: &str = TABLE2_ROWS[0];
-const NAIVE: &str = TABLE2_ROWS[1];
-const NORMAL: &str = TABLE2_ROWS[2];
-const OURS: &str = TABLE2_ROWS[3];
-
-fn short(row: &str) -> &str {
-    row.rsplit(" / ").next().unwrap_or(row)
+/// `a − b` in one metric, with its interval.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Comparison {
+    pub a: String,
+    pub b: String,
+    pub metric: String,
+    pub unit: Unit,
+    pub difference: Difference,
 }
 
-fn value<'t>(t: &'t Table, row: &str, column: &str) -> Option<&'t Value> {
-    Some(&t.cell(row, column)?.ours)
+impl Comparison {
+    /// `+2.1 pts [−1.0, +5.2]` (percentage points for rates).
+    pub fn text(&self) -> String {
+        let d = &self.difference;
+        format!(
+            "{} − {}: {} [{}, {}]",
+            self.a,
+            self.b,
+            signed(d.estimate, self.unit),
+            signed(d.low, self.unit),
+            signed(d.high, self.unit)
+        )
+    }
+
+    fn resolvable(&self) -> String {
+        magnitude(self.difference.resolvable, self.unit)
+    }
 }
 
-fn mean(v: &Value) -> Option<f64> {
-    v.stats().map(|s| s.mean)
+fn signed(x: f64, unit: Unit) -> String {
+    let sign = if x < 0.0 { "−" } else { "+" };
+    format!("{sign}{}", magnitude(x.abs(), unit))
 }
 
-fn unit(t: &Table, column: &str) -> Unit {
-    t.columns
+fn magnitude(x: f64, unit: Unit) -> String {
+    match unit {
+        Unit::Percent => format!("{:.1} pts", 100.0 * x),
+        _ => format!("{x:.1} N"),
+    }
+}
+
+/// What the claims check reads: every policy's per-rollout evaluations, the construction
+/// statistics and Table III's fit metrics.
+pub struct ClaimData<'a> {
+    pub teacher: &'a Evaluation,
+    pub naive: &'a [Evaluation],
+    pub normal: &'a [Evaluation],
+    pub ours: &'a [Evaluation],
+    pub global_iid: &'a [Evaluation],
+    pub phase_independent: &'a [Evaluation],
+    /// Naive, Normal and ours (D_*), in that order.
+    pub stats: [&'a ConstructionStats; 3],
+    pub table3: &'a Table,
+}
+
+const TEACHER: &str = "RL teacher";
+const NAIVE: &str = "Naive-IL";
+const NORMAL: &str = "Normal-IL";
+const OURS: &str = "Ours-IL";
+const SUCCESS: &str = "task success";
+const F_MAX: &str = "policy f_max";
+
+/// Per seed, per condition: 1 for a success.
+fn successes(evals: &[Evaluation]) -> Vec<Vec<f64>> {
+    evals
         .iter()
-        .find(|c| c.name == column)
-        .map_or(Unit::Number(3), |c| c.unit)
-}
-
-/// In how many seeds `a` beats `b` (lower or higher is better), pairing values by position
-/// (both are in run-seed order); a single value is compared with every seed.
-fn seeds_where(a: &Value, b: &Value, higher: bool) -> Option<(usize, usize)> {
-    let list = |v: &Value| match v {
-        Value::Seeds(s) => Some(s.clone()),
-        Value::One(x) => Some(vec![*x]),
-        Value::Missing | Value::Text(_) => None,
-    };
-    let (a, b) = (list(a)?, list(b)?);
-    let n = a.len().max(b.len());
-    let at = |v: &[f64], i: usize| if v.len() == 1 { v[0] } else { v[i] };
-    if (a.len() != 1 && a.len() != n) || (b.len() != 1 && b.len() != n) {
-        return None;
-    }
-    let wins = (0..n)
-        .filter(|&i| {
-            let (x, y) = (at(&a, i), at(&b, i));
-            if higher { x > y } else { x < y }
+        .map(|e| {
+            e.rows
+                .iter()
+                .map(|r| f64::from(u8::from(r.outcome.success())))
+                .collect()
         })
-        .count();
-    Some((wins, n))
+        .collect()
 }
 
-fn verdict(holds: Option<bool>) -> Verdict {
-    match holds {
-        Some(true) => Verdict::Holds,
-        Some(false) => Verdict::DoesNotHold,
-        None => Verdict::NotChecked,
-    }
+/// Per seed: f_max of every catch completion.
+fn forces(evals: &[Evaluation]) -> Vec<Vec<f64>> {
+    evals
+        .iter()
+        .map(|e| {
+            e.rows
+                .iter()
+                .filter(|r| r.outcome.completion())
+                .map(|r| r.metrics.max_force_n)
+                .collect()
+        })
+        .collect()
 }
 
-/// "`a` is higher (or lower) than `b` in `column`".
-fn compare(t: &Table, a: &str, b: &str, column: &str, higher: bool, claim: &str) -> Claim {
-    let u = unit(t, column);
-    let (va, vb) = (value(t, a, column), value(t, b, column));
-    let (holds, evidence) = match (va, vb) {
-        (Some(va), Some(vb)) => match (mean(va), mean(vb)) {
-            (Some(ma), Some(mb)) => {
-                let by_seed = matches!(va, Value::Seeds(_)) || matches!(vb, Value::Seeds(_));
-                let seeds = seeds_where(va, vb, higher)
-                    .filter(|_| by_seed)
-                    .map(|(w, n)| format!("; in {w} of {n} run seeds"))
-                    .unwrap_or_default();
-                (
-                    Some(if higher { ma > mb } else { ma < mb }),
-                    format!(
-                        "{column}: {} {} vs {} {}{seeds}",
-                        short(a),
-                        format_value(va, u),
-                        short(b),
-                        format_value(vb, u)
-                    ),
-                )
-            }
-            _ => (
-                None,
-                format!("{column}: no value for {} or {}", short(a), short(b)),
-            ),
-        },
-        _ => (None, format!("table {} lacks `{column}`", t.id)),
+struct Policy<'a> {
+    name: &'a str,
+    evals: &'a [Evaluation],
+}
+
+fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
+    Some(Comparison {
+        a: a.name.into(),
+        b: b.name.into(),
+        metric: SUCCESS.into(),
+        unit: Unit::Percent,
+        difference: paired_difference(&successes(a.evals), &successes(b.evals))?,
+    })
+}
+
+fn force_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
+    Some(Comparison {
+        a: a.name.into(),
+        b: b.name.into(),
+        metric: F_MAX.into(),
+        unit: Unit::Number(1),
+        difference: unpaired_difference(&forces(a.evals), &forces(b.evals))?,
+    })
+}
+
+/// A claim that holds when every comparison's interval favours `a_higher`, is contradicted
+/// when any goes against it, and is unresolved otherwise.
+fn all_of(claim: &str, comparisons: Vec<Option<Comparison>>, a_higher: bool) -> Claim {
+    let Some(comparisons) = comparisons.into_iter().collect::<Option<Vec<_>>>() else {
+        return Claim {
+            claim: claim.into(),
+            verdict: Verdict::NotChecked,
+            evidence: "an evaluation has no value to compare (no catch completion, or \
+                       different held-out condition counts)"
+                .into(),
+            comparisons: vec![],
+        };
+    };
+    let decisions: Vec<Decision> = comparisons
+        .iter()
+        .map(|c| c.difference.decide(a_higher))
+        .collect();
+    let verdict = if decisions.iter().all(|d| *d == Decision::Holds) {
+        Verdict::Holds
+    } else if decisions.contains(&Decision::Contradicted) {
+        Verdict::Contradicted
+    } else {
+        Verdict::Unresolved
     };
     Claim {
         claim: claim.into(),
-        verdict: verdict(holds),
-        evidence,
+        verdict,
+        evidence: evidence(&comparisons),
+        comparisons,
     }
 }
 
-/// "`row` has the lowest (or highest) `column` among `rows`".
-fn extreme(t: &Table, row: &str, rows: &[&str], column: &str, higher: bool, claim: &str) -> Claim {
-    let u = unit(t, column);
-    let values: Vec<(&str, Option<&Value>)> =
-        rows.iter().map(|r| (*r, value(t, r, column))).collect();
-    let means: Vec<(&str, Option<f64>)> =
-        values.iter().map(|(r, v)| (*r, v.and_then(mean))).collect();
-    // A competitor without a value cannot be ranked: the claim is then not checked.
-    let holds = means
+fn evidence(comparisons: &[Comparison]) -> String {
+    comparisons
         .iter()
-        .map(|(_, m)| *m)
-        .collect::<Option<Vec<f64>>>()
-        .and_then(|_| {
-            let m = means.iter().find(|(r, _)| *r == row)?.1?;
-            Some(
-                means
-                    .iter()
-                    .filter(|(r, _)| *r != row)
-                    .all(|(_, o)| o.is_some_and(|o| if higher { m > o } else { m < o })),
-            )
-        });
-    let evidence = values
-        .iter()
-        .map(|(r, v)| {
-            format!(
-                "{} {}",
-                short(r),
-                v.map_or_else(|| "-".into(), |v| format_value(v, u))
-            )
+        .map(|c| {
+            let d = &c.difference;
+            let spread = match (d.seeds, d.method) {
+                (_, osms_core::stats::Method::Proportions) => {
+                    format!("{} vs {} conditions", d.n[0], d.n[1])
+                }
+                ([sa, sb], osms_core::stats::Method::Paired) => {
+                    format!("{} paired conditions, {sa} vs {sb} run seed(s)", d.n[0])
+                }
+                ([sa, sb], osms_core::stats::Method::Unpaired) => format!(
+                    "{} vs {} catch completions, {sa} vs {sb} run seed(s)",
+                    d.n[0], d.n[1]
+                ),
+            };
+            format!("{} ({spread})", c.metric)
         })
         .collect::<Vec<_>>()
-        .join(", ");
+        .join("; ")
+}
+
+fn count(fraction: f64, of: usize) -> usize {
+    (fraction * of as f64).round() as usize
+}
+
+fn coverage(s: &ConstructionStats, name: &str) -> (String, usize, usize) {
+    (name.into(), count(s.coverage, s.conditions), s.conditions)
+}
+
+fn proportion(
+    claim_metric: &str,
+    a: &(String, usize, usize),
+    b: &(String, usize, usize),
+) -> Option<Comparison> {
+    Some(Comparison {
+        a: a.0.clone(),
+        b: b.0.clone(),
+        metric: claim_metric.into(),
+        unit: Unit::Percent,
+        difference: proportion_difference(a.1, a.2, b.1, b.2)?,
+    })
+}
+
+/// A Table III fit metric: compared by value, without an interval.
+fn fit_metric(t: &Table, a: &str, others: &[&str], column: &str, claim: &str) -> Claim {
+    let unit = t
+        .columns
+        .iter()
+        .find(|c| c.name == column)
+        .map_or(Unit::Number(3), |c| c.unit);
+    let v = |row: &str| t.cell(row, column).map(|c| c.ours.clone());
+    let text = |row: &str| {
+        v(row).map_or_else(
+            || "-".into(),
+            |x: Value| format!("{} {}", row, format_value(&x, unit)),
+        )
+    };
     Claim {
         claim: claim.into(),
-        verdict: verdict(holds),
-        evidence: format!("{column}: {evidence}"),
+        verdict: Verdict::NotChecked,
+        evidence: format!(
+            "{column}: {}, {}; one fit of each model on the same pairs, no sampling interval",
+            text(a),
+            others
+                .iter()
+                .map(|o| text(o))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        comparisons: vec![],
     }
 }
 
-/// The claims of the default report, from Table II and Table III.
-pub fn check(table2: &Table, table3: &Table) -> Vec<Claim> {
-    let policies = [TEACHER, NAIVE, NORMAL, OURS];
-    let students = [NAIVE, NORMAL, OURS];
+/// The claims of the default report.
+pub fn check(d: &ClaimData<'_>) -> Vec<Claim> {
+    let teacher = Policy {
+        name: TEACHER,
+        evals: std::slice::from_ref(d.teacher),
+    };
+    let naive = Policy {
+        name: NAIVE,
+        evals: d.naive,
+    };
+    let normal = Policy {
+        name: NORMAL,
+        evals: d.normal,
+    };
+    let ours = Policy {
+        name: OURS,
+        evals: d.ours,
+    };
+    let [unperturbed, global, independent, correlated] = TABLE3_ROWS;
+    let global_iid = Policy {
+        name: global,
+        evals: d.global_iid,
+    };
+    let phase_independent = Policy {
+        name: independent,
+        evals: d.phase_independent,
+    };
+    let t3_unperturbed = Policy {
+        name: unperturbed,
+        evals: d.normal,
+    };
+    let t3_correlated = Policy {
+        name: correlated,
+        evals: d.ours,
+    };
+    let [s_naive, s_normal, s_ours] = d.stats;
+    let cov = [
+        coverage(s_naive, NAIVE),
+        coverage(s_normal, NORMAL),
+        coverage(s_ours, OURS),
+    ];
+    let failed = |s: &ConstructionStats| s.conditions.saturating_sub(s.original_successes);
+    let repair = |s: &ConstructionStats, name: &str| (name.to_string(), s.repaired, failed(s));
     let mut claims = vec![
-        compare(
-            table2,
-            OURS,
-            TEACHER,
-            TASK_SUCCESS,
-            true,
+        all_of(
             "Ours-IL succeeds more often than the RL teacher",
-        ),
-        compare(
-            table2,
-            OURS,
-            NAIVE,
-            TASK_SUCCESS,
+            vec![success_comparison(&ours, &teacher)],
             true,
+        ),
+        all_of(
             "Ours-IL succeeds more often than Naive-IL",
-        ),
-        compare(
-            table2,
-            OURS,
-            NORMAL,
-            TASK_SUCCESS,
+            vec![success_comparison(&ours, &naive)],
             true,
+        ),
+        all_of(
             "Ours-IL succeeds more often than Normal-IL",
-        ),
-        extreme(
-            table2,
-            OURS,
-            &policies,
-            POLICY_F_MAX,
-            false,
-            "Ours-IL has the lowest policy f_max (teacher and students)",
-        ),
-        extreme(
-            table2,
-            NORMAL,
-            &students,
-            COVERAGE,
+            vec![success_comparison(&ours, &normal)],
             true,
+        ),
+        all_of(
+            "Ours-IL has the lowest policy f_max (teacher and students)",
+            [&teacher, &naive, &normal]
+                .iter()
+                .map(|p| force_comparison(&ours, p))
+                .collect(),
+            false,
+        ),
+        all_of(
             "Unperturbed-only validation (Normal) has the highest demonstration coverage",
+            vec![
+                proportion("demo coverage", &cov[1], &cov[0]),
+                proportion("demo coverage", &cov[1], &cov[2]),
+            ],
+            true,
         ),
     ];
-    let normal_best = extreme(table2, NORMAL, &students, TASK_SUCCESS, true, "");
-    claims.push(Claim {
-        claim: "Normal-IL is not the best student despite that coverage".into(),
-        verdict: match normal_best.verdict {
-            Verdict::Holds => Verdict::DoesNotHold,
-            Verdict::DoesNotHold => Verdict::Holds,
-            Verdict::NotChecked => Verdict::NotChecked,
-        },
-        evidence: normal_best.evidence,
+    // Normal-IL is not the best student: some other student beats it.
+    let beaten = [&naive, &ours]
+        .iter()
+        .map(|p| success_comparison(p, &normal))
+        .collect::<Option<Vec<_>>>();
+    claims.push(match beaten {
+        Some(comparisons) => {
+            let decisions: Vec<Decision> = comparisons
+                .iter()
+                .map(|c| c.difference.decide(true))
+                .collect();
+            let verdict = if decisions.contains(&Decision::Holds) {
+                Verdict::Holds
+            } else if decisions.iter().all(|x| *x == Decision::Contradicted) {
+                Verdict::Contradicted
+            } else {
+                Verdict::Unresolved
+            };
+            Claim {
+                claim: "Normal-IL is not the best student despite that coverage".into(),
+                verdict,
+                evidence: evidence(&comparisons),
+                comparisons,
+            }
+        }
+        None => all_of(
+            "Normal-IL is not the best student despite that coverage",
+            vec![None],
+            true,
+        ),
     });
-    claims.push(compare(
-        table2,
-        NORMAL,
-        NAIVE,
-        TASK_SUCCESS,
-        false,
+    claims.push(all_of(
         "Normal-IL trails Naive-IL",
-    ));
-    let [unperturbed, global, independent, correlated] = TABLE3_ROWS;
-    claims.push(extreme(
-        table3,
-        correlated,
-        &TABLE3_ROWS,
-        "π_θ task success",
-        true,
-        "The full (phase-wise correlated) error model gives the most successful student",
-    ));
-    claims.push(compare(
-        table3,
-        independent,
-        global,
-        "moment err.",
+        vec![success_comparison(&normal, &naive)],
         false,
+    ));
+    claims.push(all_of(
+        "The full (phase-wise correlated) error model gives the most successful student",
+        [&t3_unperturbed, &global_iid, &phase_independent]
+            .iter()
+            .map(|p| success_comparison(&t3_correlated, p))
+            .collect(),
+        true,
+    ));
+    claims.push(fit_metric(
+        d.table3,
+        independent,
+        &[global],
+        "moment err.",
         "Phase conditioning improves moment matching (phase-wise independent below global i.i.d.)",
     ));
-    claims.push(extreme(
-        table3,
+    claims.push(fit_metric(
+        d.table3,
         correlated,
-        &[global, independent, correlated],
+        &[global, independent],
         "lag-1 err.",
-        false,
         "Temporal correlation gives the lowest lag-1 error",
     ));
-    claims.push(compare(
-        table3,
-        unperturbed,
-        correlated,
-        REPAIR_RATE,
-        true,
+    claims.push(all_of(
         "Unperturbed-only validation repairs more than the full model (a lower repair rate for a better student)",
+        vec![proportion(
+            "repair rate",
+            &repair(s_normal, unperturbed),
+            &repair(s_ours, correlated),
+        )],
+        true,
     ));
     for (claim, why) in [
         (
@@ -275,6 +443,7 @@ pub fn check(table2: &Table, table3: &Table) -> Vec<Claim> {
             claim: claim.into(),
             verdict: Verdict::NotChecked,
             evidence: why.into(),
+            comparisons: vec![],
         });
     }
     claims
@@ -287,13 +456,27 @@ pub fn markdown(claims: &[Claim]) -> String {
         "Claims check",
         vec![
             Column::new("in this run", Unit::Text),
+            Column::new("difference [95 % CI]", Unit::Text),
+            Column::new("resolvable", Unit::Text),
             Column::new("evidence", Unit::Text),
         ],
     );
     for c in claims {
+        let join = |f: &dyn Fn(&Comparison) -> String| {
+            if c.comparisons.is_empty() {
+                "-".to_string()
+            } else {
+                c.comparisons.iter().map(f).collect::<Vec<_>>().join("; ")
+            }
+        };
         t.push(
             &c.claim,
-            vec![Cell::text(c.verdict.text()), Cell::text(&c.evidence)],
+            vec![
+                Cell::text(c.verdict.text()),
+                Cell::text(join(&Comparison::text)),
+                Cell::text(join(&|x: &Comparison| format!("≥ {}", x.resolvable()))),
+                Cell::text(&c.evidence),
+            ],
         );
     }
     t.markdown_with(Layout::plain("claim (paper)"))
@@ -302,89 +485,133 @@ pub fn markdown(claims: &[Claim]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use osms_core::table::{Cell, Column, Row};
+    use crate::tables::testing::{evals, stats};
+    use osms_sim::metrics::Failure;
 
-    fn t2(ours: Vec<f64>, naive: Vec<f64>) -> Table {
-        let cols = [
-            (TASK_SUCCESS, Unit::Percent),
-            (POLICY_F_MAX, Unit::Number(1)),
-            (COVERAGE, Unit::Percent),
-        ];
-        let row = |label: &str, s: Value, f: Value, c: Value| Row {
-            label: label.into(),
-            cells: vec![Cell::new(s, None), Cell::new(f, None), Cell::new(c, None)],
-        };
-        Table {
-            id: "table2".into(),
-            title: String::new(),
-            columns: cols
-                .iter()
-                .map(|(n, u)| Column {
-                    name: (*n).into(),
-                    unit: *u,
-                })
-                .collect(),
-            rows: vec![
-                row(TEACHER, Value::One(0.5), Value::One(40.0), Value::Missing),
-                row(
-                    NAIVE,
-                    Value::Seeds(naive),
-                    Value::Seeds(vec![38.0, 39.0]),
-                    Value::One(0.5),
-                ),
-                row(
-                    NORMAL,
-                    Value::Seeds(vec![0.40, 0.41]),
-                    Value::Seeds(vec![30.0, 31.0]),
-                    Value::One(0.7),
-                ),
-                row(
-                    OURS,
-                    Value::Seeds(ours),
-                    Value::Seeds(vec![35.0, 36.0]),
-                    Value::One(0.5),
-                ),
+    /// `seeds` evaluations of `n` conditions: rollout (s, c) succeeds when a fixed scramble of
+    /// (s, c) falls below `rate`; every rollout completes its catch, f_max `force` ± 5 N.
+    fn policy(rate: f64, seeds: usize, n: usize, force: f64) -> Vec<Evaluation> {
+        let template = evals(&[1.0], force).remove(0).rows.remove(0);
+        (0..seeds)
+            .map(|s| Evaluation {
+                rows: (0..n)
+                    .map(|c| {
+                        let u = ((c * 7919 + s * 104_729) % 1000) as f64 / 1000.0;
+                        let mut row = template.clone();
+                        row.metrics.max_force_n = force + 10.0 * (u - 0.5);
+                        row.outcome.failures = if u < rate {
+                            vec![]
+                        } else {
+                            vec![Failure::ForceExceeded]
+                        };
+                        row
+                    })
+                    .collect(),
+            })
+            .collect()
+    }
+
+    fn table3() -> Table {
+        let mut t = Table::new(
+            "table3",
+            "",
+            vec![
+                Column::new("moment err.", Unit::Number(3)),
+                Column::new("lag-1 err.", Unit::Number(3)),
             ],
-            notes: vec![],
+        );
+        for (i, row) in TABLE3_ROWS.iter().enumerate() {
+            let x = 0.1 * i as f64;
+            t.push(
+                *row,
+                vec![
+                    Cell::new(Value::One(x), None),
+                    Cell::new(Value::One(x), None),
+                ],
+            );
         }
+        t
     }
 
     #[test]
-    fn comparisons_report_means_and_seed_counts() {
-        let t = t2(vec![0.52, 0.47], vec![0.45, 0.50]);
-        let c = compare(&t, OURS, TEACHER, TASK_SUCCESS, true, "x");
-        // Mean 0.495 < 0.5: does not hold, though one seed beats the teacher.
-        assert_eq!(c.verdict, Verdict::DoesNotHold);
+    fn intervals_decide_the_verdicts_in_both_directions() {
+        let n = 600;
+        let teacher = policy(0.95, 1, n, 40.0).remove(0);
+        let naive = policy(0.5, 3, n, 40.0);
+        let normal = policy(0.5, 3, n, 40.0);
+        let ours = policy(0.8, 3, n, 30.0);
+        let t3 = table3();
+        let s = stats(0.5, 0.5);
+        let claims = check(&ClaimData {
+            teacher: &teacher,
+            naive: &naive,
+            normal: &normal,
+            ours: &ours,
+            global_iid: &naive,
+            phase_independent: &normal,
+            stats: [&s, &s, &s],
+            table3: &t3,
+        });
+        let verdict = |prefix: &str| {
+            claims
+                .iter()
+                .find(|c| c.claim.starts_with(prefix))
+                .map(|c| c.verdict)
+                .expect(prefix)
+        };
+        // 80 % against the teacher's 95 %: the interval lies below 0.
+        assert_eq!(
+            verdict("Ours-IL succeeds more often than the RL teacher"),
+            Verdict::Contradicted
+        );
+        assert_eq!(
+            verdict("Ours-IL succeeds more often than Naive-IL"),
+            Verdict::Holds
+        );
+        assert_eq!(
+            verdict("Ours-IL has the lowest policy f_max"),
+            Verdict::Holds
+        );
+        // The same success pattern: no difference to decide.
+        assert_eq!(verdict("Normal-IL trails Naive-IL"), Verdict::Unresolved);
+        assert_eq!(verdict("Normal-IL is not the best student"), Verdict::Holds);
+        // Equal coverage counts.
+        assert_eq!(
+            verdict("Unperturbed-only validation (Normal) has the highest"),
+            Verdict::Unresolved
+        );
+        assert_eq!(verdict("The full (phase-wise correlated)"), Verdict::Holds);
+        assert_eq!(verdict("Temporal correlation"), Verdict::NotChecked);
+        let ours_naive = &claims[1].comparisons[0];
         assert!(
-            c.evidence.ends_with("in 1 of 2 run seeds"),
-            "{}",
-            c.evidence
+            (ours_naive.difference.estimate - 0.3).abs() < 0.02,
+            "{ours_naive:?}"
         );
-        let c = compare(&t, OURS, NAIVE, TASK_SUCCESS, true, "x");
-        assert_eq!(c.verdict, Verdict::Holds);
-        assert!(
-            c.evidence
-                .contains("Ours-IL 49.5% ± 3.5% vs Naive-IL 47.5% ± 3.5%"),
-            "{}",
-            c.evidence
-        );
-        let f = extreme(
-            &t,
-            OURS,
-            &[TEACHER, NAIVE, NORMAL, OURS],
-            POLICY_F_MAX,
-            false,
-            "x",
-        );
-        assert_eq!(f.verdict, Verdict::DoesNotHold, "{}", f.evidence);
-        let cov = extreme(&t, NORMAL, &[NAIVE, NORMAL, OURS], COVERAGE, true, "x");
-        assert_eq!(cov.verdict, Verdict::Holds);
+        assert_eq!(ours_naive.difference.seeds, [3, 3]);
+        assert_eq!(ours_naive.difference.n, [n, n]);
+        let md = markdown(&claims);
+        assert!(md.contains("| contradicted |"), "{md}");
+        assert!(md.contains("Ours-IL − Naive-IL: +"), "{md}");
+        assert!(md.contains("resolvable"), "{md}");
     }
 
     #[test]
-    fn a_missing_column_is_not_checked() {
-        let t = t2(vec![0.5], vec![0.4]);
-        let c = compare(&t, OURS, NAIVE, "lag-1 err.", false, "x");
-        assert_eq!(c.verdict, Verdict::NotChecked);
+    fn evaluations_on_different_condition_sets_are_not_compared() {
+        let teacher = policy(0.9, 1, 50, 40.0).remove(0);
+        let students = policy(0.5, 2, 60, 40.0);
+        let t3 = table3();
+        let s = stats(0.5, 0.5);
+        let claims = check(&ClaimData {
+            teacher: &teacher,
+            naive: &students,
+            normal: &students,
+            ours: &students,
+            global_iid: &students,
+            phase_independent: &students,
+            stats: [&s, &s, &s],
+            table3: &t3,
+        });
+        assert_eq!(claims[0].verdict, Verdict::NotChecked, "{:?}", claims[0]);
+        assert_eq!(claims[1].verdict, Verdict::Unresolved, "{:?}", claims[1]);
     }
 }

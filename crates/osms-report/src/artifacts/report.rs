@@ -63,8 +63,13 @@ impl Report {
         }
         let _ = writeln!(
             s,
-            "## Claims check\n\nEach qualitative claim of the paper and whether this run's \
-             tables bear it out (means decide; the evidence gives the seed spread).\n\n{}",
+            "## Claims check\n\nEach qualitative claim of the paper, decided by 95 % confidence \
+             intervals on the differences between this run's policies: **holds** when the \
+             interval excludes 0 in the paper's direction, **contradicted** when it excludes 0 \
+             the other way, **unresolved** when it spans 0. Success differences are paired by \
+             held-out condition and carry the spread over run seeds; `resolvable` is the \
+             smallest difference this run could have told from 0. docs/report.md gives the \
+             method.\n\n{}",
             claims::markdown(&self.claims)
         );
         for f in &self.figures {
