@@ -305,6 +305,7 @@ pub(crate) mod testing {
                     .map(|i| EvalRow {
                         variant: ObjectVariant::all()[i % 2],
                         lateral_offset_m: 0.01 * i as f64,
+                        dr: osms_sim::control::DrDraw::none(),
                         steps: 1,
                         metrics: Metrics {
                             contact_time_secs: Some(0.1),

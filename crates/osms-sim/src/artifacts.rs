@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 
 use crate::Result;
 use crate::conditions::TaskCondition;
+use crate::control::DrDraw;
 use crate::episode::RolloutRecord;
 use crate::metrics::{Failure, Metrics, Outcome};
 use crate::spec::{ObjectVariant, WorldSpec};
@@ -92,6 +93,8 @@ impl Summarize for Conditions {
 pub struct EvalRow {
     pub variant: ObjectVariant,
     pub lateral_offset_m: f64,
+    /// The rollout's domain-randomisation draws (delays, gain, friction, contact stiffness).
+    pub dr: DrDraw,
     pub steps: u32,
     pub metrics: Metrics,
     pub outcome: Outcome,
@@ -107,6 +110,7 @@ impl EvalRow {
             lateral_offset_m: record.condition.lateral_offset_m,
             steps: record.steps as u32,
             trace: ImpactTrace::of(&record),
+            dr: record.dr,
             metrics: record.metrics,
             outcome: record.outcome,
         }
@@ -176,13 +180,19 @@ impl ImpactTrace {
 /// Per-rollout rows and the table over family × size.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Evaluation {
+    /// One row per condition, in the condition set's order: row `i` is the rollout on
+    /// condition `i`, whatever the shards. Every evaluation kind rolls out item `i` on
+    /// condition `i`, and the engine hands `merge` the items in index order (shards are
+    /// consecutive ranges, each collected in order), so two evaluations on the same condition
+    /// set pair up row by row.
     pub rows: Vec<EvalRow>,
 }
 
 impl Artifact for Evaluation {
     const TYPE_TAG: &'static str = "sim.evaluation";
-    /// 2: stored as a manifest of its shards; 3: rows keep their impact trace.
-    const SCHEMA_VERSION: u16 = 3;
+    /// 2: stored as a manifest of its shards; 3: rows keep their impact trace; 4: rows keep
+    /// their DR draws.
+    const SCHEMA_VERSION: u16 = 4;
 }
 
 impl Sharded for Evaluation {

@@ -39,8 +39,8 @@ pub struct ErrorPairs {
 
 impl Artifact for ErrorPairs {
     const TYPE_TAG: &'static str = "policy.error_pairs";
-    /// 2: the rollouts' evaluation rows keep their impact trace.
-    const SCHEMA_VERSION: u16 = 2;
+    /// 2: the rollouts' evaluation rows keep their impact trace; 3: and their DR draws.
+    const SCHEMA_VERSION: u16 = 3;
 }
 
 impl osms_make::Sharded for ErrorPairs {

@@ -39,7 +39,8 @@ pub struct PairsPrepared {
 pub struct ErrorPairsStage;
 impl ItemStage for ErrorPairsStage {
     const KIND: &'static str = "error_pairs";
-    const CODE_VERSION: u32 = 1;
+    /// 2: the rollouts' evaluation rows keep their DR draws.
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<WorldArtifact>("world"),

@@ -23,7 +23,8 @@ pub struct EvalTeacherParams {
 pub struct EvalTeacherStage;
 impl ItemStage for EvalTeacherStage {
     const KIND: &'static str = "eval_teacher";
-    const CODE_VERSION: u32 = 2;
+    /// 3: rows keep their DR draws.
+    const CODE_VERSION: u32 = 3;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<WorldArtifact>("world"),

@@ -36,7 +36,8 @@ pub enum Evaluated {
 pub struct EvaluateStage;
 impl ItemStage for EvaluateStage {
     const KIND: &'static str = "evaluate";
-    const CODE_VERSION: u32 = 1;
+    /// 2: rows keep their DR draws.
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<WorldArtifact>("world"),

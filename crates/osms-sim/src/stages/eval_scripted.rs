@@ -20,7 +20,8 @@ pub struct EvalParams {
 pub struct EvalScriptedStage;
 impl ItemStage for EvalScriptedStage {
     const KIND: &'static str = "eval_scripted";
-    const CODE_VERSION: u32 = 4;
+    /// 5: rows keep their DR draws.
+    const CODE_VERSION: u32 = 5;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<WorldArtifact>("world"),
