@@ -1,14 +1,18 @@
-//! Rollout datasets and demonstration sets out of the store: LeRobot v3.0 (Parquet) and robomimic
-//! (HDF5) exports, with MuJoCo physics states from an open-loop replay.
+//! Rollout datasets, demonstration sets and evaluations out of the store: LeRobot v3.0
+//! (Parquet) and robomimic (HDF5) exports, with MuJoCo physics states from an open-loop replay,
+//! and per-rollout evaluation results (CSV, Parquet).
 //!
 //! A rollout dataset (D_M, D_E, D_R) or a demonstration set (D_*, Naive, Normal) becomes an
 //! [`ExportSet`], one neutral table of episodes, which the [`lerobot`] and [`robomimic`] writers
-//! lay out in their formats (docs/export.md).
+//! lay out in their formats (docs/export.md). An evaluation becomes one row per rollout
+//! ([`rollouts`]), written by the small nullable-column [`table`] writer.
 //!
 //! Every export is a pure function of the artifact: the same artifact gives the same bytes.
 
 pub mod lerobot;
 pub mod robomimic;
+pub mod rollouts;
+pub mod table;
 
 use std::path::{Path, PathBuf};
 

@@ -1,7 +1,7 @@
 use std::process::ExitCode;
 
 use anyhow::{Context as _, Result, bail};
-use osms_core::read_header;
+use osms_core::{Artifact, read_header};
 use osms_make::Registry;
 use osms_make::{State, StoreObjects};
 use osms_store::{Record, Store};
@@ -11,6 +11,7 @@ use crate::cli::{ExportArgs, Selection, ShowArgs};
 use crate::commands::{human_bytes, print_json};
 use crate::context::Context;
 use osms_make::describe;
+use osms_sim::artifacts::Evaluation;
 
 #[derive(Serialize)]
 struct Shown<'a> {
@@ -282,7 +283,8 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Writes the files an artifact renders (e.g. a table as Markdown, CSV and JSON).
+/// Writes the files an artifact renders (e.g. a table as Markdown, CSV and JSON; an
+/// evaluation's rollouts as CSV and Parquet).
 pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     let Resolved {
         record,
@@ -324,6 +326,12 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
     let bytes = store.get(&record.content_hash)?;
     let files = if record.shard.is_some() {
         Vec::new()
+    } else if record.type_tag == Evaluation::TYPE_TAG {
+        // One row per rollout (docs/export.md): written by osms-export, which the artifact's
+        // own crate does not reach.
+        let evaluation: Evaluation = osms_make::assemble(&bytes, &StoreObjects(&store))
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", record.instance()))?;
+        osms_export::rollouts::files(&evaluation)?
     } else {
         kind.files(&bytes, &StoreObjects(&store))
             .map_err(|e| anyhow::anyhow!("{e}"))?
