@@ -47,6 +47,50 @@ pub struct Difference {
     /// Paired conditions, or (unpaired) the values of `a` and of `b` pooled over seeds.
     pub n: [usize; 2],
     pub method: Method,
+    /// The measured variance components of a paired difference, to project the interval to
+    /// other seed and condition counts.
+    pub parts: Option<VarianceParts>,
+}
+
+/// What a paired difference's variance is made of, per rollout and per seed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct VarianceParts {
+    /// Each policy's training-seed variance τ² (`None`: one seed, unknown).
+    pub tau2: [Option<f64>; 2],
+    /// The variance over conditions of the per-condition difference of the seed-averaged
+    /// outcomes, at the measured seed counts.
+    pub condition: f64,
+    /// The seed counts `condition` was measured at.
+    pub seeds: [usize; 2],
+}
+
+impl VarianceParts {
+    /// The 95 % half-width had the policies been built with `seeds` run seeds each and
+    /// evaluated on `n` conditions, with this run's variance components. The condition part
+    /// is kept as measured (more seeds would shrink its rollout noise, so this is
+    /// conservative); an unknown τ² counts as 0.
+    pub fn resolvable_with(&self, seeds: [usize; 2], n: usize) -> f64 {
+        let seed_part =
+            |i: usize| self.tau2[i].map(|t| (t / seeds[i] as f64, (seeds[i].max(2) - 1) as f64));
+        let condition = Some((self.condition / n as f64, (n.max(2) - 1) as f64));
+        t_interval(
+            0.0,
+            &[seed_part(0), seed_part(1), condition],
+            seeds,
+            [n, n],
+            Method::Paired,
+        )
+        .resolvable
+    }
+
+    /// The fewest run seeds per policy (a policy built once keeps its one) at which a
+    /// difference of `target` would be resolved on `n` conditions, up to `max_seeds`.
+    pub fn seeds_to_resolve(&self, target: f64, n: usize, max_seeds: usize) -> Option<usize> {
+        (2..=max_seeds).find(|&s| {
+            let seeds = self.seeds.map(|m| if m == 1 { 1 } else { s });
+            self.resolvable_with(seeds, n) <= target.abs()
+        })
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -121,15 +165,25 @@ pub fn paired_difference(a: &[Vec<f64>], b: &[Vec<f64>]) -> Option<Difference> {
     let d: Vec<f64> = (0..n)
         .map(|c| per_condition(a, c) - per_condition(b, c))
         .collect();
-    let condition = (sample_variance(&d) / n as f64, (n - 1) as f64);
-    let parts = [sa, sb, Some(condition)];
-    Some(t_interval(
+    let condition_variance = sample_variance(&d);
+    let condition = (condition_variance / n as f64, (n - 1) as f64);
+    let seeds = [a.len(), b.len()];
+    let mut diff = t_interval(
         ma - mb,
-        &parts,
-        [a.len(), b.len()],
+        &[sa, sb, Some(condition)],
+        seeds,
         [n, n],
         Method::Paired,
-    ))
+    );
+    diff.parts = Some(VarianceParts {
+        tau2: [
+            sa.map(|(v, _)| v * seeds[0] as f64),
+            sb.map(|(v, _)| v * seeds[1] as f64),
+        ],
+        condition: condition_variance,
+        seeds,
+    });
+    Some(diff)
 }
 
 /// Mean over seeds of the per-seed means, and the seed part of its variance: τ² / S with
@@ -231,6 +285,7 @@ fn t_interval(
         seeds,
         n,
         method,
+        parts: None,
     }
 }
 
@@ -259,6 +314,7 @@ pub fn proportion_difference(xa: usize, na: usize, xb: usize, nb: usize) -> Opti
         seeds: [1, 1],
         n: [na, nb],
         method: Method::Proportions,
+        parts: None,
     })
 }
 
@@ -501,6 +557,15 @@ mod tests {
             unpaired.resolvable > 1.25 * calm.resolvable,
             "{calm:?} {unpaired:?}"
         );
+        // Projected to the measured counts, the interval is the measured one; more seeds and
+        // conditions narrow it.
+        let parts = spread.parts.expect("paired");
+        assert!((parts.resolvable_with([3, 3], 600) - spread.resolvable).abs() < 1e-12);
+        assert!(parts.resolvable_with([10, 10], 3000) < 0.5 * spread.resolvable);
+        let s = parts.seeds_to_resolve(0.05, 600, 50).expect("reachable");
+        assert!(parts.resolvable_with([s, s], 600) <= 0.05);
+        assert!(s > 3 && parts.resolvable_with([s - 1, s - 1], 600) > 0.05);
+        assert_eq!(parts.seeds_to_resolve(1e-6, 600, 50), None);
         // One seed: no seed part, and the degrees of freedom are the conditions'.
         let one = paired_difference(&a[..1], &b).expect("paired");
         assert_eq!(one.seeds, [1, 3]);

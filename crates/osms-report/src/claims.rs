@@ -73,6 +73,35 @@ pub struct Comparison {
     pub metric: String,
     pub unit: Unit,
     pub difference: Difference,
+    /// The paper's difference between the same two rows (success only).
+    #[serde(default)]
+    pub paper: Option<f64>,
+    /// Run seeds per student at which the paper's difference would be resolved on this many
+    /// conditions, with this run's variance components (`None`: not within
+    /// [`MAX_SEEDS`], or not a paired difference).
+    #[serde(default)]
+    pub seeds_for_paper: Option<usize>,
+}
+
+/// The largest seed count [`Comparison::seeds_for_paper`] looks at.
+pub const MAX_SEEDS: usize = 100;
+
+/// The paper's task success per row (Tables II and III).
+fn paper_success(row: &str) -> Option<f64> {
+    let [unperturbed, global, independent, correlated] = TABLE3_ROWS;
+    [
+        (TEACHER, 0.852),
+        (NAIVE, 0.838),
+        (NORMAL, 0.817),
+        (OURS, 0.903),
+        (unperturbed, 0.817),
+        (global, 0.822),
+        (independent, 0.868),
+        (correlated, 0.903),
+    ]
+    .iter()
+    .find(|(r, _)| *r == row)
+    .map(|(_, v)| *v)
 }
 
 impl Comparison {
@@ -160,12 +189,21 @@ struct Policy<'a> {
 }
 
 fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
+    let difference = paired_difference(&successes(a.evals), &successes(b.evals))?;
+    let paper = paper_success(a.name)
+        .zip(paper_success(b.name))
+        .map(|(x, y)| x - y);
+    let seeds_for_paper = paper
+        .zip(difference.parts)
+        .and_then(|(p, parts)| parts.seeds_to_resolve(p, difference.n[0], MAX_SEEDS));
     Some(Comparison {
         a: a.name.into(),
         b: b.name.into(),
         metric: SUCCESS.into(),
         unit: Unit::Percent,
-        difference: paired_difference(&successes(a.evals), &successes(b.evals))?,
+        difference,
+        paper,
+        seeds_for_paper,
     })
 }
 
@@ -176,6 +214,8 @@ fn force_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
         metric: F_MAX.into(),
         unit: Unit::Number(1),
         difference: unpaired_difference(&forces(a.evals), &forces(b.evals))?,
+        paper: None,
+        seeds_for_paper: None,
     })
 }
 
@@ -253,6 +293,8 @@ fn proportion(
         metric: claim_metric.into(),
         unit: Unit::Percent,
         difference: proportion_difference(a.1, a.2, b.1, b.2)?,
+        paper: None,
+        seeds_for_paper: None,
     })
 }
 
@@ -449,6 +491,43 @@ pub fn check(d: &ClaimData<'_>) -> Vec<Claim> {
     claims
 }
 
+/// For every success comparison whose claim this run left unresolved: the paper's difference
+/// and the run seeds per student that would resolve it on the same conditions, with this
+/// run's variance components (docs/report.md, "What would decide").
+pub fn sizes_markdown(claims: &[Claim]) -> String {
+    let mut t = Table::new(
+        "claims_sizes",
+        "What would decide the unresolved claims",
+        vec![
+            Column::new("ours", Unit::Text),
+            Column::new("resolvable now", Unit::Text),
+            Column::new("paper's difference", Unit::Text),
+            Column::new("seeds per student to resolve it", Unit::Text),
+        ],
+    );
+    for c in claims.iter().filter(|c| c.verdict == Verdict::Unresolved) {
+        for x in c.comparisons.iter().filter(|x| x.paper.is_some()) {
+            let d = &x.difference;
+            t.push(
+                format!("{} − {} ({})", x.a, x.b, c.claim),
+                vec![
+                    Cell::text(signed(d.estimate, x.unit)),
+                    Cell::text(format!("± {}", magnitude(d.resolvable, x.unit))),
+                    Cell::text(x.paper.map_or_else(|| "-".into(), |p| signed(p, x.unit))),
+                    Cell::text(x.seeds_for_paper.map_or_else(
+                        || format!("more than {MAX_SEEDS} at {} conditions", d.n[0]),
+                        |s| format!("{s} at {} conditions", d.n[0]),
+                    )),
+                ],
+            );
+        }
+    }
+    if t.rows.is_empty() {
+        return String::new();
+    }
+    t.markdown_with(Layout::plain("comparison"))
+}
+
 /// The claims as a Markdown table.
 pub fn markdown(claims: &[Claim]) -> String {
     let mut t = Table::new(
@@ -593,6 +672,24 @@ mod tests {
         assert!(md.contains("| contradicted |"), "{md}");
         assert!(md.contains("Ours-IL − Naive-IL: +"), "{md}");
         assert!(md.contains("resolvable"), "{md}");
+        // The unresolved "Normal-IL trails Naive-IL" (identical students here) gets a size.
+        let trails = claims
+            .iter()
+            .find(|c| c.claim == "Normal-IL trails Naive-IL")
+            .expect("claim");
+        let x = &trails.comparisons[0];
+        assert!((x.paper.expect("paper") + 0.021).abs() < 1e-9);
+        let parts = x.difference.parts.expect("paired");
+        match x.seeds_for_paper {
+            Some(s) => assert!(parts.resolvable_with([s, s], n) <= 0.021),
+            None => assert!(parts.resolvable_with([MAX_SEEDS, MAX_SEEDS], n) > 0.021),
+        }
+        let sizes = sizes_markdown(&claims);
+        assert!(
+            sizes.contains("Normal-IL − Naive-IL (Normal-IL trails Naive-IL)"),
+            "{sizes}"
+        );
+        assert!(sizes.contains("at 600 conditions"), "{sizes}");
     }
 
     #[test]

@@ -72,6 +72,16 @@ impl Report {
              method.\n\n{}",
             claims::markdown(&self.claims)
         );
+        let sizes = claims::sizes_markdown(&self.claims);
+        if !sizes.is_empty() {
+            let _ = writeln!(
+                s,
+                "### What would decide the unresolved claims\n\nThe paper's difference between \
+                 the same rows, and how many run seeds per student would resolve it on the same \
+                 held-out conditions if this run's variance components held (seed spread and \
+                 condition variance as measured; docs/report.md).\n\n{sizes}"
+            );
+        }
         for f in &self.figures {
             let _ = writeln!(
                 s,
