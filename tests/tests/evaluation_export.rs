@@ -228,6 +228,33 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
             .map(|s| s.parse::<f64>().expect("a number"));
         assert_eq!(t_c, eval.metrics.contact_time_secs, "row {i}");
     }
+
+    // scripts/split-rollouts.py groups the same rows by variant: every rollout in exactly one
+    // group, each group's success and completion the CSV's (the scripted catcher completes
+    // catches but never succeeds, so completion is the rate that can be wrong here).
+    let groups = osms_tests::python::run_script(
+        &python,
+        "split-rollouts.py",
+        &["variant", "--bins", "20", "--json", &p(&csv_path)],
+    );
+    let groups = groups.as_array().expect("a list of groups");
+    let total: u64 = groups.iter().map(|g| g["n"].as_u64().expect("n")).sum();
+    assert_eq!(total as usize, n);
+    for g in groups {
+        let name = g["group"].as_str().expect("group");
+        let of: Vec<&Vec<&str>> = rows.iter().filter(|r| r[col("variant")] == name).collect();
+        let successes = of.iter().filter(|r| r[col("success")] == "true").count();
+        assert_eq!(g["n"].as_u64(), Some(of.len() as u64), "{name}");
+        let completions = of.iter().filter(|r| r[col("completion")] == "true").count();
+        for (key, count) in [("success", successes), ("completion", completions)] {
+            let rate = g[key].as_f64().expect("a rate");
+            assert!((rate - count as f64 / of.len() as f64).abs() < 1e-12, "{name} {key}");
+        }
+    }
+    assert!(
+        groups.iter().any(|g| g["completion"].as_f64() > Some(0.0)),
+        "some catch is completed"
+    );
 }
 
 /// The eval_scripted manifest with its header's schema version set back to 3, stored under a
