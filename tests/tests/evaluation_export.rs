@@ -248,7 +248,10 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
         let completions = of.iter().filter(|r| r[col("completion")] == "true").count();
         for (key, count) in [("success", successes), ("completion", completions)] {
             let rate = g[key].as_f64().expect("a rate");
-            assert!((rate - count as f64 / of.len() as f64).abs() < 1e-12, "{name} {key}");
+            assert!(
+                (rate - count as f64 / of.len() as f64).abs() < 1e-12,
+                "{name} {key}"
+            );
         }
     }
     assert!(
