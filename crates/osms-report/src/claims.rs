@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::tables::TABLE3_ROWS;
 use osms_core::stats::{
-    Decision, Difference, paired_difference, proportion_difference, unpaired_difference,
+    Decision, Difference, Method, paired_difference, proportion_difference, unpaired_difference,
 };
 use osms_core::table::{Cell, Column, Layout, Table, Unit, Value, format_value};
 use osms_policy::artifacts::ConstructionStats;
@@ -183,13 +183,34 @@ fn forces(evals: &[Evaluation]) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// A policy's name and its per-rollout values, read once from its evaluations.
+#[derive(Clone)]
 struct Policy<'a> {
     name: &'a str,
-    evals: &'a [Evaluation],
+    success: Vec<Vec<f64>>,
+    force: Vec<Vec<f64>>,
+}
+
+impl<'a> Policy<'a> {
+    fn of(name: &'a str, evals: &[Evaluation]) -> Self {
+        Policy {
+            name,
+            success: successes(evals),
+            force: forces(evals),
+        }
+    }
+
+    /// The same rollouts under another row's name (Table III's rows are Table II's students).
+    fn named(&self, name: &'a str) -> Self {
+        Policy {
+            name,
+            ..self.clone()
+        }
+    }
 }
 
 fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
-    let difference = paired_difference(&successes(a.evals), &successes(b.evals))?;
+    let difference = paired_difference(&a.success, &b.success)?;
     let paper = paper_success(a.name)
         .zip(paper_success(b.name))
         .map(|(x, y)| x - y);
@@ -213,7 +234,7 @@ fn force_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
         b: b.name.into(),
         metric: F_MAX.into(),
         unit: Unit::Number(1),
-        difference: unpaired_difference(&forces(a.evals), &forces(b.evals))?,
+        difference: unpaired_difference(&a.force, &b.force)?,
         paper: None,
         seeds_for_paper: None,
     })
@@ -222,6 +243,23 @@ fn force_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
 /// A claim that holds when every comparison's interval favours `a_higher`, is contradicted
 /// when any goes against it, and is unresolved otherwise.
 fn all_of(claim: &str, comparisons: Vec<Option<Comparison>>, a_higher: bool) -> Claim {
+    decided(claim, comparisons, a_higher, true)
+}
+
+/// A claim that holds when some comparison's interval favours `a_higher`, is contradicted
+/// when every one goes against it, and is unresolved otherwise.
+fn any_of(claim: &str, comparisons: Vec<Option<Comparison>>, a_higher: bool) -> Claim {
+    decided(claim, comparisons, a_higher, false)
+}
+
+/// The verdict over several comparisons: `every` one must favour the claim (and any one
+/// contradicts it), or any one suffices (and every one must go against it).
+fn decided(
+    claim: &str,
+    comparisons: Vec<Option<Comparison>>,
+    a_higher: bool,
+    every: bool,
+) -> Claim {
     let Some(comparisons) = comparisons.into_iter().collect::<Option<Vec<_>>>() else {
         return Claim {
             claim: claim.into(),
@@ -236,9 +274,21 @@ fn all_of(claim: &str, comparisons: Vec<Option<Comparison>>, a_higher: bool) -> 
         .iter()
         .map(|c| c.difference.decide(a_higher))
         .collect();
-    let verdict = if decisions.iter().all(|d| *d == Decision::Holds) {
+    let (favour, against) = (Decision::Holds, Decision::Contradicted);
+    let (holds, contradicted) = if every {
+        (
+            decisions.iter().all(|d| *d == favour),
+            decisions.contains(&against),
+        )
+    } else {
+        (
+            decisions.contains(&favour),
+            decisions.iter().all(|d| *d == against),
+        )
+    };
+    let verdict = if holds {
         Verdict::Holds
-    } else if decisions.contains(&Decision::Contradicted) {
+    } else if contradicted {
         Verdict::Contradicted
     } else {
         Verdict::Unresolved
@@ -257,13 +307,13 @@ fn evidence(comparisons: &[Comparison]) -> String {
         .map(|c| {
             let d = &c.difference;
             let spread = match (d.seeds, d.method) {
-                (_, osms_core::stats::Method::Proportions) => {
+                (_, Method::Proportions) => {
                     format!("{} vs {} conditions", d.n[0], d.n[1])
                 }
-                ([sa, sb], osms_core::stats::Method::Paired) => {
+                ([sa, sb], Method::Paired) => {
                     format!("{} paired conditions, {sa} vs {sb} run seed(s)", d.n[0])
                 }
-                ([sa, sb], osms_core::stats::Method::Unpaired) => format!(
+                ([sa, sb], Method::Unpaired) => format!(
                     "{} vs {} catch completions, {sa} vs {sb} run seed(s)",
                     d.n[0], d.n[1]
                 ),
@@ -330,39 +380,15 @@ fn fit_metric(t: &Table, a: &str, others: &[&str], column: &str, claim: &str) ->
 
 /// The claims of the default report.
 pub fn check(d: &ClaimData<'_>) -> Vec<Claim> {
-    let teacher = Policy {
-        name: TEACHER,
-        evals: std::slice::from_ref(d.teacher),
-    };
-    let naive = Policy {
-        name: NAIVE,
-        evals: d.naive,
-    };
-    let normal = Policy {
-        name: NORMAL,
-        evals: d.normal,
-    };
-    let ours = Policy {
-        name: OURS,
-        evals: d.ours,
-    };
+    let teacher = Policy::of(TEACHER, std::slice::from_ref(d.teacher));
+    let naive = Policy::of(NAIVE, d.naive);
+    let normal = Policy::of(NORMAL, d.normal);
+    let ours = Policy::of(OURS, d.ours);
     let [unperturbed, global, independent, correlated] = TABLE3_ROWS;
-    let global_iid = Policy {
-        name: global,
-        evals: d.global_iid,
-    };
-    let phase_independent = Policy {
-        name: independent,
-        evals: d.phase_independent,
-    };
-    let t3_unperturbed = Policy {
-        name: unperturbed,
-        evals: d.normal,
-    };
-    let t3_correlated = Policy {
-        name: correlated,
-        evals: d.ours,
-    };
+    let global_iid = Policy::of(global, d.global_iid);
+    let phase_independent = Policy::of(independent, d.phase_independent);
+    let t3_unperturbed = normal.named(unperturbed);
+    let t3_correlated = ours.named(correlated);
     let [s_naive, s_normal, s_ours] = d.stats;
     let cov = [
         coverage(s_naive, NAIVE),
@@ -405,36 +431,14 @@ pub fn check(d: &ClaimData<'_>) -> Vec<Claim> {
         ),
     ];
     // Normal-IL is not the best student: some other student beats it.
-    let beaten = [&naive, &ours]
-        .iter()
-        .map(|p| success_comparison(p, &normal))
-        .collect::<Option<Vec<_>>>();
-    claims.push(match beaten {
-        Some(comparisons) => {
-            let decisions: Vec<Decision> = comparisons
-                .iter()
-                .map(|c| c.difference.decide(true))
-                .collect();
-            let verdict = if decisions.contains(&Decision::Holds) {
-                Verdict::Holds
-            } else if decisions.iter().all(|x| *x == Decision::Contradicted) {
-                Verdict::Contradicted
-            } else {
-                Verdict::Unresolved
-            };
-            Claim {
-                claim: "Normal-IL is not the best student despite that coverage".into(),
-                verdict,
-                evidence: evidence(&comparisons),
-                comparisons,
-            }
-        }
-        None => all_of(
-            "Normal-IL is not the best student despite that coverage",
-            vec![None],
-            true,
-        ),
-    });
+    claims.push(any_of(
+        "Normal-IL is not the best student despite that coverage",
+        [&naive, &ours]
+            .iter()
+            .map(|p| success_comparison(p, &normal))
+            .collect(),
+        true,
+    ));
     claims.push(all_of(
         "Normal-IL trails Naive-IL",
         vec![success_comparison(&normal, &naive)],
