@@ -877,11 +877,47 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     let demo = Demo::from_record(&record);
     for (n, seen) in watch.seen.iter().enumerate() {
         let mut built = Vec::new();
-        demo.observation(n, student.params.history, &mut built);
+        demo.observation(n, &student.params, &mut built);
         assert_eq!(
             &built, seen,
             "step {n}: training and deployment observations differ"
         );
+    }
+    // The optional inputs too (palm features, the oracle's object velocity, no previous
+    // actions): only the observation is compared, so the untrained shapes do not matter.
+    let mut variant = student.clone();
+    variant.params.palm = true;
+    variant.params.oracle_object_velocity = true;
+    variant.params.previous_actions = false;
+    let mut views = Vec::new();
+    struct Views<'s> {
+        student: &'s Student,
+        inner: StudentPolicy<'s>,
+        seen: &'s mut Vec<Vec<f32>>,
+    }
+    impl osms_sim::Policy for Views<'_> {
+        fn act(&mut self, view: &osms_sim::PolicyView<'_>) -> osms_sim::Action {
+            self.seen.push(self.student.observation(view));
+            self.inner.act(view)
+        }
+    }
+    let again = osms_sim::Episode::new(&world, &spec, record.condition.clone(), dr()).run(
+        &mut Views {
+            student: &variant,
+            inner: StudentPolicy {
+                student: &student,
+                rng: policy(0),
+            },
+            seen: &mut views,
+        },
+        &mut osms_sim::NoHooks,
+    );
+    assert_eq!(again, record);
+    for (n, seen) in views.iter().enumerate() {
+        let mut built = Vec::new();
+        demo.observation(n, &variant.params, &mut built);
+        assert_eq!(built.len(), variant.params.obs_len());
+        assert_eq!(&built, seen, "step {n}: the optional inputs differ");
     }
 }
 

@@ -94,11 +94,7 @@ pub fn entry(
     DemoEntry {
         execution,
         max_force_n: record.metrics.max_force_n,
-        demo: Demo {
-            steps: record.steps,
-            deployable: record.deployable.clone(),
-            actions,
-        },
+        demo: Demo::labelled(record, actions),
     }
 }
 
@@ -414,6 +410,7 @@ mod tests {
                     demo: Demo {
                         steps: 0,
                         deployable: Vec::new(),
+                        state: Vec::new(),
                         actions: Vec::new(),
                     },
                 })

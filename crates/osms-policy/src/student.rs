@@ -4,8 +4,13 @@
 //! - **Observation** o_n: the last `history` deployable frames, oldest first. A frame is the
 //!   robot's proprioception (arm and hand q, q̇), the object's *observed* position (delayed and
 //!   noisy under DR; no velocity, no contacts, nothing privileged) and the previous executed
-//!   action ([`osms_sim::episode::DEPLOYABLE_LEN`] values). Before `history` frames exist, the
-//!   oldest one is repeated, as the rollout's history holds it.
+//!   action ([`osms_sim::episode::DEPLOYABLE_LEN`] values; `previous_actions = false` drops
+//!   the action). Before `history` frames exist, the oldest one is repeated, as the rollout's
+//!   history holds it. Optional features of the current step follow the frames: the palm's
+//!   position and velocity and the observed object's offset from the palm (`palm`: forward
+//!   kinematics of the measured joint state, so deployable), and the object's true velocity
+//!   (`oracle_object_velocity`: privileged, a diagnostic of whether information is what the
+//!   student lacks, never a deployable student).
 //! - **Action chunk**: the labels of steps n … n + chunk − 1, all 24 channels. A chunk that
 //!   runs past the rollout's end repeats its last action and masks those steps out of the
 //!   loss, so the network is never asked to predict what happens after termination.
@@ -19,7 +24,7 @@
 use osms_core::rng::{self, StreamRng};
 use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
 use osms_sim::conditions::TaskCondition;
-use osms_sim::episode::DEPLOYABLE_LEN;
+use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_PALM};
 use osms_sim::{
     Action, Episode, N_ACTION, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec, World,
 };
@@ -66,6 +71,19 @@ pub struct StudentParams {
     pub log_every: u32,
     /// Standardised observations are clipped to ±`obs_clip`.
     pub obs_clip: f32,
+    /// Keep the previous executed action in each frame (false drops its 24 values: the
+    /// copycat diagnostic of issue 33, de Haan et al. 2019).
+    pub previous_actions: bool,
+    /// Append the palm's position and linear velocity and the observed object's position
+    /// relative to the palm at the current step (9 values; deployable: forward kinematics of the
+    /// robot's own joint state).
+    pub palm: bool,
+    /// Append the object's true linear velocity at the current step (3 values). Privileged:
+    /// for the diagnosis only (does the student lack information?), never a final student.
+    pub oracle_object_velocity: bool,
+    /// Decay of an exponential moving average of the weights, updated after every step and
+    /// used as the trained network (0: none, the last step's weights).
+    pub ema_decay: f32,
 }
 
 impl Default for StudentParams {
@@ -87,6 +105,10 @@ impl Default for StudentParams {
             holdout_every: 10,
             log_every: 50,
             obs_clip: 5.0,
+            previous_actions: true,
+            palm: false,
+            oracle_object_velocity: false,
+            ema_decay: 0.0,
         }
     }
 }
@@ -123,6 +145,12 @@ impl StudentParams {
                 self.noise_scale
             )));
         }
+        if !(0.0..1.0).contains(&self.ema_decay) {
+            return Err(Error::Params(format!(
+                "params.ema_decay must be in [0, 1) (0: no moving average), got {}",
+                self.ema_decay
+            )));
+        }
         if !(self.lr > 0.0 && self.min_lr >= 0.0 && self.min_lr <= self.lr) {
             return Err(Error::Params(format!(
                 "params: need 0 <= min_lr <= lr and lr > 0, got lr {} and min_lr {}",
@@ -132,9 +160,24 @@ impl StudentParams {
         Ok(())
     }
 
-    /// Width of an observation: `history` deployable frames.
+    /// Width of an observation: `history` frames, then the current step's features.
     pub fn obs_len(&self) -> usize {
-        self.history * DEPLOYABLE_LEN
+        self.history * self.frame_len() + self.features_len()
+    }
+
+    /// Width of one frame of the history: a deployable frame, without the previous action
+    /// unless `previous_actions`.
+    pub fn frame_len(&self) -> usize {
+        if self.previous_actions {
+            DEPLOYABLE_LEN
+        } else {
+            DEPLOYABLE_LEN - N_ACTION
+        }
+    }
+
+    /// Width of the current step's features after the frames.
+    pub fn features_len(&self) -> usize {
+        9 * usize::from(self.palm) + 3 * usize::from(self.oracle_object_velocity)
     }
 
     /// Width of an action chunk.
@@ -143,12 +186,23 @@ impl StudentParams {
     }
 }
 
-/// One demonstration rollout as students read it: its deployable frames and its action labels.
+/// Values per step of [`Demo::state`].
+pub const DEMO_STATE_LEN: usize = 9;
+
+/// Index of the observed object position in a deployable frame.
+const OBSERVED_OBJECT: usize = 48;
+
+/// One demonstration rollout as students read it: its deployable frames, the palm and object
+/// state the optional features come from, and its action labels.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Demo {
     pub steps: usize,
     /// [`DEPLOYABLE_LEN`] per step.
     pub deployable: Vec<f32>,
+    /// [`DEMO_STATE_LEN`] per step, at the step's start: the palm's position and linear
+    /// velocity, the object's true linear velocity (the record's `palm_pos`, `palm_vel`,
+    /// `object_vel`).
+    pub state: Vec<f32>,
     /// 24 per step: the action the demonstrating policy commanded at that step.
     pub actions: Vec<f32>,
 }
@@ -158,25 +212,48 @@ impl Demo {
     /// commanded actions (`record.intended`: the full 24-channel action the policy sent, before
     /// the environment's actuation noise and delay, which the student cannot command).
     pub fn from_record(record: &RolloutRecord) -> Demo {
+        Demo::labelled(record, record.intended.clone())
+    }
+
+    /// A rollout's frames and state labelled with `actions` (24 per step).
+    pub fn labelled(record: &RolloutRecord, actions: Vec<f32>) -> Demo {
+        let state = (0..record.steps)
+            .flat_map(|n| {
+                let at = |v: &[f32]| {
+                    let row: [f32; 3] = v[3 * n..3 * n + 3].try_into().expect("3 per step");
+                    row
+                };
+                [
+                    at(&record.palm_pos),
+                    at(&record.palm_vel),
+                    at(&record.object_vel),
+                ]
+                .concat()
+            })
+            .collect();
         Demo {
             steps: record.steps,
             deployable: record.deployable.clone(),
-            actions: record.intended.clone(),
+            state,
+            actions,
         }
     }
 
     fn check(&self, index: usize) -> Result<()> {
         if self.deployable.len() != self.steps * DEPLOYABLE_LEN
+            || self.state.len() != self.steps * DEMO_STATE_LEN
             || self.actions.len() != self.steps * N_ACTION
         {
             return Err(Error::Demo {
                 index,
                 why: format!(
-                    "a demonstration of {} steps has {} deployable values and {} action values (expected {} and {})",
+                    "a demonstration of {} steps has {} deployable, {} state and {} action values (expected {}, {} and {})",
                     self.steps,
                     self.deployable.len(),
+                    self.state.len(),
                     self.actions.len(),
                     self.steps * DEPLOYABLE_LEN,
+                    self.steps * DEMO_STATE_LEN,
                     self.steps * N_ACTION
                 ),
             });
@@ -184,12 +261,17 @@ impl Demo {
         Ok(())
     }
 
-    /// o_n: frames n − history + 1 … n, the oldest frame repeated before the rollout's start.
-    pub fn observation(&self, n: usize, history: usize, out: &mut Vec<f32>) {
-        for h in 0..history {
-            let k = (n + h + 1).saturating_sub(history);
-            out.extend_from_slice(&self.deployable[k * DEPLOYABLE_LEN..(k + 1) * DEPLOYABLE_LEN]);
+    /// o_n: frames n − history + 1 … n, the oldest frame repeated before the rollout's start,
+    /// then step n's features.
+    pub fn observation(&self, n: usize, p: &StudentParams, out: &mut Vec<f32>) {
+        let width = p.frame_len();
+        for h in 0..p.history {
+            let k = (n + h + 1).saturating_sub(p.history);
+            out.extend_from_slice(&self.deployable[k * DEPLOYABLE_LEN..k * DEPLOYABLE_LEN + width]);
         }
+        let state = &self.state[n * DEMO_STATE_LEN..(n + 1) * DEMO_STATE_LEN];
+        let object = &self.deployable[n * DEPLOYABLE_LEN + OBSERVED_OBJECT..][..3];
+        push_features(p, &state[0..3], &state[3..6], object, &state[6..9], out);
     }
 
     /// The label chunk at step n and its mask: steps past the end repeat the last action with
@@ -313,7 +395,7 @@ impl Student {
         let mut block = Vec::new();
         for &(r, n) in &samples {
             row.clear();
-            train[r].observation(n, p.history, &mut row);
+            train[r].observation(n, p, &mut row);
             block.extend_from_slice(&row);
             if block.len() >= 4096 * p.obs_len() {
                 obs_norm.update(&block);
@@ -352,6 +434,7 @@ impl Student {
             Schedule::Constant { lr: p.lr },
         );
         let (mut loss_sum, mut loss_count) = (0.0f64, 0u32);
+        let mut ema = (p.ema_decay > 0.0).then(|| student.net.mlp.clone());
         for s in 0..p.steps {
             let lr = student.learning_rate(s);
             opt.schedule = Schedule::Constant { lr };
@@ -377,9 +460,27 @@ impl Student {
                 mask: Some(&mask),
             });
             opt.update(&mut student.net.mlp.params_mut(), &flatten_grads(&grads));
+            if let Some(ema) = &mut ema {
+                // The moving average forgets its initial weights early (the decay ramps up
+                // as (1 + s) / (10 + s)), so short runs are not pulled towards them.
+                let d = p.ema_decay.min((1 + s) as f32 / (10 + s) as f32);
+                for (e, w) in ema
+                    .params_mut()
+                    .into_iter()
+                    .zip(student.net.mlp.params_mut())
+                {
+                    for (e, &w) in e.iter_mut().zip(w.iter()) {
+                        *e = d * *e + (1.0 - d) * w;
+                    }
+                }
+            }
             loss_sum += f64::from(loss);
             loss_count += 1;
             if (s + 1) % p.log_every == 0 || s + 1 == p.steps {
+                // The curve scores the network training would stop with: the average, if any.
+                if let Some(ema) = &mut ema {
+                    std::mem::swap(&mut student.net.mlp, ema);
+                }
                 let validation_loss = validation.as_ref().map(|v| {
                     student
                         .net
@@ -392,6 +493,9 @@ impl Student {
                         })
                         .0
                 });
+                if let Some(ema) = &mut ema {
+                    std::mem::swap(&mut student.net.mlp, ema);
+                }
                 student.curve.push(StudentCurvePoint {
                     step: s + 1,
                     train_loss: (loss_sum / f64::from(loss_count)) as f32,
@@ -401,6 +505,9 @@ impl Student {
                 (loss_sum, loss_count) = (0.0, 0);
             }
             progress();
+        }
+        if let Some(ema) = ema {
+            student.net.mlp = ema;
         }
         Ok(student)
     }
@@ -430,7 +537,7 @@ impl Student {
         let mut raw = Vec::with_capacity(p.obs_len());
         for &(d, n) in rows {
             raw.clear();
-            d.observation(n, p.history, &mut raw);
+            d.observation(n, p, &mut raw);
             obs.extend(self.obs_norm.apply(&raw));
             let start = labels.len();
             d.chunk(n, p.chunk, &mut labels, &mut mask);
@@ -486,16 +593,43 @@ impl Student {
     }
 
     /// The observation of a running rollout: its history of deployable frames, the oldest
-    /// repeated to `history` frames.
+    /// repeated to `history` frames, then the current step's features (as the record keeps
+    /// them: in f32).
     pub fn observation(&self, view: &PolicyView<'_>) -> Vec<f32> {
-        let h = self.params.history;
+        let p = &self.params;
+        let h = p.history;
         let frames = view.history;
-        let mut out = Vec::with_capacity(self.params.obs_len());
+        let mut out = Vec::with_capacity(p.obs_len());
         for i in 0..h {
             let k = (frames.len() + i).saturating_sub(h);
-            out.extend(frames[k].iter().map(|&v| v as f32));
+            out.extend(frames[k][..p.frame_len()].iter().map(|&v| v as f32));
         }
+        let f32s = |v: &[f64]| -> [f32; 3] { std::array::from_fn(|c| v[c] as f32) };
+        let palm_pos = f32s(&view.privileged[PRIVILEGED_PALM..]);
+        let palm_vel = f32s(&view.privileged[PRIVILEGED_PALM + 6..]);
+        let object = f32s(&view.deployable[OBSERVED_OBJECT..]);
+        let velocity = f32s(&view.data.qvel()[view.world.ids.object_dof..]);
+        push_features(p, &palm_pos, &palm_vel, &object, &velocity, &mut out);
         out
+    }
+}
+
+/// The current step's features (see the module's doc), in the order training and acting share.
+fn push_features(
+    p: &StudentParams,
+    palm_pos: &[f32],
+    palm_vel: &[f32],
+    object: &[f32],
+    object_vel: &[f32],
+    out: &mut Vec<f32>,
+) {
+    if p.palm {
+        out.extend_from_slice(&palm_pos[..3]);
+        out.extend_from_slice(&palm_vel[..3]);
+        out.extend((0..3).map(|c| object[c] - palm_pos[c]));
+    }
+    if p.oracle_object_velocity {
+        out.extend_from_slice(&object_vel[..3]);
     }
 }
 
@@ -615,6 +749,9 @@ mod tests {
             deployable: (0..steps)
                 .flat_map(|n| std::iter::repeat_n((n + 1) as f32, DEPLOYABLE_LEN))
                 .collect(),
+            state: (0..steps)
+                .flat_map(|n| (0..DEMO_STATE_LEN).map(move |c| (n * 10 + c) as f32))
+                .collect(),
             actions: (0..steps)
                 .flat_map(|n| (0..N_ACTION).map(move |k| (n * 100 + k) as f32 / 1e4))
                 .collect(),
@@ -626,7 +763,11 @@ mod tests {
         let d = numbered(5);
         let frames = |n: usize, h: usize| {
             let mut out = Vec::new();
-            d.observation(n, h, &mut out);
+            let p = StudentParams {
+                history: h,
+                ..StudentParams::default()
+            };
+            d.observation(n, &p, &mut out);
             out.chunks(DEPLOYABLE_LEN).map(|f| f[0]).collect::<Vec<_>>()
         };
         assert_eq!(frames(0, 3), [1.0, 1.0, 1.0]);
@@ -647,6 +788,34 @@ mod tests {
     }
 
     #[test]
+    fn optional_inputs_come_from_the_current_step_and_previous_actions_can_be_dropped() {
+        let d = numbered(4);
+        let p = StudentParams {
+            history: 2,
+            previous_actions: false,
+            palm: true,
+            oracle_object_velocity: true,
+            ..StudentParams::default()
+        };
+        let mut out = Vec::new();
+        d.observation(2, &p, &mut out);
+        assert_eq!(out.len(), p.obs_len());
+        assert_eq!(p.frame_len(), DEPLOYABLE_LEN - N_ACTION);
+        // Frames 1 and 2 without their previous actions, then step 2's features: palm
+        // position (20, 21, 22), velocity (23, 24, 25), object − palm (3 − 20, ...) and the
+        // object's velocity (26, 27, 28).
+        let frames = 2 * p.frame_len();
+        assert!(out[..p.frame_len()].iter().all(|&v| v == 2.0));
+        assert!(out[p.frame_len()..frames].iter().all(|&v| v == 3.0));
+        assert_eq!(
+            out[frames..],
+            [
+                20.0, 21.0, 22.0, 23.0, 24.0, 25.0, -17.0, -18.0, -19.0, 26.0, 27.0, 28.0
+            ]
+        );
+    }
+
+    #[test]
     fn malformed_demos_and_params_are_refused() {
         let mut d = numbered(3);
         d.actions.pop();
@@ -658,6 +827,12 @@ mod tests {
             ..StudentParams::default()
         };
         assert!(Student::train(&[numbered(3)], &bad, (0, "t"), &|| {}).is_err());
+        let bad = StudentParams {
+            ema_decay: 1.0,
+            ..StudentParams::default()
+        };
+        let err = Student::train(&[numbered(3)], &bad, (0, "t"), &|| {}).expect_err("decay 1");
+        assert!(err.to_string().contains("ema_decay"), "{err}");
         let none = Student::train(&[], &StudentParams::default(), (0, "t"), &|| {});
         assert!(matches!(none, Err(Error::NoDemos { .. })));
     }
@@ -668,6 +843,16 @@ mod tests {
     /// labels' spread), and training is a function of its seed.
     #[test]
     fn students_learn_a_deterministic_policy_reproducibly() {
+        learns_a_deterministic_policy(0.0);
+    }
+
+    /// The moving average of the weights is the trained network, and it learns as well.
+    #[test]
+    fn students_with_a_moving_average_of_weights_learn_too() {
+        learns_a_deterministic_policy(0.99);
+    }
+
+    fn learns_a_deterministic_policy(ema_decay: f32) {
         let demos: Vec<Demo> = (0..12)
             .map(|r| {
                 let steps = 10;
@@ -691,6 +876,7 @@ mod tests {
                 Demo {
                     steps,
                     deployable,
+                    state: vec![0.0; steps * DEMO_STATE_LEN],
                     actions,
                 }
             })
@@ -707,9 +893,23 @@ mod tests {
             warmup: 20,
             holdout_every: 4,
             log_every: 100,
+            ema_decay,
             ..StudentParams::default()
         };
         let student = Student::train(&demos, &params, (1, "s"), &|| {}).expect("train");
+        if ema_decay > 0.0 {
+            let last = Student::train(
+                &demos,
+                &StudentParams {
+                    ema_decay: 0.0,
+                    ..params.clone()
+                },
+                (1, "s"),
+                &|| {},
+            )
+            .expect("train");
+            assert_ne!(last.net, student.net, "the average is not the last weights");
+        }
         assert_eq!((student.train_rollouts, student.heldout_rollouts), (9, 3));
         let first = &student.curve[0];
         let last = student.curve.last().expect("curve");
@@ -726,7 +926,7 @@ mod tests {
         for d in demos.iter().skip(3).step_by(4) {
             for n in 0..d.steps {
                 let mut obs = Vec::new();
-                d.observation(n, params.history, &mut obs);
+                d.observation(n, &params, &mut obs);
                 let a = student.act(&obs, &mut rng);
                 let labels = &d.actions[n * N_ACTION..(n + 1) * N_ACTION];
                 for (a, &l) in a.iter().zip(labels) {

@@ -64,6 +64,9 @@ pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + N_ACTION;
 /// position with its noise), palm position, normal and velocity (9), admissible normal force
 /// and contact count (2), ω's mass and variant one-hot (11), time (1).
 pub const PRIVILEGED_LEN: usize = 48 + 13 + 9 + 2 + 11 + 1;
+/// Index of the palm's position in a privileged frame; its normal follows at + 3 and its
+/// linear velocity at + 6 (3 each).
+pub const PRIVILEGED_PALM: usize = 48 + 13;
 /// Index of the admissible contact count in a privileged frame.
 pub const PRIVILEGED_CONTACT_COUNT: usize = 48 + 13 + 9 + 1;
 

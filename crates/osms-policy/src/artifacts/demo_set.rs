@@ -87,7 +87,7 @@ pub struct DemoSet {
 
 impl osms_core::Artifact for DemoSet {
     const TYPE_TAG: &'static str = "policy.demo_set";
-    const SCHEMA_VERSION: u16 = 1;
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl osms_make::Sharded for DemoSet {

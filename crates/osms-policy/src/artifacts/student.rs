@@ -22,7 +22,7 @@ pub struct StudentArtifact {
 
 impl Artifact for StudentArtifact {
     const TYPE_TAG: &'static str = "policy.student_artifact";
-    const SCHEMA_VERSION: u16 = 1;
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl Summarize for StudentArtifact {

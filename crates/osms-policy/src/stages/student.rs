@@ -79,6 +79,12 @@ impl Stage for StudentStage {
                 demos.extend(g.demos.into_iter().map(|e| e.demo));
             }
         }
+        if ctx.params.oracle_object_velocity {
+            tracing::warn!(
+                "{}: `oracle_object_velocity` gives the student the object's true velocity, a privileged input: a diagnostic, not a deployable student",
+                ctx.stage()
+            );
+        }
         let progress = ctx.progress();
         progress.set_total(u64::from(ctx.params.steps));
         let student = Student::train(
