@@ -33,8 +33,8 @@ impl std::str::FromStr for Axis {
                 "--sweep `{text}`: no `=`\nhint: write STAGE.PATH=a,b,c, e.g. `--sweep student_ours.steps=500,1000,2000`"
             ))
         })?;
-        let values: Vec<Override> = values
-            .split(',')
+        let values: Vec<Override> = top_level(values)
+            .into_iter()
             .map(|v| {
                 let o = format!("{knob}={}", v.trim()).parse::<Override>();
                 o.map(|o| Override {
@@ -58,6 +58,29 @@ impl std::str::FromStr for Axis {
             values,
         })
     }
+}
+
+/// `a,b,c` split at the commas outside brackets, braces and quotes, so an array or table
+/// value (`[512, 512],[256, 256]`) stays one value.
+fn top_level(values: &str) -> Vec<&str> {
+    let (mut depth, mut quoted, mut start) = (0i32, None, 0);
+    let mut out = Vec::new();
+    for (i, c) in values.char_indices() {
+        match (quoted, c) {
+            (Some(q), c) if c == q => quoted = None,
+            (Some(_), _) => {}
+            (None, '"' | '\'') => quoted = Some(c),
+            (None, '[' | '{') => depth += 1,
+            (None, ']' | '}') => depth -= 1,
+            (None, ',') if depth == 0 => {
+                out.push(&values[start..i]);
+                start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    out.push(&values[start..]);
+    out
 }
 
 /// The points of a sweep: the product of its axes, the first axis varying slowest; one point
@@ -305,6 +328,11 @@ mod tests {
         assert!(err.contains("listed twice"), "{err}");
         let err = "s.a".parse::<Axis>().expect_err("no =").to_string();
         assert!(err.starts_with("--sweep `s.a`: no `=`"), "{err}");
+        let arrays: Axis = "s.hidden=[512, 512],[256,256,256], \"a,b\""
+            .parse()
+            .expect("arrays");
+        let shown: Vec<String> = arrays.values.iter().map(Override::value_text).collect();
+        assert_eq!(shown, ["[512, 512]", "[256, 256, 256]", "\"a,b\""]);
     }
 
     #[test]

@@ -149,6 +149,10 @@ pub struct ExpShowArgs {
     /// Print CSV on stdout (one line per row)
     #[arg(long)]
     pub csv: bool,
+    /// After each rate (success, completion), its 95 % Wilson interval and n over the
+    /// rollouts pooled over the run seeds
+    #[arg(long)]
+    pub ci: bool,
 }
 
 #[derive(Debug, Args)]

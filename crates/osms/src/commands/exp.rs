@@ -284,6 +284,11 @@ struct Row {
     wall_secs: f64,
     /// Instances that failed: the metrics are partial.
     failed: Vec<String>,
+    /// Target artifacts this osms cannot read (an older schema, say), with why: their metrics
+    /// are missing.
+    unreadable: Vec<String>,
+    /// Rate metric column -> (successes, rollouts) pooled over the run seeds, for `--ci`.
+    counts: BTreeMap<String, (u64, u64)>,
     /// Stage keys of the point's instances (for `diff`), not printed.
     #[serde(skip)]
     keys: BTreeSet<osms_store::Hash>,
@@ -354,6 +359,8 @@ fn point_row(
     // target is that of the networks it reads directly (the student it evaluates).
     let mut trained: BTreeMap<osms_store::Hash, f64> = BTreeMap::new();
     let mut records = Vec::with_capacity(point.instances.len());
+    let mut unreadable = Vec::new();
+    let mut counts: BTreeMap<String, (u64, u64)> = BTreeMap::new();
     for i in &point.instances {
         let record = store.record(&i.key)?;
         let secs = record.as_ref().map_or(0.0, |r| r.wall_time_secs);
@@ -394,12 +401,24 @@ fn point_row(
                     exp.name
                 )
             })?;
-        let summary = kind
-            .summarize(&bytes, &objects)
-            .map_err(|e| anyhow::anyhow!("`{}`: {e}", i.instance))?;
+        // An artifact of an older schema (the code changed since the experiment ran) leaves
+        // its metrics out of the row instead of failing every experiment's table.
+        let summary = match kind.summarize(&bytes, &objects) {
+            Ok(s) => s,
+            Err(e) => {
+                unreadable.push(format!("{}: {e}", i.instance));
+                continue;
+            }
+        };
+        let rollouts = summary_metric(&summary, "rollouts");
         for m in &wanted {
             if let Some(v) = summary_metric(&summary, m) {
                 values.entry(column(m, &i.stage)).or_default().push(v);
+                if let (Some(n), Unit::Percent) = (rollouts, unit_of(m)) {
+                    let c = counts.entry(column(m, &i.stage)).or_default();
+                    c.0 += (v * n).round() as u64;
+                    c.1 += n as u64;
+                }
             }
         }
     }
@@ -412,6 +431,8 @@ fn point_row(
         metrics: values,
         wall_secs,
         failed: point.failed.clone(),
+        unreadable,
+        counts,
         keys: point.instances.iter().map(|i| i.key).collect(),
     })
 }
@@ -450,9 +471,10 @@ fn unit_of(metric: &str) -> Unit {
     }
 }
 
-/// The rows as one table: a column per knob that any row sets, then the metrics, then the
+/// The rows as one table: a column per knob that any row sets, then the metrics (with `ci`,
+/// each rate followed by its 95 % Wilson interval and n over the pooled rollouts), then the
 /// wall time.
-fn table(rows: &[Row], metrics: &[String]) -> Table {
+fn table(rows: &[Row], metrics: &[String], ci: bool) -> Table {
     let mut knobs: Vec<&String> = Vec::new();
     for r in rows {
         for k in r.params.keys() {
@@ -473,7 +495,13 @@ fn table(rows: &[Row], metrics: &[String]) -> Table {
         }
     }
     let mut columns: Vec<Column> = knobs.iter().map(|k| Column::new(*k, Unit::Text)).collect();
-    columns.extend(metric_columns.iter().map(|m| Column::new(*m, unit_of(m))));
+    let interval = |m: &str| ci && rows.iter().any(|r| r.counts.contains_key(m));
+    for m in &metric_columns {
+        columns.push(Column::new(*m, unit_of(m)));
+        if interval(m) {
+            columns.push(Column::new(format!("{m} 95% CI (n)"), Unit::Text));
+        }
+    }
     columns.push(Column::new("wall_secs", Unit::Number(1)));
     let mut t = Table::new("experiments", "Experiments", columns);
     for r in rows {
@@ -481,24 +509,35 @@ fn table(rows: &[Row], metrics: &[String]) -> Table {
             .iter()
             .map(|k| Cell::text(r.params.get(*k).cloned().unwrap_or_else(|| "-".into())))
             .collect();
-        cells.extend(metric_columns.iter().map(|m| {
-            Cell::ours(match r.metrics.get(*m) {
+        for m in &metric_columns {
+            cells.push(Cell::ours(match r.metrics.get(*m) {
                 None => Value::Missing,
                 // One value of a several-seed row is shown as such ("(1 seed)").
                 Some(v) if v.len() == 1 && r.seeds.len() == 1 => Value::One(v[0]),
                 Some(v) => Value::Seeds(v.clone()),
-            })
-        }));
+            }));
+            if interval(m) {
+                cells.push(Cell::text(match r.counts.get(*m) {
+                    Some(&(x, n)) if n > 0 => {
+                        let (lo, hi) = osms_core::stats::wilson(x as usize, n as usize, 1.959964);
+                        format!("{:.1}–{:.1}% ({n})", 100.0 * lo, 100.0 * hi)
+                    }
+                    _ => "-".into(),
+                }));
+            }
+        }
         cells.push(Cell::one(r.wall_secs));
-        let label = if r.failed.is_empty() {
-            r.label()
-        } else {
+        let label = if !r.failed.is_empty() {
             format!("{} (incomplete)", r.label())
+        } else if !r.unreadable.is_empty() {
+            format!("{} (stale)", r.label())
+        } else {
+            r.label()
         };
         t.push(label, cells);
     }
     t.with_note(
-        "`-` under a knob: the pipeline's value; under a metric: none (no catch completed, say, so no f_max). Metrics over several run seeds read mean ± sd; wall_secs sums the build time of every instance of the row, shared upstream included.",
+        "`-` under a knob: the pipeline's value; under a metric: none (no catch completed, say, so no f_max). Metrics over several run seeds read mean ± sd; a 95% CI is a Wilson interval over the rollouts pooled over the run seeds (rollout noise only: the seed spread is in the sd); `(stale)`: a target this osms cannot read any more, its metrics left out (`osms exp run NAME --force` rebuilds them); wall_secs sums the build time of every instance of the row, shared upstream included.",
     )
 }
 
@@ -509,10 +548,20 @@ fn show(ctx: &Context, args: &ExpShowArgs) -> Result<ExitCode> {
     for e in &exps {
         rows.extend(rows_of(ctx, &store, e, &args.metrics)?);
     }
+    if !ctx.quiet {
+        for r in &rows {
+            for why in &r.unreadable {
+                eprintln!("warning: {}: {why}", r.label());
+            }
+        }
+    }
     if args.json {
         print_json(&serde_json::json!({ "rows": rows }))?;
     } else if args.csv {
-        print!("{}", table(&rows, &args.metrics).wide_csv("experiment"));
+        print!(
+            "{}",
+            table(&rows, &args.metrics, args.ci).wide_csv("experiment")
+        );
     } else if rows.is_empty() {
         if !ctx.quiet {
             eprintln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
@@ -520,7 +569,7 @@ fn show(ctx: &Context, args: &ExpShowArgs) -> Result<ExitCode> {
     } else {
         print!(
             "{}",
-            table(&rows, &args.metrics).markdown_with(Layout::plain("experiment"))
+            table(&rows, &args.metrics, args.ci).markdown_with(Layout::plain("experiment"))
         );
     }
     Ok(ExitCode::SUCCESS)
@@ -696,6 +745,8 @@ mod tests {
                 .collect(),
             wall_secs: 2.0,
             failed: vec![],
+            unreadable: vec![],
+            counts: BTreeMap::new(),
             keys: BTreeSet::new(),
         }
     }
@@ -710,7 +761,7 @@ mod tests {
                 &[("success", &[0.9])],
             ),
         ];
-        let t = table(&rows, &["success".into()]);
+        let t = table(&rows, &["success".into()], false);
         let md = t.markdown_with(Layout::plain("experiment"));
         assert!(
             md.starts_with("| experiment | s.steps | t.lr | success | wall_secs |"),
@@ -724,5 +775,21 @@ mod tests {
             md.contains("| e/1 | 20 | 0.1 | 90.0% (1 seed) | 2.0 |"),
             "{md}"
         );
+    }
+
+    /// `--ci`: the Wilson interval of the pooled counts (Newcombe 1998's example: 81 of 263,
+    /// 25.5–36.6 %), and a stale row is labelled as such.
+    #[test]
+    fn intervals_pool_the_rollouts_and_stale_rows_say_so() {
+        let mut a = row(None, &[], &[("success", &[0.308])]);
+        a.counts.insert("success".into(), (81, 263));
+        let mut b = row(None, &[], &[]);
+        b.experiment = "old".into();
+        b.unreadable.push("dev_student: schema 3".into());
+        let md =
+            table(&[a, b], &["success".into()], true).markdown_with(Layout::plain("experiment"));
+        assert!(md.contains("| success | success 95% CI (n) |"), "{md}");
+        assert!(md.contains("| 25.5–36.6% (263) |"), "{md}");
+        assert!(md.contains("| old (stale) |"), "{md}");
     }
 }
