@@ -411,6 +411,7 @@ mod tests {
                         steps: 0,
                         deployable: Vec::new(),
                         state: Vec::new(),
+                        phase: Vec::new(),
                         actions: Vec::new(),
                     },
                 })

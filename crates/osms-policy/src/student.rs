@@ -84,6 +84,10 @@ pub struct StudentParams {
     /// Decay of an exponential moving average of the weights, updated after every step and
     /// used as the trained network (0: none, the last step's weights).
     pub ema_decay: f32,
+    /// Relative sampling weight of a training step by the phase it ended in (approach,
+    /// velocity matching, contact, follow-through, grasping): oversamples the rare decisive
+    /// steps around contact. All equal: uniform sampling.
+    pub phase_weights: [f32; 5],
 }
 
 impl Default for StudentParams {
@@ -109,6 +113,7 @@ impl Default for StudentParams {
             palm: false,
             oracle_object_velocity: false,
             ema_decay: 0.0,
+            phase_weights: [1.0; 5],
         }
     }
 }
@@ -143,6 +148,17 @@ impl StudentParams {
             return Err(Error::Params(format!(
                 "params.noise_scale must be finite and non-negative, got {}",
                 self.noise_scale
+            )));
+        }
+        if !self
+            .phase_weights
+            .iter()
+            .all(|w| *w >= 0.0 && w.is_finite())
+            || !self.phase_weights.iter().any(|w| *w > 0.0)
+        {
+            return Err(Error::Params(format!(
+                "params.phase_weights must be finite, non-negative and not all 0, got {:?}",
+                self.phase_weights
             )));
         }
         if !(0.0..1.0).contains(&self.ema_decay) {
@@ -203,6 +219,8 @@ pub struct Demo {
     /// velocity, the object's true linear velocity (the record's `palm_pos`, `palm_vel`,
     /// `object_vel`).
     pub state: Vec<f32>,
+    /// The phase each step ended in (`Phase as u8`, the record's).
+    pub phase: Vec<u8>,
     /// 24 per step: the action the demonstrating policy commanded at that step.
     pub actions: Vec<f32>,
 }
@@ -235,6 +253,7 @@ impl Demo {
             steps: record.steps,
             deployable: record.deployable.clone(),
             state,
+            phase: record.phase.clone(),
             actions,
         }
     }
@@ -242,18 +261,22 @@ impl Demo {
     fn check(&self, index: usize) -> Result<()> {
         if self.deployable.len() != self.steps * DEPLOYABLE_LEN
             || self.state.len() != self.steps * DEMO_STATE_LEN
+            || self.phase.len() != self.steps
+            || self.phase.iter().any(|&p| usize::from(p) >= 5)
             || self.actions.len() != self.steps * N_ACTION
         {
             return Err(Error::Demo {
                 index,
                 why: format!(
-                    "a demonstration of {} steps has {} deployable, {} state and {} action values (expected {}, {} and {})",
+                    "a demonstration of {} steps has {} deployable, {} state, {} phase and {} action values (expected {}, {}, {} phases below 5 and {})",
                     self.steps,
                     self.deployable.len(),
                     self.state.len(),
+                    self.phase.len(),
                     self.actions.len(),
                     self.steps * DEPLOYABLE_LEN,
                     self.steps * DEMO_STATE_LEN,
+                    self.steps,
                     self.steps * N_ACTION
                 ),
             });
@@ -349,6 +372,50 @@ struct Validation {
     t: Vec<f32>,
 }
 
+/// Draws training rows with replacement: uniformly, or by the weight of each row's phase.
+enum Sampler {
+    Uniform(u64),
+    /// Cumulative weights, one per row.
+    Weighted(Vec<f64>),
+}
+
+impl Sampler {
+    fn new(p: &StudentParams, samples: &[(usize, usize)], train: &[&Demo]) -> Result<Sampler> {
+        let w = p.phase_weights;
+        if w.iter().all(|&x| x == w[0]) {
+            return Ok(Sampler::Uniform(samples.len() as u64));
+        }
+        let mut total = 0.0;
+        let cumulative: Vec<f64> = samples
+            .iter()
+            .map(|&(r, n)| {
+                total += f64::from(w[usize::from(train[r].phase[n])]);
+                total
+            })
+            .collect();
+        if total <= 0.0 {
+            return Err(Error::Params(format!(
+                "params.phase_weights {w:?}: no training step is in a phase of positive weight"
+            )));
+        }
+        Ok(Sampler::Weighted(cumulative))
+    }
+
+    fn draw(&self, r: &mut StreamRng) -> usize {
+        match self {
+            Sampler::Uniform(n) => rng::below(r, *n) as usize,
+            Sampler::Weighted(cumulative) => {
+                let total = *cumulative.last().expect("rows");
+                let u = rng::uniform01(r) * total;
+                // The first row whose cumulative weight exceeds u (never a weight-0 row).
+                cumulative
+                    .partition_point(|&c| c <= u)
+                    .min(cumulative.len() - 1)
+            }
+        }
+    }
+}
+
 /// At most this many held-out samples score each validation point.
 const VALIDATION_ROWS: usize = 1024;
 
@@ -390,6 +457,7 @@ impl Student {
             .flat_map(|(r, d)| (0..d.steps).map(move |n| (r, n)))
             .collect();
 
+        let sampler = Sampler::new(p, &samples, &train)?;
         let mut obs_norm = RunningNorm::new(p.obs_len(), p.obs_clip);
         let mut row = Vec::with_capacity(p.obs_len());
         let mut block = Vec::new();
@@ -440,7 +508,7 @@ impl Student {
             opt.schedule = Schedule::Constant { lr };
             let mut r = rng::stream(seed, stage, "batch", u64::from(s));
             let picks: Vec<(usize, usize)> = (0..p.batch)
-                .map(|_| samples[rng::below(&mut r, samples.len() as u64) as usize])
+                .map(|_| samples[sampler.draw(&mut r)])
                 .collect();
             let rows: Vec<(&Demo, usize)> = picks.iter().map(|&(d, n)| (train[d], n)).collect();
             let (obs, x1, mask) = student.batch(&rows);
@@ -752,6 +820,7 @@ mod tests {
             state: (0..steps)
                 .flat_map(|n| (0..DEMO_STATE_LEN).map(move |c| (n * 10 + c) as f32))
                 .collect(),
+            phase: (0..steps).map(|n| (n % 5) as u8).collect(),
             actions: (0..steps)
                 .flat_map(|n| (0..N_ACTION).map(move |k| (n * 100 + k) as f32 / 1e4))
                 .collect(),
@@ -813,6 +882,42 @@ mod tests {
                 20.0, 21.0, 22.0, 23.0, 24.0, 25.0, -17.0, -18.0, -19.0, 26.0, 27.0, 28.0
             ]
         );
+    }
+
+    /// Weighted draws follow the phase weights: with phases 0..4 cycling over the steps and
+    /// weights (1, 0, 8, 1, 0), phase 2 takes 80 % of the draws and phases 1 and 4 none.
+    #[test]
+    fn phase_weights_set_how_often_each_phase_is_drawn() {
+        let demos = [numbered(50), numbered(30)];
+        let train: Vec<&Demo> = demos.iter().collect();
+        let samples: Vec<(usize, usize)> = train
+            .iter()
+            .enumerate()
+            .flat_map(|(r, d)| (0..d.steps).map(move |n| (r, n)))
+            .collect();
+        let p = StudentParams {
+            phase_weights: [1.0, 0.0, 8.0, 1.0, 0.0],
+            ..StudentParams::default()
+        };
+        let sampler = Sampler::new(&p, &samples, &train).expect("weights");
+        let mut r = rng::stream(0, "test", "draws", 0);
+        let mut counts = [0usize; 5];
+        let draws = 20_000;
+        for _ in 0..draws {
+            let (d, n) = samples[sampler.draw(&mut r)];
+            counts[usize::from(train[d].phase[n])] += 1;
+        }
+        assert_eq!((counts[1], counts[4]), (0, 0), "{counts:?}");
+        let share = counts[2] as f64 / draws as f64;
+        assert!((share - 0.8).abs() < 0.015, "{counts:?}");
+        let none = StudentParams {
+            phase_weights: [0.0, 1.0, 0.0, 0.0, 0.0],
+            ..StudentParams::default()
+        };
+        let one_phase: Vec<&Demo> = vec![&demos[0]];
+        let zero_phase: Vec<(usize, usize)> =
+            (0..50).filter(|n| n % 5 == 0).map(|n| (0, n)).collect();
+        assert!(Sampler::new(&none, &zero_phase, &one_phase).is_err());
     }
 
     #[test]
@@ -877,6 +982,7 @@ mod tests {
                     steps,
                     deployable,
                     state: vec![0.0; steps * DEMO_STATE_LEN],
+                    phase: vec![0; steps],
                     actions,
                 }
             })
