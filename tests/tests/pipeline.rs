@@ -887,6 +887,7 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     // actions): only the observation is compared, so the untrained shapes do not matter.
     let mut variant = student.clone();
     variant.params.palm = true;
+    variant.params.object_differences = true;
     variant.params.oracle_object_velocity = true;
     variant.params.previous_actions = false;
     let mut views = Vec::new();

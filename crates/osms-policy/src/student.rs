@@ -8,7 +8,8 @@
 //!   the action). Before `history` frames exist, the oldest one is repeated, as the rollout's
 //!   history holds it. Optional features of the current step follow the frames: the palm's
 //!   position and velocity and the observed object's offset from the palm (`palm`: forward
-//!   kinematics of the measured joint state, so deployable), and the object's true velocity
+//!   kinematics of the measured joint state, so deployable), the observed object position's
+//!   frame-to-frame differences (`object_differences`: deployable), and the object's true velocity
 //!   (`oracle_object_velocity`: privileged, a diagnostic of whether information is what the
 //!   student lacks, never a deployable student).
 //! - **Action chunk**: the labels of steps n … n + chunk − 1, all 24 channels. A chunk that
@@ -78,6 +79,11 @@ pub struct StudentParams {
     /// relative to the palm at the current step (9 values; deployable: forward kinematics of the
     /// robot's own joint state).
     pub palm: bool,
+    /// Append the observed object position's differences between consecutive frames of the
+    /// history ((`history` − 1) × 3 values, oldest first): its velocity by finite differences,
+    /// deployable, on a scale standardisation can see (the positions themselves vary over
+    /// metres, their step-to-step changes by centimetres).
+    pub object_differences: bool,
     /// Append the object's true linear velocity at the current step (3 values). Privileged:
     /// for the diagnosis only (does the student lack information?), never a final student.
     pub oracle_object_velocity: bool,
@@ -111,6 +117,7 @@ impl Default for StudentParams {
             obs_clip: 5.0,
             previous_actions: true,
             palm: false,
+            object_differences: false,
             oracle_object_velocity: false,
             ema_decay: 0.0,
             phase_weights: [1.0; 5],
@@ -193,7 +200,9 @@ impl StudentParams {
 
     /// Width of the current step's features after the frames.
     pub fn features_len(&self) -> usize {
-        9 * usize::from(self.palm) + 3 * usize::from(self.oracle_object_velocity)
+        9 * usize::from(self.palm)
+            + 3 * (self.history - 1) * usize::from(self.object_differences)
+            + 3 * usize::from(self.oracle_object_velocity)
     }
 
     /// Width of an action chunk.
@@ -288,13 +297,23 @@ impl Demo {
     /// then step n's features.
     pub fn observation(&self, n: usize, p: &StudentParams, out: &mut Vec<f32>) {
         let width = p.frame_len();
+        let start = out.len();
         for h in 0..p.history {
             let k = (n + h + 1).saturating_sub(p.history);
             out.extend_from_slice(&self.deployable[k * DEPLOYABLE_LEN..k * DEPLOYABLE_LEN + width]);
         }
         let state = &self.state[n * DEMO_STATE_LEN..(n + 1) * DEMO_STATE_LEN];
         let object = &self.deployable[n * DEPLOYABLE_LEN + OBSERVED_OBJECT..][..3];
-        push_features(p, &state[0..3], &state[3..6], object, &state[6..9], out);
+        let frames = out[start..].to_vec();
+        push_features(
+            p,
+            &frames,
+            &state[0..3],
+            &state[3..6],
+            object,
+            &state[6..9],
+            out,
+        );
     }
 
     /// The label chunk at step n and its mask: steps past the end repeat the last action with
@@ -672,12 +691,15 @@ impl Student {
             let k = (frames.len() + i).saturating_sub(h);
             out.extend(frames[k][..p.frame_len()].iter().map(|&v| v as f32));
         }
+        let history = out.clone();
         let f32s = |v: &[f64]| -> [f32; 3] { std::array::from_fn(|c| v[c] as f32) };
         let palm_pos = f32s(&view.privileged[PRIVILEGED_PALM..]);
         let palm_vel = f32s(&view.privileged[PRIVILEGED_PALM + 6..]);
         let object = f32s(&view.deployable[OBSERVED_OBJECT..]);
         let velocity = f32s(&view.data.qvel()[view.world.ids.object_dof..]);
-        push_features(p, &palm_pos, &palm_vel, &object, &velocity, &mut out);
+        push_features(
+            p, &history, &palm_pos, &palm_vel, &object, &velocity, &mut out,
+        );
         out
     }
 }
@@ -685,6 +707,7 @@ impl Student {
 /// The current step's features (see the module's doc), in the order training and acting share.
 fn push_features(
     p: &StudentParams,
+    frames: &[f32],
     palm_pos: &[f32],
     palm_vel: &[f32],
     object: &[f32],
@@ -695,6 +718,13 @@ fn push_features(
         out.extend_from_slice(&palm_pos[..3]);
         out.extend_from_slice(&palm_vel[..3]);
         out.extend((0..3).map(|c| object[c] - palm_pos[c]));
+    }
+    if p.object_differences {
+        let w = p.frame_len();
+        for h in 1..p.history {
+            let (old, new) = (&frames[(h - 1) * w..], &frames[h * w..]);
+            out.extend((0..3).map(|c| new[OBSERVED_OBJECT + c] - old[OBSERVED_OBJECT + c]));
+        }
     }
     if p.oracle_object_velocity {
         out.extend_from_slice(&object_vel[..3]);
@@ -863,6 +893,7 @@ mod tests {
             history: 2,
             previous_actions: false,
             palm: true,
+            object_differences: true,
             oracle_object_velocity: true,
             ..StudentParams::default()
         };
@@ -871,15 +902,16 @@ mod tests {
         assert_eq!(out.len(), p.obs_len());
         assert_eq!(p.frame_len(), DEPLOYABLE_LEN - N_ACTION);
         // Frames 1 and 2 without their previous actions, then step 2's features: palm
-        // position (20, 21, 22), velocity (23, 24, 25), object − palm (3 − 20, ...) and the
-        // object's velocity (26, 27, 28).
+        // position (20, 21, 22), velocity (23, 24, 25), object − palm (3 − 20, ...), the
+        // object's change from frame 1 to 2 (1, 1, 1) and its velocity (26, 27, 28).
         let frames = 2 * p.frame_len();
         assert!(out[..p.frame_len()].iter().all(|&v| v == 2.0));
         assert!(out[p.frame_len()..frames].iter().all(|&v| v == 3.0));
         assert_eq!(
             out[frames..],
             [
-                20.0, 21.0, 22.0, 23.0, 24.0, 25.0, -17.0, -18.0, -19.0, 26.0, 27.0, 28.0
+                20.0, 21.0, 22.0, 23.0, 24.0, 25.0, -17.0, -18.0, -19.0, 1.0, 1.0, 1.0, 26.0, 27.0,
+                28.0
             ]
         );
     }
