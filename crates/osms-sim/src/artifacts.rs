@@ -268,6 +268,8 @@ impl Summarize for Evaluation {
             "completion_rate": all.as_ref().map(|l| l.completion_rate),
             "f_max_n": all.as_ref().and_then(|l| l.max_force_n),
             "follow_through_m": all.as_ref().and_then(|l| l.follow_through_m),
+            // Rollouts failing each way (`osms exp show --metrics failures.drop`).
+            "failures": all.as_ref().map(|l| &l.failures),
         })
     }
 

@@ -467,6 +467,7 @@ fn unit_of(metric: &str) -> Unit {
         m if m.ends_with("_rate") => Unit::Percent,
         m if m.ends_with("_secs") => Unit::Number(2),
         "f_max" => Unit::Number(1),
+        m if m.starts_with("failures.") => Unit::Number(0),
         _ => Unit::Number(3),
     }
 }
