@@ -306,10 +306,9 @@ impl Demo {
         }
         let state = &self.state[n * DEMO_STATE_LEN..(n + 1) * DEMO_STATE_LEN];
         let object = &self.deployable[n * DEPLOYABLE_LEN + OBSERVED_OBJECT..][..3];
-        let frames = out[start..].to_vec();
         push_features(
             p,
-            &frames,
+            start,
             &state[0..3],
             &state[3..6],
             object,
@@ -693,23 +692,21 @@ impl Student {
             let k = (frames.len() + i).saturating_sub(h);
             out.extend(frames[k][..p.frame_len()].iter().map(|&v| v as f32));
         }
-        let history = out.clone();
         let f32s = |v: &[f64]| -> [f32; 3] { std::array::from_fn(|c| v[c] as f32) };
         let palm_pos = f32s(&view.privileged[PRIVILEGED_PALM..]);
         let palm_vel = f32s(&view.privileged[PRIVILEGED_PALM + 6..]);
         let object = f32s(&view.deployable[OBSERVED_OBJECT..]);
         let velocity = f32s(&view.data.qvel()[view.world.ids.object_dof..]);
-        push_features(
-            p, &history, &palm_pos, &palm_vel, &object, &velocity, &mut out,
-        );
+        push_features(p, 0, &palm_pos, &palm_vel, &object, &velocity, &mut out);
         out
     }
 }
 
 /// The current step's features (see the module's doc), in the order training and acting share.
+/// The history's frames are already in `out`, from index `frames`.
 fn push_features(
     p: &StudentParams,
-    frames: &[f32],
+    frames: usize,
     palm_pos: &[f32],
     palm_vel: &[f32],
     object: &[f32],
@@ -724,8 +721,9 @@ fn push_features(
     if p.object_differences {
         let w = p.frame_len();
         for h in 1..p.history {
-            let (old, new) = (&frames[(h - 1) * w..], &frames[h * w..]);
-            out.extend((0..3).map(|c| new[OBSERVED_OBJECT + c] - old[OBSERVED_OBJECT + c]));
+            let at = |k: usize, c: usize| out[frames + k * w + OBSERVED_OBJECT + c];
+            let change: [f32; 3] = std::array::from_fn(|c| at(h, c) - at(h - 1, c));
+            out.extend(change);
         }
     }
     if p.oracle_object_velocity {

@@ -520,7 +520,8 @@ fn table(rows: &[Row], metrics: &[String], ci: bool) -> Table {
             if interval(m) {
                 cells.push(Cell::text(match r.counts.get(*m) {
                     Some(&(x, n)) if n > 0 => {
-                        let (lo, hi) = osms_core::stats::wilson(x as usize, n as usize, 1.959964);
+                        let z = osms_core::stats::normal_quantile(0.975);
+                        let (lo, hi) = osms_core::stats::wilson(x as usize, n as usize, z);
                         format!("{:.1}–{:.1}% ({n})", 100.0 * lo, 100.0 * hi)
                     }
                     _ => "-".into(),
