@@ -844,6 +844,31 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     let other = rollout(&world, &spec, &sampling, condition.clone(), dr(), policy(1));
     assert_eq!(first, again, "same streams, same record");
     assert_ne!(first.intended, other.intended, "the policy's noise matters");
+    // Episodes stepped in lockstep, the policy acting on all of them at once, are the episodes
+    // run one by one: conditions of D_E, episodes of different lengths, noise that matters.
+    let items: Vec<_> = d_e
+        .rollouts()
+        .take(6)
+        .enumerate()
+        .map(|(i, r)| {
+            let dr = osms_core::rng::stream(0, "test", "dr", i as u64);
+            (r.record.condition.clone(), dr, policy(i as u64))
+        })
+        .collect();
+    let alone: Vec<_> = items
+        .iter()
+        .map(|(c, dr, p)| rollout(&world, &spec, &sampling, c.clone(), dr.clone(), p.clone()))
+        .collect();
+    let lengths: std::collections::BTreeSet<usize> = alone.iter().map(|r| r.steps).collect();
+    assert!(
+        lengths.len() > 1,
+        "episodes of one length only: {lengths:?}"
+    );
+    assert_eq!(
+        osms_policy::student::rollouts(&world, &spec, &sampling, items),
+        alone,
+        "lockstep = one by one"
+    );
     // Querying the teacher does not change what the student does.
     let paired = paired_rollout(
         &world,

@@ -22,6 +22,8 @@ use osms_policy::{Agent, PpoConfig, Task};
 use osms_sim::{World, WorldSpec};
 
 const EPISODES: u64 = 16;
+/// Episodes of the lockstep comparison (a multiple of every batch length it tries).
+const BATCH_EPISODES: usize = 32;
 /// Alternating rounds of the training-step comparison.
 const ROUNDS: usize = 4;
 
@@ -87,7 +89,7 @@ fn main() {
         ..StudentParams::default()
     };
     let student = Student::train(&demos, &params, (0, "bench"), &|| {}).expect("student");
-    let (t_step, t_act, teacher_rate, student_rate, figures) = pool.install(|| {
+    let (t_step, t_act, teacher_rate, student_rate, lockstep, figures) = pool.install(|| {
         let mut net = student.net.clone();
         let mut opt = Adam::new(AdamConfig::default(), Schedule::Constant { lr: 1e-4 });
         let (b, x_len, c_len) = (256, params.chunk_len(), params.obs_len());
@@ -154,7 +156,47 @@ fn main() {
                 })
                 .sum()
         });
-        (t_step, t_act, teacher_rate, student_rate, figures)
+        // The evaluation stages' pattern: episodes stepped in lockstep, the flow network acting
+        // on all running ones at once, in batches of `len` episodes (1 = one by one, through
+        // the same lockstep code).
+        let lockstep: Vec<(usize, f64, Duration)> = [1, 4, 8, 16, 32]
+            .into_iter()
+            .map(|len| {
+                let items = |i: u64| {
+                    (
+                        task.condition(i).expect("ω"),
+                        dr(i),
+                        rng::stream(0, "bench", "policy", i),
+                    )
+                };
+                let rate = rate(&|| {
+                    (0..BATCH_EPISODES as u64)
+                        .collect::<Vec<_>>()
+                        .chunks(len)
+                        .map(|c| {
+                            student::rollouts(
+                                &world,
+                                &sspec,
+                                &student,
+                                c.iter().map(|&i| items(i)).collect(),
+                            )
+                            .iter()
+                            .map(|r| r.steps)
+                            .sum::<usize>()
+                        })
+                        .sum()
+                });
+                let rows: Vec<Vec<f32>> = (0..len).map(|_| normals(&mut r, c_len)).collect();
+                let mut streams: Vec<_> = (0..len as u64)
+                    .map(|i| rng::stream(0, "bench", "noise", i))
+                    .collect();
+                let t = best(50, || {
+                    std::hint::black_box(student.act_batch(&rows, streams.iter_mut()));
+                });
+                (len, rate, t / len as u32)
+            })
+            .collect();
+        (t_step, t_act, teacher_rate, student_rate, lockstep, figures)
     });
 
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
@@ -174,6 +216,17 @@ fn main() {
         "  rollouts, {EPISODES} episodes: teacher {teacher_rate:6.0} env steps/s, student {student_rate:6.0} env steps/s, ratio student/teacher {:.3}",
         student_rate / teacher_rate
     );
+    let one = lockstep[0].1;
+    println!(
+        "  lockstep rollouts, {BATCH_EPISODES} episodes (the evaluations' pattern; ratio = env steps/s over batch length 1, the per-episode action time at that batch length):"
+    );
+    for (len, rate, t) in &lockstep {
+        println!(
+            "    batch {len:>2}: {rate:6.0} env steps/s   ratio {:.2}   action {:7.1} us per episode",
+            rate / one,
+            t.as_secs_f64() * 1e6
+        );
+    }
     match figures {
         Err(why) => println!("PyTorch: {why}"),
         Ok(rounds) => {

@@ -41,6 +41,10 @@ pub struct RewardSpec {
     /// Follow-through: per metre of new palm progress along the incoming direction (up to δ_ℓ)
     /// within Δt_eval, in units of δ_ℓ; the sum reaches this weight at δ_ℓ.
     pub follow_through: f32,
+    /// How far, in units of δ_ℓ, follow-through progress keeps earning at the same rate. At 1
+    /// a policy is paid for exactly the criterion and learns to stop at it, so a DR draw that
+    /// shortens its travel by a few centimetres fails ℓ_max; above 1 it is paid for a margin.
+    pub follow_through_reach: f32,
 }
 
 impl Default for RewardSpec {
@@ -51,6 +55,7 @@ impl Default for RewardSpec {
             velocity_matching: 1.0,
             impact_force: 2.0,
             follow_through: 5.0,
+            follow_through_reach: 1.0,
         }
     }
 }
@@ -485,7 +490,9 @@ impl CatchEpisode<'_> {
             reward -= f64::from(w.impact_force) * excess * dt;
             // ℓ_max as the success criterion measures it: along the pre-contact incoming
             // direction, from the palm at t_c, within Δt_eval.
-            let progress = episode.follow_through_m().min(success.min_follow_through_m);
+            let progress = episode
+                .follow_through_m()
+                .min(f64::from(w.follow_through_reach) * success.min_follow_through_m);
             if progress > self.rewarded_follow_through {
                 reward += f64::from(w.follow_through) * (progress - self.rewarded_follow_through)
                     / success.min_follow_through_m;

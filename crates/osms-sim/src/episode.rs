@@ -520,13 +520,23 @@ impl<'w> Episode<'w> {
 
     /// Runs one control step. Returns false once the episode is over.
     pub fn step(&mut self, policy: &mut dyn Policy, hooks: &mut dyn Hooks) -> bool {
-        if self.is_done() {
+        let Some(observed) = self.observe_step(policy.reads_contact_force()) else {
             return false;
+        };
+        let intended = policy.act(&self.view(&observed));
+        self.act_step(observed, intended, hooks)
+    }
+
+    /// The first half of [`Episode::step`]: observes the state the next action is chosen in
+    /// and pushes it onto the history; `None` once the episode is over. [`Episode::view`] shows
+    /// it to a policy and [`Episode::act_step`] runs the chosen action. Split so many episodes
+    /// can step in lockstep and their policy act on all of them at once; a step split this way
+    /// is the same step, bit for bit.
+    pub fn observe_step(&mut self, reads_contact_force: bool) -> Option<Observed> {
+        if self.is_done() {
+            return None;
         }
-        let frame = self.observe(
-            true,
-            self.spec.record_privileged || policy.reads_contact_force(),
-        );
+        let frame = self.observe(true, self.spec.record_privileged || reads_contact_force);
         // The evicted frame's buffer carries the new one: no allocation once the history is full.
         let mut kept = None;
         while self.controller.history.len() >= self.spec.history_steps.max(1) {
@@ -535,7 +545,13 @@ impl<'w> Episode<'w> {
         let mut slot = kept.unwrap_or_default();
         slot.clone_from(&frame.deployable);
         self.controller.history.push_back(slot);
-        let view = PolicyView {
+        Some(Observed(frame))
+    }
+
+    /// What a policy sees of the step `observed` began.
+    pub fn view<'a>(&'a self, observed: &'a Observed) -> PolicyView<'a> {
+        let frame = &observed.0;
+        PolicyView {
             step: self.step,
             time_secs: self.data.time(),
             deployable: &frame.deployable,
@@ -547,8 +563,18 @@ impl<'w> Episode<'w> {
             first_contact: self.evaluator.first_contact(),
             palm_jacobian: frame.palm_jacobian,
             data: &self.data,
-        };
-        let mut intended = policy.act(&view);
+        }
+    }
+
+    /// The second half of [`Episode::step`]: runs the policy's `intended` action on the step
+    /// `observed` began. Returns false once the episode is over.
+    pub fn act_step(
+        &mut self,
+        observed: Observed,
+        mut intended: Action,
+        hooks: &mut dyn Hooks,
+    ) -> bool {
+        let frame = observed.0;
         hooks.override_arm(self.step, &mut intended);
         let mut executed = intended;
         hooks.perturb(self.step, &mut executed);
@@ -861,6 +887,9 @@ fn jacobian_times(jacp: &[f64], qvel: &[f64]) -> [f64; 3] {
 }
 
 /// One control step's observation and the state recorded with it.
+/// A control step observed by [`Episode::observe_step`] and waiting for its action.
+pub struct Observed(Frame);
+
 struct Frame {
     deployable: Vec<f64>,
     privileged: Vec<f64>,

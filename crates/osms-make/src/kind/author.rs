@@ -242,6 +242,29 @@ pub trait ItemStage: Send + Sync + 'static {
         items: Vec<Self::Item>,
     ) -> Result<Self::Output, StageError>;
 
+    /// How many consecutive items one [`ItemStage::run_batch`] call computes (1: one by one).
+    fn batch_len(&self, _prepared: &Self::Prepared) -> usize {
+        1
+    }
+
+    /// Items `first .. first + rngs.len()`, item `first + k` drawing from `rngs[k]` (its
+    /// `("item", i)` stream). A kind that batches (e.g. many episodes stepped in lockstep so a
+    /// network acts on all of them at once) must return exactly what [`ItemStage::run_item`]
+    /// would for each, so the output does not depend on the batch length; this default is
+    /// `run_item` on each.
+    fn run_batch(
+        &self,
+        ctx: &Ctx<'_, Self::Params>,
+        prepared: &Self::Prepared,
+        first: usize,
+        rngs: Vec<StreamRng>,
+    ) -> Result<Vec<Self::Item>, StageError> {
+        rngs.into_iter()
+            .enumerate()
+            .map(|(k, mut rng)| self.run_item(ctx, prepared, first + k, &mut rng))
+            .collect()
+    }
+
     /// As [`Stage::draws_randomness`].
     fn draws_randomness(_params: &Self::Params) -> bool {
         Self::USES_RNG

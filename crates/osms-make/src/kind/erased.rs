@@ -358,22 +358,33 @@ impl<S: ItemStage> Itemised<S> {
         range: &Range<usize>,
     ) -> Result<(Vec<Hash>, Vec<S::Item>), StageError> {
         let started = Instant::now();
-        let computed = range
+        let item_rng = |i: usize| match env.seed {
+            Some(seed) => rng::stream(seed, env.stage, "item", i as u64),
+            // Kinds without randomness still get a generator so the signature stays uniform. It
+            // must not depend on the stage name, which such kinds' keys leave out.
+            None => rng::stream(0, "", "item", i as u64),
+        };
+        let batch = self.0.batch_len(prepared).max(1);
+        let batches = range
             .clone()
+            .step_by(batch)
+            .collect::<Vec<_>>()
             .into_par_iter()
-            .map(|i| {
-                let mut rng = match env.seed {
-                    Some(seed) => rng::stream(seed, env.stage, "item", i as u64),
-                    // Kinds without randomness still get a generator so the signature stays
-                    // uniform. It must not depend on the stage name, which such kinds' keys
-                    // leave out.
-                    None => rng::stream(0, "", "item", i as u64),
-                };
-                let item = self.0.run_item(ctx, prepared, i, &mut rng);
-                env.progress.inc(1);
-                item
+            .map(|first| {
+                let end = (first + batch).min(range.end);
+                let rngs = (first..end).map(item_rng).collect();
+                let items = self.0.run_batch(ctx, prepared, first, rngs)?;
+                if items.len() != end - first {
+                    return Err(StageError::from(format!(
+                        "items {first}..{end} came back as {} items",
+                        items.len()
+                    )));
+                }
+                env.progress.inc(items.len() as u64);
+                Ok(items)
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<Vec<_>, StageError>>()?;
+        let computed: Vec<S::Item> = batches.into_iter().flatten().collect();
         let mut shard_hashes = Vec::with_capacity(computed.len());
         let mut shard_items = Vec::with_capacity(computed.len());
         for item in computed {

@@ -7,7 +7,7 @@ use osms_sim::{RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::StudentArtifact;
-use crate::student::{Student, rollout};
+use crate::student::{ROLLOUT_BATCH, Student};
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -55,18 +55,30 @@ impl ItemStage for EvalStudentStage {
     fn run_item(
         &self,
         ctx: &Ctx<'_, EvalStudentParams>,
-        (world, conditions, student, spec): &Self::Prepared,
+        prepared: &Self::Prepared,
         index: usize,
         rng: &mut StreamRng,
     ) -> Result<EvalRow, StageError> {
-        Ok(EvalRow::of(rollout(
-            world,
-            spec,
-            student,
-            conditions.items[index].clone(),
-            rng.clone(),
-            ctx.rng("policy", index as u64),
-        )))
+        let mut rows = self.run_batch(ctx, prepared, index, vec![rng.clone()])?;
+        Ok(rows.remove(0))
+    }
+    fn batch_len(&self, _: &Self::Prepared) -> usize {
+        ROLLOUT_BATCH
+    }
+    fn run_batch(
+        &self,
+        ctx: &Ctx<'_, EvalStudentParams>,
+        (world, conditions, student, spec): &Self::Prepared,
+        first: usize,
+        rngs: Vec<StreamRng>,
+    ) -> Result<Vec<EvalRow>, StageError> {
+        Ok(super::student_rows(
+            ctx,
+            (world, conditions),
+            (student, spec),
+            first,
+            rngs,
+        ))
     }
     fn merge(
         &self,

@@ -9,7 +9,7 @@ use osms_sim::{Episode, NoHooks, RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{StudentArtifact, Teacher};
-use crate::student::Student;
+use crate::student::{ROLLOUT_BATCH, Student};
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -87,10 +87,11 @@ impl ItemStage for EvaluateStage {
     fn run_item(
         &self,
         ctx: &Ctx<'_, EvaluateParams>,
-        (world, conditions, policy): &Self::Prepared,
+        prepared: &Self::Prepared,
         index: usize,
         rng: &mut StreamRng,
     ) -> Result<EvalRow, StageError> {
+        let (world, conditions, policy) = prepared;
         let condition = conditions.items[index].clone();
         let record = match policy {
             Evaluated::Scripted => {
@@ -103,16 +104,42 @@ impl ItemStage for EvaluateStage {
             Evaluated::Teacher(t) => {
                 crate::catch::rollout(world, &t.task, &t.agent, condition, rng.clone())
             }
-            Evaluated::Student(student, spec) => crate::student::rollout(
-                world,
-                spec,
-                student,
-                condition,
-                rng.clone(),
-                ctx.rng("policy", index as u64),
-            ),
+            Evaluated::Student(..) => {
+                let mut rows = self.run_batch(ctx, prepared, index, vec![rng.clone()])?;
+                return Ok(rows.remove(0));
+            }
         };
         Ok(EvalRow::of(record))
+    }
+    fn batch_len(&self, (_, _, policy): &Self::Prepared) -> usize {
+        match policy {
+            Evaluated::Student(..) => ROLLOUT_BATCH,
+            _ => 1,
+        }
+    }
+    /// A student's rollouts step in lockstep ([`rollouts`]); the other policies one by one.
+    fn run_batch(
+        &self,
+        ctx: &Ctx<'_, EvaluateParams>,
+        prepared: &Self::Prepared,
+        first: usize,
+        rngs: Vec<StreamRng>,
+    ) -> Result<Vec<EvalRow>, StageError> {
+        let (world, conditions, policy) = prepared;
+        let Evaluated::Student(student, spec) = policy else {
+            return rngs
+                .into_iter()
+                .enumerate()
+                .map(|(k, mut rng)| self.run_item(ctx, prepared, first + k, &mut rng))
+                .collect();
+        };
+        Ok(super::student_rows(
+            ctx,
+            (world, conditions),
+            (student, spec),
+            first,
+            rngs,
+        ))
     }
     fn merge(
         &self,

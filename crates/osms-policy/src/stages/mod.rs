@@ -22,7 +22,12 @@ pub use student::StudentStage;
 pub use teacher::{TeacherParams, TeacherStage};
 pub use teacher_table::TeacherTableStage;
 
-use osms_make::{Fold, Numerics};
+use osms_core::rng::StreamRng;
+use osms_make::{Ctx, Fold, Numerics};
+use osms_sim::artifacts::{Conditions, EvalRow};
+use osms_sim::{RolloutSpec, World};
+
+use crate::student::{Student, rollouts};
 
 /// What a kind that rolls out or trains networks depends on beyond its inputs: MuJoCo,
 /// osms-sim's and osms-nn's numerics.
@@ -33,6 +38,30 @@ pub fn numerics() -> Vec<Numerics> {
         version: osms_nn::NUMERICS_VERSION.to_string(),
     });
     n
+}
+
+/// A student's evaluation rows for items `first ..`: rollout i on condition i, its domain
+/// randomisation from `dr[i - first]` (its ("item", i) stream), its noise from ("policy", i),
+/// all stepped in lockstep ([`rollouts`]).
+pub(crate) fn student_rows<P>(
+    ctx: &Ctx<'_, P>,
+    (world, conditions): (&World, &Conditions),
+    (student, spec): (&Student, &RolloutSpec),
+    first: usize,
+    dr: Vec<StreamRng>,
+) -> Vec<EvalRow> {
+    let items = dr
+        .into_iter()
+        .enumerate()
+        .map(|(k, dr)| {
+            let i = first + k;
+            (conditions.items[i].clone(), dr, ctx.rng("policy", i as u64))
+        })
+        .collect();
+    rollouts(world, spec, student, items)
+        .into_iter()
+        .map(EvalRow::of)
+        .collect()
 }
 
 /// Whether D_E item `item` belongs to fold `fold` (the conditions held out from π̄_fold).
