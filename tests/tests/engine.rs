@@ -531,3 +531,120 @@ fn sharding_a_plain_kind_or_fixing_the_seed_of_a_deterministic_one_is_refused() 
     ));
     assert!(err.contains("draws no random numbers"), "{err}");
 }
+
+/// `numbers`, same kind and version, computing items in batches of `BATCH` (each batch in
+/// reverse order, to show the order inside a batch does not matter), optionally returning one
+/// item too few.
+struct NumbersBatched {
+    short: bool,
+}
+const BATCH: usize = 4;
+impl ItemStage for NumbersBatched {
+    const KIND: &'static str = "numbers";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [osms_make::Slot] = &[];
+    const DOC: &'static str = "numbers, in batches";
+    type Params = NumbersParams;
+    type Prepared = ();
+    type Item = Vec<f64>;
+    type Output = osms_tests::artifacts::Numbers;
+    fn prepare(
+        &self,
+        ctx: &osms_make::Ctx<'_, NumbersParams>,
+    ) -> Result<(), osms_make::StageError> {
+        NumbersKind.prepare(ctx)
+    }
+    fn n_items(&self, ctx: &osms_make::Ctx<'_, NumbersParams>, p: &()) -> usize {
+        NumbersKind.n_items(ctx, p)
+    }
+    fn run_item(
+        &self,
+        _: &osms_make::Ctx<'_, NumbersParams>,
+        _: &(),
+        _: usize,
+        _: &mut osms_core::rng::StreamRng,
+    ) -> Result<Vec<f64>, osms_make::StageError> {
+        Err("a batched kind's items come from run_batch".into())
+    }
+    fn batch_len(&self, _: &()) -> usize {
+        BATCH
+    }
+    fn run_batch(
+        &self,
+        ctx: &osms_make::Ctx<'_, NumbersParams>,
+        p: &(),
+        first: usize,
+        rngs: Vec<osms_core::rng::StreamRng>,
+    ) -> Result<Vec<Vec<f64>>, osms_make::StageError> {
+        assert!(rngs.len() <= BATCH);
+        let mut items = rngs
+            .into_iter()
+            .enumerate()
+            .rev()
+            .map(|(k, mut rng)| NumbersKind.run_item(ctx, p, first + k, &mut rng))
+            .collect::<Result<Vec<_>, _>>()?;
+        items.reverse();
+        if self.short {
+            items.pop();
+        }
+        Ok(items)
+    }
+    fn merge(
+        &self,
+        ctx: &osms_make::Ctx<'_, NumbersParams>,
+        p: (),
+        items: Vec<Vec<f64>>,
+    ) -> Result<osms_tests::artifacts::Numbers, osms_make::StageError> {
+        NumbersKind.merge(ctx, p, items)
+    }
+}
+
+fn registry_with_batched(short: bool) -> Registry {
+    let mut r = Registry::new();
+    r.register_itemised(NumbersBatched { short })
+        .register_itemised(osms_tests::stages::DropKind)
+        .register(osms_tests::stages::SignsKind)
+        .register(osms_tests::stages::ShiftKind)
+        .register(osms_tests::stages::OffsetKind)
+        .register(osms_tests::stages::SumKind)
+        .register(osms_tests::stages::CombineKind)
+        .register_itemised(osms_tests::stages::PanicKind)
+        .register(osms_tests::stages::FoldRowsKind)
+        .register(osms_tests::stages::GatherKind)
+        .register(osms_tests::stages::SumOfAKind);
+    assert_eq!(r.names(), registry().names());
+    r
+}
+
+#[test]
+fn batched_items_are_the_items_one_by_one() {
+    let reference = hashes(&Project::engine().make(Some("tiny"), &[0], 1));
+    // 6 items: one full batch and a ragged one; shards cut batches shorter still.
+    for (shards, jobs) in [(1, 1), (1, 2), (5, 2)] {
+        let mut p = Project::new(&with_shards(shards, 2));
+        p.registry = registry_with_batched(false);
+        assert_eq!(
+            hashes(&p.make(Some("tiny"), &[0], jobs)),
+            reference,
+            "{shards} shards, {jobs} threads"
+        );
+    }
+    // A batch that comes back short fails its stage with its item range (whichever batch
+    // a thread met first), and nothing else.
+    let mut p = Project::new(&with_shards(1, 2));
+    p.registry = registry_with_batched(true);
+    let report = p.make(Some("tiny"), &[0], 2);
+    assert_eq!(outcomes(&report)["numbers@0"], "failed");
+    let err = report.instances.iter().find_map(|r| match &r.outcome {
+        osms_make::Outcome::Failed { error } => Some(error.clone()),
+        _ => None,
+    });
+    assert!(
+        err.as_deref().is_some_and(|e| {
+            e.contains("items 0..4 came back as 3 items")
+                || e.contains("items 4..6 came back as 1 items")
+        }),
+        "{err:?}"
+    );
+}
