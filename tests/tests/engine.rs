@@ -271,21 +271,7 @@ fn status_names_why_each_stage_would_run() {
 
     p.write_pipeline(ENGINE_PIPELINE);
     // The test registry with `numbers` at version 2.
-    let mut bumped = Registry::new();
-    bumped
-        .register_itemised(NumbersV2)
-        .register_itemised(osms_tests::stages::DropKind)
-        .register(osms_tests::stages::SignsKind)
-        .register(osms_tests::stages::ShiftKind)
-        .register(osms_tests::stages::OffsetKind)
-        .register(osms_tests::stages::SumKind)
-        .register(osms_tests::stages::CombineKind)
-        .register_itemised(osms_tests::stages::PanicKind)
-        .register(osms_tests::stages::FoldRowsKind)
-        .register(osms_tests::stages::GatherKind)
-        .register(osms_tests::stages::SumOfAKind);
-    assert_eq!(bumped.names(), registry().names());
-    p.registry = bumped;
+    p.registry = registry_with(NumbersV2);
     let after_bump = status(&p);
     let numbers = after_bump
         .iter()
@@ -600,9 +586,10 @@ impl ItemStage for NumbersBatched {
     }
 }
 
-fn registry_with_batched(short: bool) -> Registry {
+/// The test registry with its `numbers` kind replaced by `numbers`.
+fn registry_with(numbers: impl ItemStage) -> Registry {
     let mut r = Registry::new();
-    r.register_itemised(NumbersBatched { short })
+    r.register_itemised(numbers)
         .register_itemised(osms_tests::stages::DropKind)
         .register(osms_tests::stages::SignsKind)
         .register(osms_tests::stages::ShiftKind)
@@ -623,7 +610,7 @@ fn batched_items_are_the_items_one_by_one() {
     // 6 items: one full batch and a ragged one; shards cut batches shorter still.
     for (shards, jobs) in [(1, 1), (1, 2), (5, 2)] {
         let mut p = Project::new(&with_shards(shards, 2));
-        p.registry = registry_with_batched(false);
+        p.registry = registry_with(NumbersBatched { short: false });
         assert_eq!(
             hashes(&p.make(Some("tiny"), &[0], jobs)),
             reference,
@@ -633,7 +620,7 @@ fn batched_items_are_the_items_one_by_one() {
     // A batch that comes back short fails its stage with its item range (whichever batch
     // a thread met first), and nothing else.
     let mut p = Project::new(&with_shards(1, 2));
-    p.registry = registry_with_batched(true);
+    p.registry = registry_with(NumbersBatched { short: true });
     let report = p.make(Some("tiny"), &[0], 2);
     assert_eq!(outcomes(&report)["numbers@0"], "failed");
     let err = report.instances.iter().find_map(|r| match &r.outcome {
