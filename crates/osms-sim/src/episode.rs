@@ -886,10 +886,11 @@ fn jacobian_times(jacp: &[f64], qvel: &[f64]) -> [f64; 3] {
     std::array::from_fn(|r| (0..nv).map(|c| jacp[r * nv + c] * qvel[c]).sum())
 }
 
-/// One control step's observation and the state recorded with it.
-/// A control step observed by [`Episode::observe_step`] and waiting for its action.
+/// A control step observed by [`Episode::observe_step`] and waiting for its action, on the
+/// episode that observed it.
 pub struct Observed(Frame);
 
+/// One control step's observation and the state recorded with it.
 struct Frame {
     deployable: Vec<f64>,
     privileged: Vec<f64>,
