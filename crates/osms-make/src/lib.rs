@@ -25,7 +25,7 @@ pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
     Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest, Member, NoProgress, Numerics,
     Objects, ParamError, ParsedParams, Progress, Registry, RunOutput, Scale, ShardRun, Sharded,
-    Slot, Stage, StageError, Summarize, assemble,
+    Slot, Stage, StageError, Summarize, assemble, items_one_by_one,
 };
 pub use pipeline::{Pipeline, StageSpec};
 pub use plan::{

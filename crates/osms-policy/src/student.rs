@@ -702,7 +702,7 @@ impl Student {
         );
         let rows = obs.len();
         let x = self.net.sample_batch(
-            &Matrix::from_vec(rows, cond.len() / rows.max(1), cond),
+            &Matrix::from_vec(rows, c_len, cond),
             Matrix::from_vec(rows, x_len, noise),
             self.params.euler_steps,
         );
@@ -829,34 +829,29 @@ pub fn rollouts(
     student: &Student,
     items: Vec<(TaskCondition, StreamRng, StreamRng)>,
 ) -> Vec<RolloutRecord> {
-    let (mut episodes, mut rngs): (Vec<_>, Vec<_>) = items
+    let mut episodes: Vec<(Episode<'_>, StreamRng)> = items
         .into_iter()
         .map(|(condition, dr, policy)| (Episode::new(world, spec, condition, dr), policy))
-        .unzip();
-    let mut running = vec![true; episodes.len()];
+        .collect();
     loop {
-        let mut observed = Vec::new();
-        let mut obs = Vec::new();
-        for (i, episode) in episodes.iter_mut().enumerate() {
+        let (mut observed, mut obs, mut rngs) = (Vec::new(), Vec::new(), Vec::new());
+        for (i, (episode, rng)) in episodes.iter_mut().enumerate() {
             // A student reads no contact force (`StudentPolicy::reads_contact_force`).
-            match episode.observe_step(false) {
-                Some(o) => {
-                    obs.push(student.observation(&episode.view(&o)));
-                    observed.push((i, o));
-                }
-                None => running[i] = false,
+            if let Some(o) = episode.observe_step(false) {
+                obs.push(student.observation(&episode.view(&o)));
+                observed.push((i, o));
+                rngs.push(rng);
             }
         }
         if observed.is_empty() {
             break;
         }
-        let live = rngs.iter_mut().zip(&running).filter(|(_, r)| **r);
-        let actions = student.act_batch(&obs, live.map(|(rng, _)| rng));
+        let actions = student.act_batch(&obs, rngs);
         for ((i, o), action) in observed.into_iter().zip(actions) {
-            episodes[i].act_step(o, action, &mut NoHooks);
+            episodes[i].0.act_step(o, action, &mut NoHooks);
         }
     }
-    episodes.into_iter().map(Episode::finish).collect()
+    episodes.into_iter().map(|(e, _)| e.finish()).collect()
 }
 
 /// A student rollout with the frozen teacher queried at every visited state.

@@ -251,7 +251,7 @@ pub trait ItemStage: Send + Sync + 'static {
     /// `("item", i)` stream). A kind that batches (e.g. many episodes stepped in lockstep so a
     /// network acts on all of them at once) must return exactly what [`ItemStage::run_item`]
     /// would for each, so the output does not depend on the batch length; this default is
-    /// `run_item` on each.
+    /// [`items_one_by_one`].
     fn run_batch(
         &self,
         ctx: &Ctx<'_, Self::Params>,
@@ -259,10 +259,7 @@ pub trait ItemStage: Send + Sync + 'static {
         first: usize,
         rngs: Vec<StreamRng>,
     ) -> Result<Vec<Self::Item>, StageError> {
-        rngs.into_iter()
-            .enumerate()
-            .map(|(k, mut rng)| self.run_item(ctx, prepared, first + k, &mut rng))
-            .collect()
+        items_one_by_one(self, ctx, prepared, first, rngs)
     }
 
     /// As [`Stage::draws_randomness`].
@@ -284,6 +281,21 @@ pub trait ItemStage: Send + Sync + 'static {
     fn scale(_params: &Self::Params, inputs: &[(&str, f64)]) -> Scale {
         Scale::follow(inputs)
     }
+}
+
+/// Items `first ..` by [`ItemStage::run_item`], one by one: [`ItemStage::run_batch`]'s
+/// default, and what an override that batches only some of its work runs for the rest.
+pub fn items_one_by_one<S: ItemStage + ?Sized>(
+    stage: &S,
+    ctx: &Ctx<'_, S::Params>,
+    prepared: &S::Prepared,
+    first: usize,
+    rngs: Vec<StreamRng>,
+) -> Result<Vec<S::Item>, StageError> {
+    rngs.into_iter()
+        .enumerate()
+        .map(|(k, mut rng)| stage.run_item(ctx, prepared, first + k, &mut rng))
+        .collect()
 }
 
 /// Which fold of a stage declared with `folds = count` an instance is.

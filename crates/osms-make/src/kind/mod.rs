@@ -17,7 +17,7 @@ mod stored;
 
 pub use author::{
     Ctx, Fold, InputBytes, ItemStage, Member, NoProgress, Numerics, Objects, Progress, Scale,
-    Sharded, Slot, Stage, StageError, Summarize,
+    Sharded, Slot, Stage, StageError, Summarize, items_one_by_one,
 };
 pub use erased::{
     DynKind, KindInfo, ParamError, ParsedParams, RunEnv, RunOutput, ShardIo, ShardRun,

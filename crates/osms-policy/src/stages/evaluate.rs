@@ -2,7 +2,7 @@
 //! catcher, a teacher or a student, whichever is wired.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError, items_one_by_one};
 use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::{Episode, NoHooks, RolloutSpec, World};
@@ -127,11 +127,7 @@ impl ItemStage for EvaluateStage {
     ) -> Result<Vec<EvalRow>, StageError> {
         let (world, conditions, policy) = prepared;
         let Evaluated::Student(student, spec) = policy else {
-            return rngs
-                .into_iter()
-                .enumerate()
-                .map(|(k, mut rng)| self.run_item(ctx, prepared, first + k, &mut rng))
-                .collect();
+            return items_one_by_one(self, ctx, prepared, first, rngs);
         };
         Ok(super::student_rows(
             ctx,
