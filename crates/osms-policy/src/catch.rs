@@ -177,6 +177,7 @@ impl<'w> CatchTask<'w> {
         stage: &str,
         stream: &str,
     ) -> osms_sim::Result<Self> {
+        spec.catcher.validate()?;
         draw(world, &spec, (seed, stage, stream), 0)?;
         Ok(CatchTask {
             world,

@@ -34,6 +34,13 @@ pub struct CatcherSpec {
     pub open_hand_rad: [f64; N_HAND],
     /// Finger posture when closing (rad).
     pub closed_hand_rad: [f64; N_HAND],
+    /// When set, once closing, each hand joint's target (the wrist's too) leads the joint
+    /// toward `closed_hand_rad` by at most this much (rad), so a finger stopped by the object
+    /// pushes with at most kp × margin. Without it the targets jump to the closed posture, and
+    /// the fingers close onto the object with the servos' full force: the squeeze's onset,
+    /// ≈ 0.2 s after contact, is what exceeds f_max's δ_f = 80 N in most of the teacher's
+    /// force failures (docs/policy.md, "Where f_max comes from").
+    pub grip_margin_rad: Option<f64>,
     /// Horizon of the interception search (s).
     pub horizon_secs: f64,
     /// How far the palm turns from its home orientation toward facing the incoming object
@@ -60,10 +67,26 @@ impl Default for CatcherSpec {
                 0.0, 0.5, 0.95, 1.7, 1.8, 0.0, 1.74, 1.86, 0.0, 1.74, 1.86, 0.0, 1.74, 1.86, 0.0,
                 1.74, 1.86,
             ],
+            grip_margin_rad: None,
             horizon_secs: 1.0,
             facing_blend: 0.15,
             aim_toward_fingers_m: 0.01,
         }
+    }
+}
+
+impl CatcherSpec {
+    /// Checks what serde cannot.
+    pub fn validate(&self) -> Result<(), crate::SimError> {
+        if let Some(m) = self.grip_margin_rad
+            && !(m > 0.0 && m.is_finite())
+        {
+            return Err(crate::SimError::Spec(format!(
+                "catcher.grip_margin_rad = {m}: must be a positive angle (rad), or absent for \
+                 targets that jump to the closed posture"
+            )));
+        }
+        Ok(())
     }
 }
 
@@ -250,12 +273,18 @@ impl Policy for ScriptedCatcher {
         if dist < self.spec.close_distance_m || touching {
             self.closed = true;
         }
-        let hand = if self.closed {
-            &self.spec.closed_hand_rad
-        } else {
-            &self.spec.open_hand_rad
+        let hand = match (self.closed, self.spec.grip_margin_rad) {
+            (false, _) => self.spec.open_hand_rad,
+            (true, None) => self.spec.closed_hand_rad,
+            (true, Some(m)) => {
+                let q = data.qpos();
+                std::array::from_fn(|i| {
+                    let at = q[ids.hand_qpos[i]];
+                    at + (self.spec.closed_hand_rad[i] - at).clamp(-m, m)
+                })
+            }
         };
-        let mut action = hold_action(hand);
+        let mut action = hold_action(&hand);
         // Once closing, the arm holds still: re-aiming at the object's predicted fall would
         // pull the palm out from under it.
         if !self.closed {

@@ -700,3 +700,106 @@ fn the_worlds_friction_and_time_constant_govern_every_object_contact_with_their_
         }
     }
 }
+
+/// The scripted catcher with a grip margin, checking every hand target against the joint it
+/// drives.
+struct Gripping {
+    inner: osms_sim::catcher::ScriptedCatcher,
+    margin: f64,
+    open: Action,
+    closing_steps: usize,
+}
+impl Policy for Gripping {
+    fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        let a = self.inner.act(view);
+        if a[N_ARM..] != self.open[N_ARM..] {
+            self.closing_steps += 1;
+            let ranges = osms_sim::control::joint_ranges();
+            let q = view.data.qpos();
+            for i in 0..N_HAND {
+                let [lo, hi] = ranges[N_ARM + i];
+                let target = lo + (a[N_ARM + i] + 1.0) / 2.0 * (hi - lo);
+                let at = q[view.world.ids.hand_qpos[i]].clamp(lo, hi);
+                assert!(
+                    (target - at).abs() <= self.margin + 1e-9,
+                    "hand joint {i}: target {target} is more than {} from {at}",
+                    self.margin
+                );
+            }
+        }
+        a
+    }
+}
+
+/// With `grip_margin_rad`, every closing target leads its joint by at most the margin, and a
+/// large box held in the hand is squeezed less than by targets that jump to the closed posture
+/// (the servos' kp × margin against their full force).
+#[test]
+fn a_grip_margin_bounds_each_finger_target_and_the_squeeze() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let margin = 0.1;
+    let catcher = |m: Option<f64>| osms_sim::catcher::CatcherSpec {
+        grip_margin_rad: m,
+        ..osms_sim::catcher::CatcherSpec::default()
+    };
+    let open = hold_action(&catcher(None).open_hand_rad);
+    // Mean summed normal force over a rollout's last ten steps, if it still holds the object.
+    let held_squeeze = |r: &osms_sim::RolloutRecord| {
+        (r.outcome.completion() && r.steps > 10).then(|| {
+            let tail = &r.normal_force[r.steps - 10..];
+            tail.iter().map(|&f| f64::from(f)).sum::<f64>() / 10.0
+        })
+    };
+    let (mut with, mut without) = (Vec::new(), Vec::new());
+    let mut closing_steps = 0;
+    for i in 0..12 {
+        let mut cond = sampled(i, &w);
+        cond.variant = ObjectVariant {
+            family: ObjectFamily::Box,
+            size: ObjectSize::Large,
+        };
+        let stream = || rng::stream(0, "t", "grip", i);
+        let mut gripping = Gripping {
+            inner: osms_sim::catcher::ScriptedCatcher::new(
+                catcher(Some(margin)),
+                spec.control.clone(),
+            ),
+            margin,
+            open,
+            closing_steps: 0,
+        };
+        let soft = Episode::new(&w, &spec, cond.clone(), stream()).run(&mut gripping, &mut NoHooks);
+        closing_steps += gripping.closing_steps;
+        let mut jumping =
+            osms_sim::catcher::ScriptedCatcher::new(catcher(None), spec.control.clone());
+        let hard = Episode::new(&w, &spec, cond, stream()).run(&mut jumping, &mut NoHooks);
+        if let (Some(s), Some(h)) = (held_squeeze(&soft), held_squeeze(&hard)) {
+            with.push(s);
+            without.push(h);
+        }
+    }
+    assert!(closing_steps > 100, "only {closing_steps} closing steps checked");
+    assert!(with.len() >= 3, "only {} throws held both ways", with.len());
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(
+        mean(&with) < 0.7 * mean(&without),
+        "squeeze with a {margin} rad margin {:.1} N, without {:.1} N ({} throws)",
+        mean(&with),
+        mean(&without),
+        with.len()
+    );
+}
+
+#[test]
+fn a_grip_margin_that_is_not_a_positive_angle_is_refused() {
+    for m in [0.0, -0.1, f64::NAN, f64::INFINITY] {
+        let spec = osms_sim::catcher::CatcherSpec {
+            grip_margin_rad: Some(m),
+            ..osms_sim::catcher::CatcherSpec::default()
+        };
+        let e = spec.validate().expect_err("refused").to_string();
+        assert!(e.contains("grip_margin_rad"), "{e}");
+    }
+    assert!(osms_sim::catcher::CatcherSpec::default().validate().is_ok());
+}
