@@ -731,9 +731,9 @@ impl Policy for Gripping {
     }
 }
 
-/// With `grip_margin_rad`, every closing target leads its joint by at most the margin, and a
-/// large box held in the hand is squeezed less than by targets that jump to the closed posture
-/// (the servos' kp × margin against their full force).
+/// With `grip_margin_rad` (0.1 rad), every closing target leads its joint by at most the
+/// margin, and a large box held in the hand is squeezed less than by targets that jump to the
+/// closed posture (`None`); measured: 16.5 N against 31.7 N.
 #[test]
 fn a_grip_margin_bounds_each_finger_target_and_the_squeeze() {
     let w = world();
