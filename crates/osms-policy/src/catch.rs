@@ -45,6 +45,11 @@ pub struct RewardSpec {
     /// a policy is paid for exactly the criterion and learns to stop at it, so a DR draw that
     /// shortens its travel by a few centimetres fails ℓ_max; above 1 it is paid for a margin.
     pub follow_through_reach: f32,
+    /// Task success: once, when the rollout meets every criterion. Not one of the paper's five
+    /// terms: with them alone a completed catch earns the catching reward whether or not it
+    /// met δ_f and δ_ℓ, so a policy trades an impact failure (−`impact_force`, or a little
+    /// less follow-through) for any lower risk of a drop (−`catching`). 0: the paper's reward.
+    pub success: f32,
 }
 
 impl Default for RewardSpec {
@@ -56,6 +61,7 @@ impl Default for RewardSpec {
             impact_force: 2.0,
             follow_through: 5.0,
             follow_through_reach: 1.0,
+            success: 0.0,
         }
     }
 }
@@ -67,6 +73,7 @@ impl RewardSpec {
             velocity_matching: 0.0,
             impact_force: 0.0,
             follow_through: 0.0,
+            success: 0.0,
             ..RewardSpec::default()
         }
     }
@@ -515,6 +522,9 @@ impl CatchEpisode<'_> {
         }
         if m.max_force_n > success.max_force_n {
             reward -= f64::from(w.impact_force);
+        }
+        if outcome.success() {
+            reward += f64::from(w.success);
         }
         (reward as f32, true)
     }

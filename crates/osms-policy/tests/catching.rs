@@ -318,3 +318,45 @@ fn the_teachers_action_changes_when_only_the_observation_delay_changes() {
     }
     assert_eq!(actions(1), late, "the same delay gives the same actions");
 }
+
+/// The success term pays `reward.success` once, at the last step of a rollout that meets every
+/// criterion, and nothing anywhere else: not for a completed catch that fails an impact
+/// criterion. The criteria are loosened (ℓ_max, v_rel; δ_f halved to 40 N) so that the scripted
+/// prior's rollouts under a zero residual come in all three kinds.
+#[test]
+fn the_success_term_is_paid_once_at_the_end_of_a_successful_rollout() {
+    let world = world();
+    let mut loose = CatchTaskSpec::default();
+    loose.rollout.success.min_follow_through_m = 0.0;
+    loose.rollout.success.max_force_n = 40.0;
+    loose.rollout.success.max_contact_speed_mps = 1e9;
+    let rewards = |success: f32, index: u64| {
+        let mut spec = loose.clone();
+        spec.reward.success = success;
+        let task = CatchTask::new(&world, spec, 5, "test", "train").expect("task");
+        let mut episode = task.start(index).expect("condition");
+        let mut out = Vec::new();
+        loop {
+            let (r, done) = episode.step(&mut |_| vec![0.0; 24]);
+            out.push(r);
+            if done {
+                break;
+            }
+        }
+        let stats = episode.finish();
+        (out, stats.success, stats.completion)
+    };
+    // Incomplete, completed but failing f_max, successful.
+    let mut seen = [false; 3];
+    for index in 0..12 {
+        let (paid, succeeded, completed) = rewards(3.0, index);
+        let (unpaid, ..) = rewards(0.0, index);
+        seen[usize::from(completed) + usize::from(succeeded)] = true;
+        let last = paid.len() - 1;
+        assert_eq!(paid[..last], unpaid[..last], "episode {index}");
+        let bonus = paid[last] - unpaid[last];
+        let want = if succeeded { 3.0 } else { 0.0 };
+        assert!((bonus - want).abs() < 1e-4, "episode {index}: {bonus}");
+    }
+    assert_eq!(seen, [true, true, true], "every kind of outcome among the episodes");
+}
