@@ -40,8 +40,9 @@ pub struct CatcherSpec {
     /// than the hand's joint ranges, e.g. 4) the targets jump to the closed posture and the
     /// fingers close onto the object with the servos' full force: the squeeze's onset, ≈ 0.2 s
     /// after contact, was what exceeded f_max's δ_f = 80 N in most of the teacher's force
-    /// failures. 0.1: the teacher's f_max failures on the development stream fall from 54 to
-    /// 7 of 500 (docs/policy.md, "Where f_max comes from").
+    /// failures. 0.1: over three teacher seeds on the development stream, f_max failures fall
+    /// from 103 to 65 of 1,500 and the success stays (docs/policy.md, "Where f_max comes
+    /// from").
     pub grip_margin_rad: Option<f64>,
     /// Horizon of the interception search (s).
     pub horizon_secs: f64,
