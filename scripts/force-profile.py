@@ -57,13 +57,17 @@ def profiles(path, steps):
 def main(argv):
     steps, threshold, paths = 25, 80.0, []
     it = iter(argv)
-    for a in it:
-        if a == "--steps":
-            steps = int(next(it))
-        elif a == "--threshold":
-            threshold = float(next(it))
-        else:
-            paths.append(a)
+    try:
+        for a in it:
+            if a == "--steps":
+                steps = int(next(it))
+            elif a == "--threshold":
+                threshold = float(next(it))
+            else:
+                paths.append(a)
+    except (StopIteration, ValueError):
+        print("--steps takes a whole number and --threshold a number of newtons\n", file=sys.stderr)
+        paths = []
     if len(paths) != 1 or steps < 1:
         print(__doc__, file=sys.stderr)
         return 2
