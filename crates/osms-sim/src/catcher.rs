@@ -84,7 +84,7 @@ impl CatcherSpec {
         if let Some(m) = self.grip_margin_rad
             && !(m > 0.0 && m.is_finite())
         {
-            return Err(crate::SimError::Spec(format!(
+            return Err(crate::SimError::Params(format!(
                 "catcher.grip_margin_rad = {m}: must be a positive angle (rad), or absent for \
                  targets that jump to the closed posture"
             )));

@@ -11,6 +11,8 @@ pub enum SimError {
     NoFeasibleLaunch { attempts: u32 },
     #[error("invalid world spec: {0}")]
     Spec(String),
+    #[error("invalid params: {0}")]
+    Params(String),
 }
 
 pub type Result<T, E = SimError> = std::result::Result<T, E>;

@@ -5,7 +5,7 @@
 use mujoco_rs::prelude::*;
 use osms_core::rng;
 use osms_sim::conditions::{GRAVITY_MPS2, launch_velocity, sample};
-use osms_sim::control::{N_ARM, N_HAND, hold_action};
+use osms_sim::control::{N_ACTION, N_ARM, N_HAND, hold_action};
 use osms_sim::episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutSpec};
 use osms_sim::{
     Action, ConditionSpec, Failure, ObjectFamily, ObjectSize, ObjectVariant, Phase, TaskCondition,
@@ -715,10 +715,16 @@ impl Policy for Gripping {
         if a[N_ARM..] != self.open[N_ARM..] {
             self.closing_steps += 1;
             let ranges = osms_sim::control::joint_ranges();
+            // Hand targets are absolute, so the previous targets do not matter.
+            let targets = osms_sim::control::targets(
+                &osms_sim::control::ControlSpec::default(),
+                &[0.0; N_ACTION],
+                &a,
+            );
             let q = view.data.qpos();
             for i in 0..N_HAND {
                 let [lo, hi] = ranges[N_ARM + i];
-                let target = lo + (a[N_ARM + i] + 1.0) / 2.0 * (hi - lo);
+                let target = targets[N_ARM + i];
                 let at = q[view.world.ids.hand_qpos[i]].clamp(lo, hi);
                 assert!(
                     (target - at).abs() <= self.margin + 1e-9,

@@ -73,7 +73,10 @@ impl ItemStage for EvaluateStage {
                 let spec = student.rollout_spec(&p.rollout);
                 Evaluated::Student(Box::new(student), spec)
             }
-            (false, false) => Evaluated::Scripted,
+            (false, false) => {
+                p.catcher.validate()?;
+                Evaluated::Scripted
+            }
         };
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,

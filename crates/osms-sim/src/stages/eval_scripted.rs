@@ -42,6 +42,7 @@ impl ItemStage for EvalScriptedStage {
         params.rollout.draws_randomness()
     }
     fn prepare(&self, ctx: &Ctx<'_, EvalParams>) -> Result<(World, Conditions), StageError> {
+        ctx.params.catcher.validate()?;
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,
             ctx.sharded("conditions")?,
