@@ -122,7 +122,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 85, "{reference:?}");
+    assert_eq!(reference.len(), 88, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -135,6 +135,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     student_rollouts_are_deterministic_and_see_their_training_features(&first);
     interventions_replay_hand_back_and_share_random_numbers(&first);
     validation_is_exact_when_fast_and_dstar_repeats_it(&first);
+    dagger_adds_the_students_rollouts_labelled_by_the_teacher(&first);
     let two = make(&text, 2, Some(&first));
     assert_eq!(two.hashes, reference, "1 vs 2 threads");
     assert_eq!(
@@ -753,6 +754,45 @@ fn cross_fitting_never_scores_a_student_on_its_training_conditions(made: &Made) 
     }
     scored.sort_unstable();
     assert_eq!(scored, items, "every D_E condition is scored exactly once");
+}
+
+/// The DAgger diagnostic (not part of the report): one group per D_E condition π̄_0 trained on,
+/// each with the teacher's own demonstration of it and π̄_0's rollout labelled with teacher
+/// actions; a student trains on the set and is evaluated on the development stream.
+fn dagger_adds_the_students_rollouts_labelled_by_the_teacher(made: &Made) {
+    use osms_policy::artifacts::{Dataset, DemoSet, Execution, StudentArtifact};
+    use osms_policy::student::Demo;
+    use osms_sim::N_ACTION;
+
+    let set: DemoSet = load_sharded(made, "dagger");
+    let student: StudentArtifact = load(made, "student_il#0");
+    let d_e: Dataset = load_sharded(made, "d_e");
+    assert_eq!(
+        set.groups.iter().map(|g| g.item).collect::<Vec<_>>(),
+        student.items,
+        "one group per condition π̄_0 trained on"
+    );
+    for g in &set.groups {
+        let source = d_e.rollouts().find(|r| r.item == g.item).expect("item");
+        assert_eq!(g.demos.len(), 2, "item {}", g.item);
+        assert_eq!(g.demos[0].execution, Execution::Original);
+        assert_eq!(g.demos[0].demo, Demo::from_record(&source.record));
+        let visited = &g.demos[1];
+        assert_eq!(visited.execution, Execution::StudentVisited);
+        let d = &visited.demo;
+        assert!(d.steps > 0 && d.actions.len() == d.steps * N_ACTION);
+        // Its frames are the student's rollout, not the teacher's.
+        assert_ne!(d.deployable, g.demos[0].demo.deployable, "item {}", g.item);
+        assert!(
+            d.actions.iter().all(|a| a.is_finite() && a.abs() <= 1.0),
+            "teacher labels are actions in [-1, 1]"
+        );
+    }
+    let trained: StudentArtifact = load(made, "student_dagger");
+    assert_eq!(
+        trained.items, student.items,
+        "the student trains on those groups"
+    );
 }
 
 /// The teacher as a query (its own prior and phase input following the visited states) is the

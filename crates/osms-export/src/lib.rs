@@ -391,6 +391,7 @@ fn execution_name(e: osms_policy::artifacts::Execution) -> String {
         Execution::Original => "original".into(),
         Execution::Unperturbed => "unperturbed".into(),
         Execution::Perturbed { q } => format!("perturbed q={q}"),
+        Execution::StudentVisited => "student visited".into(),
     }
 }
 

@@ -358,5 +358,9 @@ fn the_success_term_is_paid_once_at_the_end_of_a_successful_rollout() {
         let want = if succeeded { 3.0 } else { 0.0 };
         assert!((bonus - want).abs() < 1e-4, "episode {index}: {bonus}");
     }
-    assert_eq!(seen, [true, true, true], "every kind of outcome among the episodes");
+    assert_eq!(
+        seen,
+        [true, true, true],
+        "every kind of outcome among the episodes"
+    );
 }

@@ -785,7 +785,10 @@ fn a_grip_margin_bounds_each_finger_target_and_the_squeeze() {
             without.push(h);
         }
     }
-    assert!(closing_steps > 100, "only {closing_steps} closing steps checked");
+    assert!(
+        closing_steps > 100,
+        "only {closing_steps} closing steps checked"
+    );
     assert!(with.len() >= 3, "only {} throws held both ways", with.len());
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     assert!(

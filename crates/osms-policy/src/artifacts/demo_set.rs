@@ -45,6 +45,9 @@ pub enum Execution {
     /// The selected candidate under the action-error model, perturbed rollout q (its labels
     /// include the modelled perturbation).
     Perturbed { q: u32 },
+    /// A student's own rollout, labelled with the teacher's actions at the states it visited
+    /// (the `dagger` diagnostic).
+    StudentVisited,
 }
 
 /// One successful rollout kept as a demonstration.
@@ -172,7 +175,7 @@ impl DemoSet {
             .flat_map(|g| {
                 g.demos
                     .iter()
-                    .filter(|e| !matches!(e.execution, Execution::Perturbed { .. }))
+                    .filter(|e| matches!(e.execution, Execution::Original | Execution::Unperturbed))
                     .map(|e| e.max_force_n)
             })
             .collect();

@@ -1,8 +1,9 @@
 //! The policy crate's stage kinds, one file each: the teacher (`teacher`, `eval_teacher`,
 //! `teacher_table`), its datasets (`collect`, `osw_windows`) and the students (`student`,
-//! `eval_student`, `error_pairs`) and `evaluate`, any of the three policies on a condition set.
+//! `eval_student`, `error_pairs`, the `dagger` diagnostic) and `evaluate`, any of the three policies on a condition set.
 
 mod collect;
+mod dagger;
 mod error_pairs;
 mod eval_student;
 mod eval_teacher;
@@ -13,6 +14,7 @@ mod teacher;
 mod teacher_table;
 
 pub use collect::{CollectParams, CollectStage, DatasetRole};
+pub use dagger::{DaggerParams, DaggerPrepared, DaggerStage};
 pub use error_pairs::{ErrorPairsParams, ErrorPairsStage, PairsPrepared};
 pub use eval_student::{EvalStudentParams, EvalStudentStage};
 pub use eval_teacher::{EvalTeacherParams, EvalTeacherStage};
@@ -80,7 +82,8 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register(StudentStage)
         .register_itemised(EvalStudentStage)
         .register_itemised(EvaluateStage)
-        .register_itemised(ErrorPairsStage);
+        .register_itemised(ErrorPairsStage)
+        .register_itemised(DaggerStage);
 }
 
 #[cfg(test)]

@@ -1,0 +1,149 @@
+//! `dagger`: one round of DAgger (Ross et al. 2011) as a diagnostic of covariate shift
+//! (issue 33), not as the paper's method. The IL student π̄ runs on the D_E conditions it was
+//! trained on, the frozen teacher is queried at every state it visits, and each of its rollouts,
+//! labelled with those teacher actions, joins the teacher's own demonstration of the same
+//! condition. A student trained on the set sees the states its predecessor drifted into; if it
+//! closes much of the gap to the teacher, the gap was covariate shift, not missing information.
+
+use std::collections::BTreeMap;
+
+use osms_core::rng::StreamRng;
+use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_sim::artifacts::WorldArtifact;
+use osms_sim::control::DrSpec;
+use osms_sim::{RolloutSpec, World};
+use serde::{Deserialize, Serialize};
+
+use crate::artifacts::{
+    Dataset, DemoEntry, DemoGroup, DemoRollout, DemoSet, Execution, Origin, StudentArtifact,
+    Teacher,
+};
+use crate::student::{Demo, Student, paired_rollout};
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DaggerParams {
+    /// Domain randomisation of the student's rollouts (a preset name or a table); absent: the
+    /// teacher's training setting.
+    pub dr: Option<DrSpec>,
+}
+
+/// What `dagger` builds once: the world, the teacher, the student, its rollout spec and the
+/// D_E rollouts it was trained on, in item order.
+pub struct DaggerPrepared {
+    world: World,
+    teacher: Teacher,
+    student: Student,
+    spec: RolloutSpec,
+    trained: Vec<DemoRollout>,
+}
+
+/// π̄'s rollouts on its own training conditions, labelled by the teacher, beside the teacher's
+/// demonstrations of the same conditions. Rollout `i` draws its domain randomisation from
+/// ("item", i) and the student's noise from ("policy", i).
+pub struct DaggerStage;
+impl ItemStage for DaggerStage {
+    const KIND: &'static str = "dagger";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<WorldArtifact>("world"),
+        Slot::one::<Dataset>("data").roles(&["d_e"]),
+        Slot::one::<StudentArtifact>("student"),
+        Slot::one::<Teacher>("teacher"),
+    ];
+    const DOC: &'static str = "one DAgger round (a diagnostic): a student's rollouts on its training conditions, labelled with the teacher's actions, added to its demonstrations";
+    type Params = DaggerParams;
+    type Prepared = DaggerPrepared;
+    type Item = DemoGroup;
+    type Output = DemoSet;
+
+    fn numerics() -> Vec<Numerics> {
+        super::numerics()
+    }
+    fn prepare(&self, ctx: &Ctx<'_, DaggerParams>) -> Result<DaggerPrepared, StageError> {
+        let student: StudentArtifact = ctx.input("student")?;
+        let mut by_item = BTreeMap::new();
+        for item in ctx.items::<Dataset>("data")? {
+            let r = item?.rollout;
+            by_item.insert(r.item, r);
+        }
+        let mut trained = Vec::with_capacity(student.items.len());
+        for item in &student.items {
+            let Some(r) = by_item.remove(item) else {
+                return Err(format!(
+                    "input `student` was trained on item {item}, which input `data` does not hold\nhint: wire the dataset the student was trained on"
+                )
+                .into());
+            };
+            trained.push(r);
+        }
+        if trained.is_empty() {
+            return Err("input `student` was trained on no rollouts of a dataset (it trained on a demonstration set)\nhint: wire a student whose input is `data`, e.g. `student_il#0`".into());
+        }
+        let mut teacher: Teacher = ctx.input("teacher")?;
+        teacher.task = teacher.task.with_dr(&ctx.params.dr);
+        let spec = student.student.rollout_spec(&teacher.task.rollout);
+        Ok(DaggerPrepared {
+            world: ctx.input::<WorldArtifact>("world")?.world()?,
+            teacher,
+            student: student.student,
+            spec,
+            trained,
+        })
+    }
+    fn n_items(&self, _: &Ctx<'_, DaggerParams>, p: &DaggerPrepared) -> usize {
+        p.trained.len()
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, DaggerParams>,
+        p: &DaggerPrepared,
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<DemoGroup, StageError> {
+        let original = &p.trained[index];
+        let paired = paired_rollout(
+            &p.world,
+            &p.spec,
+            &p.student,
+            (&p.teacher.agent, &p.teacher.task),
+            original.record.condition.clone(),
+            rng.clone(),
+            ctx.rng("policy", index as u64),
+        );
+        Ok(DemoGroup {
+            extension: false,
+            item: original.item,
+            attempt: original.attempt,
+            condition: original.record.condition.clone(),
+            original_success: original.record.outcome.success(),
+            origin: Origin::Kept,
+            demos: vec![
+                DemoEntry {
+                    execution: Execution::Original,
+                    max_force_n: original.record.metrics.max_force_n,
+                    demo: Demo::from_record(&original.record),
+                },
+                DemoEntry {
+                    execution: Execution::StudentVisited,
+                    max_force_n: paired.record.metrics.max_force_n,
+                    demo: Demo::labelled(&paired.record, paired.teacher),
+                },
+            ],
+        })
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, DaggerParams>,
+        _: DaggerPrepared,
+        groups: Vec<DemoGroup>,
+    ) -> Result<DemoSet, StageError> {
+        Ok(DemoSet {
+            construction: "dagger".into(),
+            target: None,
+            used: None,
+            groups,
+        })
+    }
+}
