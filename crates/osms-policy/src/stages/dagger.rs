@@ -14,6 +14,7 @@ use osms_sim::control::DrSpec;
 use osms_sim::{RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 
+use super::error_pairs::beside_teacher;
 use crate::artifacts::{
     Dataset, DemoEntry, DemoGroup, DemoRollout, DemoSet, Execution, Origin, StudentArtifact,
     Teacher,
@@ -81,11 +82,9 @@ impl ItemStage for DaggerStage {
         if trained.is_empty() {
             return Err("input `student` was trained on no rollouts of a dataset (it trained on a demonstration set)\nhint: wire a student whose input is `data`, e.g. `student_il#0`".into());
         }
-        let mut teacher: Teacher = ctx.input("teacher")?;
-        teacher.task = teacher.task.with_dr(&ctx.params.dr);
-        let spec = student.student.rollout_spec(&teacher.task.rollout);
+        let (world, teacher, spec) = beside_teacher(ctx, &student.student, &ctx.params.dr)?;
         Ok(DaggerPrepared {
-            world: ctx.input::<WorldArtifact>("world")?.world()?,
+            world,
             teacher,
             student: student.student,
             spec,

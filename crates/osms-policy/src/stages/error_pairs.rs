@@ -33,6 +33,20 @@ pub struct PairsPrepared {
     conditions: Vec<(u32, TaskCondition)>,
 }
 
+/// What a stage that rolls a student out with the teacher queried needs: the world, the
+/// teacher with the rollouts' domain randomisation `dr` (absent: its training setting), and
+/// the student's rollout spec under it.
+pub(crate) fn beside_teacher<P>(
+    ctx: &Ctx<'_, P>,
+    student: &Student,
+    dr: &Option<DrSpec>,
+) -> Result<(World, Teacher, RolloutSpec), StageError> {
+    let mut teacher: Teacher = ctx.input("teacher")?;
+    teacher.task = teacher.task.with_dr(dr);
+    let spec = student.rollout_spec(&teacher.task.rollout);
+    Ok((ctx.input::<WorldArtifact>("world")?.world()?, teacher, spec))
+}
+
 /// The IL student π̄_f on the D_E conditions held out from it, the teacher queried at every
 /// visited state (paper 4.3). Rollout `i` draws its domain randomisation from ("item", i) and
 /// the policy's noise from ("policy", i).
@@ -91,11 +105,9 @@ impl ItemStage for ErrorPairsStage {
             }
             conditions.push((r.item, r.record.condition));
         }
-        let mut teacher: Teacher = ctx.input("teacher")?;
-        teacher.task = teacher.task.with_dr(&ctx.params.dr);
-        let spec = student.student.rollout_spec(&teacher.task.rollout);
+        let (world, teacher, spec) = beside_teacher(ctx, &student.student, &ctx.params.dr)?;
         Ok(PairsPrepared {
-            world: ctx.input::<WorldArtifact>("world")?.world()?,
+            world,
             teacher,
             student: student.student,
             spec,
