@@ -15,7 +15,6 @@ use osms_policy::Agent;
 use osms_policy::artifacts::{DemoEntry, DemoGroup, DemoRollout, Execution, Origin};
 use osms_policy::catch::{CatchTaskSpec, rollout};
 use osms_policy::osw::{OswSpec, OswWindow};
-use osms_policy::student::Demo;
 use osms_sim::World;
 use osms_sim::conditions::sample;
 
@@ -84,20 +83,6 @@ impl Inputs {
     }
 }
 
-/// A demonstration of one executed rollout: its deployable frames labelled with `actions`
-/// (what the policy commanded), and its f_max.
-pub fn entry(
-    execution: Execution,
-    record: &osms_sim::RolloutRecord,
-    actions: Vec<f32>,
-) -> DemoEntry {
-    DemoEntry {
-        execution,
-        max_force_n: record.metrics.max_force_n,
-        demo: Demo::labelled(record, actions),
-    }
-}
-
 /// D_* (Alg. 1 step 4): for a refined or repaired rollout the selected ζ*'s unperturbed
 /// rollout and every successful perturbed one (labels: the commanded actions, modelled
 /// perturbations included); a kept original as it ran; nothing for a dropped one. The
@@ -124,7 +109,7 @@ pub fn dstar_group(
         Decision::Drop => return Ok(group),
         Decision::KeepOriginal => {
             group.origin = Origin::Kept;
-            group.demos.push(entry(
+            group.demos.push(DemoEntry::labelled(
                 Execution::Original,
                 &r.record,
                 r.record.intended.clone(),
@@ -157,9 +142,11 @@ pub fn dstar_group(
     if !u.record.outcome.success() {
         return Err(mismatch("unperturbed rollout"));
     }
-    group
-        .demos
-        .push(entry(Execution::Unperturbed, &u.record, u.commanded));
+    group.demos.push(DemoEntry::labelled(
+        Execution::Unperturbed,
+        &u.record,
+        u.commanded,
+    ));
     let mut successes = 0u32;
     for q in 0..q_runs {
         let e = run(Some(Errors {
@@ -168,7 +155,7 @@ pub fn dstar_group(
         }));
         if e.record.outcome.success() {
             successes += 1;
-            group.demos.push(entry(
+            group.demos.push(DemoEntry::labelled(
                 Execution::Perturbed { q: q as u32 },
                 &e.record,
                 e.commanded,
@@ -210,7 +197,7 @@ pub fn naive_group(r: &DemoRollout) -> DemoGroup {
             Origin::Dropped
         },
         demos: if success {
-            vec![entry(
+            vec![DemoEntry::labelled(
                 Execution::Original,
                 &r.record,
                 r.record.intended.clone(),
@@ -244,7 +231,11 @@ pub fn naive_extension(
                 condition: record.condition.clone(),
                 original_success: true,
                 origin: Origin::Kept,
-                demos: vec![entry(Execution::Original, &record, record.intended.clone())],
+                demos: vec![DemoEntry::labelled(
+                    Execution::Original,
+                    &record,
+                    record.intended.clone(),
+                )],
             });
         }
     }
@@ -303,13 +294,15 @@ pub fn normal_group(
             } else {
                 Origin::Repaired
             };
-            group
-                .demos
-                .push(entry(Execution::Unperturbed, &e.record, e.commanded));
+            group.demos.push(DemoEntry::labelled(
+                Execution::Unperturbed,
+                &e.record,
+                e.commanded,
+            ));
         }
         None if success => {
             group.origin = Origin::Kept;
-            group.demos.push(entry(
+            group.demos.push(DemoEntry::labelled(
                 Execution::Original,
                 &rollout.record,
                 rollout.record.intended.clone(),

@@ -59,6 +59,22 @@ pub struct DemoEntry {
     pub demo: Demo,
 }
 
+impl DemoEntry {
+    /// A demonstration of one executed rollout: its deployable frames labelled with `actions`
+    /// (what the policy commanded, or what the teacher would have), and its f_max.
+    pub fn labelled(
+        execution: Execution,
+        record: &osms_sim::RolloutRecord,
+        actions: Vec<f32>,
+    ) -> DemoEntry {
+        DemoEntry {
+            execution,
+            max_force_n: record.metrics.max_force_n,
+            demo: Demo::labelled(record, actions),
+        }
+    }
+}
+
 /// The demonstrations of one task condition.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DemoGroup {

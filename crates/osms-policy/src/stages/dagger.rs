@@ -10,24 +10,14 @@ use std::collections::BTreeMap;
 use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
 use osms_sim::artifacts::WorldArtifact;
-use osms_sim::control::DrSpec;
 use osms_sim::{RolloutSpec, World};
-use serde::{Deserialize, Serialize};
 
-use super::error_pairs::beside_teacher;
+use super::error_pairs::{ErrorPairsParams, beside_teacher};
 use crate::artifacts::{
     Dataset, DemoEntry, DemoGroup, DemoRollout, DemoSet, Execution, Origin, StudentArtifact,
     Teacher,
 };
-use crate::student::{Demo, Student, paired_rollout};
-
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct DaggerParams {
-    /// Domain randomisation of the student's rollouts (a preset name or a table); absent: the
-    /// teacher's training setting.
-    pub dr: Option<DrSpec>,
-}
+use crate::student::{Student, paired_rollout};
 
 /// What `dagger` builds once: the world, the teacher, the student, its rollout spec and the
 /// D_E rollouts it was trained on, in item order.
@@ -54,7 +44,7 @@ impl ItemStage for DaggerStage {
         Slot::one::<Teacher>("teacher"),
     ];
     const DOC: &'static str = "one DAgger round (a diagnostic): a student's rollouts on its training conditions, labelled with the teacher's actions, added to its demonstrations";
-    type Params = DaggerParams;
+    type Params = ErrorPairsParams;
     type Prepared = DaggerPrepared;
     type Item = DemoGroup;
     type Output = DemoSet;
@@ -62,7 +52,7 @@ impl ItemStage for DaggerStage {
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
-    fn prepare(&self, ctx: &Ctx<'_, DaggerParams>) -> Result<DaggerPrepared, StageError> {
+    fn prepare(&self, ctx: &Ctx<'_, ErrorPairsParams>) -> Result<DaggerPrepared, StageError> {
         let student: StudentArtifact = ctx.input("student")?;
         let mut by_item = BTreeMap::new();
         for item in ctx.items::<Dataset>("data")? {
@@ -91,12 +81,12 @@ impl ItemStage for DaggerStage {
             trained,
         })
     }
-    fn n_items(&self, _: &Ctx<'_, DaggerParams>, p: &DaggerPrepared) -> usize {
+    fn n_items(&self, _: &Ctx<'_, ErrorPairsParams>, p: &DaggerPrepared) -> usize {
         p.trained.len()
     }
     fn run_item(
         &self,
-        ctx: &Ctx<'_, DaggerParams>,
+        ctx: &Ctx<'_, ErrorPairsParams>,
         p: &DaggerPrepared,
         index: usize,
         rng: &mut StreamRng,
@@ -119,22 +109,18 @@ impl ItemStage for DaggerStage {
             original_success: original.record.outcome.success(),
             origin: Origin::Kept,
             demos: vec![
-                DemoEntry {
-                    execution: Execution::Original,
-                    max_force_n: original.record.metrics.max_force_n,
-                    demo: Demo::from_record(&original.record),
-                },
-                DemoEntry {
-                    execution: Execution::StudentVisited,
-                    max_force_n: paired.record.metrics.max_force_n,
-                    demo: Demo::labelled(&paired.record, paired.teacher),
-                },
+                DemoEntry::labelled(
+                    Execution::Original,
+                    &original.record,
+                    original.record.intended.clone(),
+                ),
+                DemoEntry::labelled(Execution::StudentVisited, &paired.record, paired.teacher),
             ],
         })
     }
     fn merge(
         &self,
-        _: &Ctx<'_, DaggerParams>,
+        _: &Ctx<'_, ErrorPairsParams>,
         _: DaggerPrepared,
         groups: Vec<DemoGroup>,
     ) -> Result<DemoSet, StageError> {

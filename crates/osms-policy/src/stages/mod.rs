@@ -1,6 +1,7 @@
 //! The policy crate's stage kinds, one file each: the teacher (`teacher`, `eval_teacher`,
 //! `teacher_table`), its datasets (`collect`, `osw_windows`) and the students (`student`,
-//! `eval_student`, `error_pairs`, the `dagger` diagnostic) and `evaluate`, any of the three policies on a condition set.
+//! `eval_student`, `error_pairs`, the `dagger` diagnostic) and `evaluate`, any of the three
+//! policies on a condition set.
 
 mod collect;
 mod dagger;
@@ -14,7 +15,7 @@ mod teacher;
 mod teacher_table;
 
 pub use collect::{CollectParams, CollectStage, DatasetRole};
-pub use dagger::{DaggerParams, DaggerPrepared, DaggerStage};
+pub use dagger::{DaggerPrepared, DaggerStage};
 pub use error_pairs::{ErrorPairsParams, ErrorPairsStage, PairsPrepared};
 pub use eval_student::{EvalStudentParams, EvalStudentStage};
 pub use eval_teacher::{EvalTeacherParams, EvalTeacherStage};
