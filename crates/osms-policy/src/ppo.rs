@@ -34,6 +34,12 @@ pub struct PpoConfig {
     pub value_coef: f32,
     pub entropy_coef: f32,
     pub epochs: u32,
+    /// KL early stop: an iteration's remaining epochs are skipped once an epoch's mean
+    /// approximate KL(old ‖ new) exceeds 1.5 × this (the rule of Spinning Up's PPO and of
+    /// Stable-Baselines3, checked per epoch here). `None`, the default, runs every epoch, and is
+    /// left out of the encoded params so keys built before the field existed stay valid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_kl: Option<f32>,
     pub minibatch: usize,
     pub lr: f32,
     /// The learning rate falls linearly from `lr` at the first iteration to `lr` × this at the
@@ -63,6 +69,7 @@ impl Default for PpoConfig {
             value_coef: 0.5,
             entropy_coef: 0.0,
             epochs: 4,
+            target_kl: None,
             minibatch: 256,
             lr: 3e-4,
             // Tuned for the teacher on the development stream (docs/policy.md, issue 32): a
@@ -389,6 +396,12 @@ pub fn train<T: Task>(
                 };
                 losses.add(update(agent, &mut actor_opt, &mut critic_opt, config, &mb));
             }
+            if config
+                .target_kl
+                .is_some_and(|target| losses.mean(losses.kl_k3) > 1.5 * f64::from(target))
+            {
+                break;
+            }
         }
 
         let episodes = trajectories.len() as f64;
@@ -447,6 +460,9 @@ struct Losses {
     value: f64,
     entropy: f64,
     kl: f64,
+    /// (r − 1) − log r, r the probability ratio: the same KL(old ‖ new) as `kl` in expectation,
+    /// but never negative, so a KL stop cannot be missed because a minibatch's estimates cancel.
+    kl_k3: f64,
     clipped: f64,
 }
 
@@ -457,6 +473,7 @@ impl Losses {
         self.value += other.value;
         self.entropy += other.entropy;
         self.kl += other.kl;
+        self.kl_k3 += other.kl_k3;
         self.clipped += other.clipped;
     }
 
@@ -486,13 +503,14 @@ fn update(
     let (logp, unit) = dist.log_prob(&mb.u, &vec![1.0; b]);
     let (lo, hi) = (1.0 - config.clip, 1.0 + config.clip);
     let mut coef = vec![0.0f32; b];
-    let (mut policy, mut kl, mut clipped) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut policy, mut kl, mut kl_k3, mut clipped) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for i in 0..b {
         let ratio = libm::expf(logp[i] - mb.old_logp[i]);
         let a = mb.adv[i];
         let surrogate = (ratio * a).min(ratio.clamp(lo, hi) * a);
         policy -= f64::from(surrogate);
         kl += f64::from(mb.old_logp[i] - logp[i]);
+        kl_k3 += f64::from(ratio - 1.0) - f64::from(logp[i] - mb.old_logp[i]);
         let outside = (a > 0.0 && ratio > hi) || (a < 0.0 && ratio < lo);
         clipped += f64::from(u8::from(ratio > hi || ratio < lo));
         // d(−surrogate/B)/d logp: the unclipped branch is active unless the ratio left the
@@ -537,6 +555,7 @@ fn update(
         value: value_loss / b as f64,
         entropy: f64::from(entropy),
         kl: kl / b as f64,
+        kl_k3: kl_k3 / b as f64,
         clipped: clipped / b as f64,
     }
 }

@@ -152,3 +152,25 @@ fn a_rate_falling_to_zero_leaves_the_last_iteration_without_an_update() {
         "a constant rate does move"
     );
 }
+
+/// The KL early stop: a target no epoch can stay under leaves one epoch per iteration (the
+/// same weights as a one-epoch run), one no epoch can reach leaves training as without a stop.
+#[test]
+fn a_kl_target_stops_an_iterations_epochs_early() {
+    let run = |epochs: u32, target_kl: Option<f32>| {
+        let config = PpoConfig {
+            iterations: 1,
+            epochs,
+            target_kl,
+            ..config()
+        };
+        let mut agent = Agent::new(1, 1, &config, (3, "test")).expect("a valid agent");
+        train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {}).expect("trains");
+        agent
+    };
+    let all = hash(&run(4, None));
+    let one = hash(&run(1, None));
+    assert_ne!(one, all, "more epochs do move");
+    assert_eq!(hash(&run(4, Some(1e-12))), one);
+    assert_eq!(hash(&run(4, Some(1e9))), all);
+}

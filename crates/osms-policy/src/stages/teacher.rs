@@ -56,6 +56,12 @@ impl Stage for TeacherStage {
             )
             .into());
         }
+        if let Some(target) = p.ppo.target_kl.filter(|t| !(t.is_finite() && *t > 0.0)) {
+            return Err(format!(
+                "params.ppo.target_kl: {target} is not a positive number (leave it out to run every epoch)"
+            )
+            .into());
+        }
         let task = CatchTask::new(&world, p.task.clone(), seed, ctx.stage(), "train")?;
         let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, (seed, ctx.stage()))
             .map_err(|e| format!("params.ppo: {e}"))?;
