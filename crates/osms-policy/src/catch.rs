@@ -419,8 +419,17 @@ impl<'w> CatchEpisode<'w> {
 
     /// Runs the episode to its end with `act` choosing the policy's actions, and returns its
     /// record (the intended actions are the executed residual actions).
-    pub fn run(mut self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> RolloutRecord {
-        while !self.step(act).1 {}
+    pub fn run(self, act: &mut dyn FnMut(&[f32]) -> Vec<f32>) -> RolloutRecord {
+        self.run_with_hooks(act, &mut NoHooks)
+    }
+
+    /// [`CatchEpisode::run`] with `hooks` changing or watching every step.
+    pub fn run_with_hooks(
+        mut self,
+        act: &mut dyn FnMut(&[f32]) -> Vec<f32>,
+        hooks: &mut dyn Hooks,
+    ) -> RolloutRecord {
+        while !self.step_with_hooks(act, hooks).1 {}
         self.episode.finish()
     }
 }
@@ -434,6 +443,23 @@ pub fn rollout(
     rng: rng::StreamRng,
 ) -> RolloutRecord {
     CatchEpisode::new(world, spec, condition, rng).run(&mut |obs| agent.act_deterministic(obs))
+}
+
+/// DART's noise injection (Laskey et al. 2017): Gaussian noise of standard deviation `sigma`
+/// on the arm channels of every executed action, drawn from `rng`, while the record keeps the
+/// teacher's intended actions, the labels a student learns. The teacher then visits the states
+/// a student's arm errors lead to and shows how it recovers from them.
+pub struct ArmNoise {
+    pub sigma: f64,
+    pub rng: rng::StreamRng,
+}
+
+impl Hooks for ArmNoise {
+    fn perturb(&mut self, _step: usize, action: &mut Action) {
+        for a in &mut action[..N_ARM] {
+            *a = (*a + self.sigma * rng::normal(&mut self.rng)).clamp(-1.0, 1.0);
+        }
+    }
 }
 
 /// Entry `k` of a record's 3-wide per-step array.

@@ -364,3 +364,61 @@ fn the_success_term_is_paid_once_at_the_end_of_a_successful_rollout() {
         "every kind of outcome among the episodes"
     );
 }
+
+/// DART's arm noise moves only the executed arm channels, keeps the teacher's intended actions
+/// as the record's labels (the same as a noiseless rollout's until the states part), and
+/// draws from its own stream: the same stream gives the same record.
+#[test]
+fn dart_arm_noise_perturbs_executed_arm_channels_and_keeps_intended_labels() {
+    use osms_policy::catch::ArmNoise;
+    use osms_sim::{N_ACTION, N_ARM};
+    let world = world();
+    let spec = CatchTaskSpec::default();
+    assert!(
+        spec.rollout.dr.is_off(),
+        "executed = intended + noise needs DR off"
+    );
+    let task = CatchTask::new(&world, spec.clone(), 3, "test", "dart").expect("task");
+    let agent = lively_agent(&task);
+    let condition = task.condition(0).expect("condition");
+    let run = |sigma: f64| {
+        osms_policy::catch::CatchEpisode::new(
+            &world,
+            &spec,
+            condition.clone(),
+            rng::stream(3, "test", "dart-dr", 0),
+        )
+        .run_with_hooks(
+            &mut |obs| agent.act_deterministic(obs),
+            &mut ArmNoise {
+                sigma,
+                rng: rng::stream(3, "test", "dart-noise", 0),
+            },
+        )
+    };
+    let clean = run(0.0);
+    let noisy = run(0.1);
+    assert_eq!(noisy, run(0.1), "same stream, same record");
+    // Step 0 acts on the same state, so the labels agree there; the executed arm channels do not.
+    assert_eq!(noisy.intended[..N_ACTION], clean.intended[..N_ACTION]);
+    for k in 0..noisy.steps.min(clean.steps) {
+        let (i, e) = (
+            &noisy.intended[k * N_ACTION..(k + 1) * N_ACTION],
+            &noisy.executed[k * N_ACTION..(k + 1) * N_ACTION],
+        );
+        assert!(e.iter().all(|a| a.abs() <= 1.0), "step {k}: {e:?}");
+        assert_eq!(e[N_ARM..], i[N_ARM..], "step {k}: hand channels untouched");
+    }
+    let moved = (0..noisy.steps)
+        .filter(|k| {
+            noisy.executed[k * N_ACTION..k * N_ACTION + N_ARM]
+                != noisy.intended[k * N_ACTION..k * N_ACTION + N_ARM]
+        })
+        .count();
+    assert!(
+        moved * 10 >= noisy.steps * 9,
+        "arm noise on {moved} of {} steps",
+        noisy.steps
+    );
+    assert_ne!(noisy.executed, clean.executed);
+}

@@ -11,7 +11,7 @@ use osms_sim::control::DrSpec;
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{Dataset, DatasetItem, DemoRollout, Teacher};
-use crate::catch::rollout;
+use crate::catch::{ArmNoise, CatchEpisode, rollout};
 use crate::osw::{OswSpec, OswWindow};
 
 /// The three teacher datasets of paper section 4, each from its own condition stream.
@@ -62,6 +62,15 @@ pub struct CollectParams {
     /// teacher's training setting. Each rollout's draws are recorded with it and enter ω̄.
     #[serde(default)]
     pub dr: Option<DrSpec>,
+    /// DART noise (σ, in action units) on the executed arm channels, the teacher's intended
+    /// actions kept as labels ([`ArmNoise`]); 0, the default, collects the teacher's own
+    /// rollouts and is left out of the encoded params, so keys built before it stay valid.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub dart_arm_noise: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 fn default_max_attempts() -> u32 {
@@ -114,6 +123,13 @@ impl ItemStage for CollectStage {
         if ctx.params.max_attempts == 0 {
             return Err("params.max_attempts must be at least 1".into());
         }
+        if !(ctx.params.dart_arm_noise >= 0.0 && ctx.params.dart_arm_noise <= 1.0) {
+            return Err(format!(
+                "params.dart_arm_noise = {} must be within [0, 1] (action units; 0 collects without noise)",
+                ctx.params.dart_arm_noise
+            )
+            .into());
+        }
         if ctx.params.osw.h_os == 0 {
             return Err("params.osw.h_os must be at least 1".into());
         }
@@ -141,13 +157,27 @@ impl ItemStage for CollectStage {
                 "attempt",
                 index as u64 * u64::from(p.max_attempts) + u64::from(attempt),
             );
-            let record = rollout(
-                world,
-                &teacher.task,
-                &teacher.agent,
-                condition,
-                dr_stream.rng(),
-            );
+            let record = if p.dart_arm_noise > 0.0 {
+                let noise = ctx.stream_id(
+                    "dart",
+                    index as u64 * u64::from(p.max_attempts) + u64::from(attempt),
+                );
+                CatchEpisode::new(world, &teacher.task, condition, dr_stream.rng()).run_with_hooks(
+                    &mut |obs| teacher.agent.act_deterministic(obs),
+                    &mut ArmNoise {
+                        sigma: p.dart_arm_noise,
+                        rng: noise.rng(),
+                    },
+                )
+            } else {
+                rollout(
+                    world,
+                    &teacher.task,
+                    &teacher.agent,
+                    condition,
+                    dr_stream.rng(),
+                )
+            };
             if p.successes_only && !record.outcome.success() {
                 for f in &record.outcome.failures {
                     *discarded_failures.entry(f.name().to_string()).or_default() += 1;
