@@ -155,4 +155,95 @@ impl Summarize for ErrorPairs {
         out.push_str(&t.markdown_with(Layout::plain("phase")));
         Some(out)
     }
+
+    /// `pairs.csv`: one row per step of every rollout (D_E item, step, phase, success of the
+    /// rollout, then π̄'s 24 action channels `student_0..23` and the teacher's `teacher_0..23`),
+    /// what Eq. 7 is fitted on, for analyses the summary does not make.
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        let mut csv = String::from("item,step,phase,success");
+        for who in ["student", "teacher"] {
+            for k in 0..N_ACTION {
+                let _ = write!(csv, ",{who}_{k}");
+            }
+        }
+        csv.push('\n');
+        for r in &self.rollouts {
+            for n in 0..r.steps() {
+                let phase = Phase::ALL
+                    .get(usize::from(r.phase[n]))
+                    .map_or("unknown", |p| p.name());
+                let _ = write!(csv, "{},{n},{phase},{}", r.item, r.eval.outcome.success());
+                for v in r.student[n * N_ACTION..(n + 1) * N_ACTION]
+                    .iter()
+                    .chain(&r.teacher[n * N_ACTION..(n + 1) * N_ACTION])
+                {
+                    let _ = write!(csv, ",{v}");
+                }
+                csv.push('\n');
+            }
+        }
+        vec![("pairs.csv".into(), csv.into_bytes())]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use osms_sim::control::DrDraw;
+    use osms_sim::{Failure, Metrics, ObjectVariant, Outcome};
+
+    use super::*;
+
+    #[test]
+    fn pairs_csv_has_one_row_per_step_with_both_actions() {
+        let eval = EvalRow {
+            variant: ObjectVariant::all()[0],
+            lateral_offset_m: 0.0,
+            dr: DrDraw::none(),
+            steps: 2,
+            metrics: Metrics {
+                contact_time_secs: None,
+                contact_speed_mps: None,
+                max_force_n: 0.0,
+                follow_through_m: 0.0,
+                event_step: 0,
+                closest_approach_m: 0.1,
+            },
+            outcome: Outcome {
+                failures: vec![Failure::Drop],
+            },
+            trace: None,
+        };
+        let pairs = ErrorPairs {
+            fold: Some((0, 2)),
+            rollouts: vec![PairRollout {
+                item: 7,
+                student: (0..2 * N_ACTION).map(|i| i as f32).collect(),
+                teacher: (0..2 * N_ACTION).map(|i| -(i as f32)).collect(),
+                phase: vec![Phase::Approach as u8, Phase::Grasping as u8],
+                eval,
+            }],
+        };
+        let files = pairs.files();
+        assert_eq!(files.len(), 1);
+        assert_eq!(files[0].0, "pairs.csv");
+        let text = String::from_utf8(files[0].1.clone()).expect("utf-8");
+        let lines: Vec<Vec<&str>> = text.lines().map(|l| l.split(',').collect()).collect();
+        assert_eq!(lines.len(), 3, "a header and one row per step");
+        assert_eq!(lines[0].len(), 4 + 2 * N_ACTION);
+        assert_eq!(lines[0][4], "student_0");
+        assert_eq!(lines[0][4 + N_ACTION], "teacher_0");
+        let second = &lines[2];
+        assert_eq!(second.len(), lines[0].len());
+        assert_eq!(&second[..4], &["7", "1", Phase::Grasping.name(), "false"]);
+        assert_eq!(
+            second[4],
+            N_ACTION.to_string(),
+            "π̄'s first channel at step 1"
+        );
+        assert_eq!(
+            second[4 + N_ACTION],
+            format!("-{N_ACTION}"),
+            "the teacher's"
+        );
+    }
 }
