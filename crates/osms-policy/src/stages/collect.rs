@@ -63,8 +63,9 @@ pub struct CollectParams {
     #[serde(default)]
     pub dr: Option<DrSpec>,
     /// DART noise (σ, in action units) on the executed arm channels, the teacher's intended
-    /// actions kept as labels ([`ArmNoise`]); 0, the default, collects the teacher's own
-    /// rollouts and is left out of the encoded params, so keys built before it stay valid.
+    /// actions kept as labels ([`ArmNoise`]); D_E only, since the method re-simulates D_M and
+    /// D_R rollouts from their DR stream. 0, the default, collects the teacher's own rollouts
+    /// and is left out of the encoded params, so keys built before it stay valid.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub dart_arm_noise: f64,
 }
@@ -129,6 +130,12 @@ impl ItemStage for CollectStage {
                 ctx.params.dart_arm_noise
             )
             .into());
+        }
+        if ctx.params.dart_arm_noise > 0.0 && ctx.params.role != Some(DatasetRole::DE) {
+            return Err(
+                "params.dart_arm_noise: DART rollouts are student data only (role `d_e`): validation, D_* and the IOS profile re-simulate D_R and D_M rollouts from their DR stream, without the noise\nhint: set role = \"d_e\" or leave dart_arm_noise out"
+                    .into(),
+            );
         }
         if ctx.params.osw.h_os == 0 {
             return Err("params.osw.h_os must be at least 1".into());
