@@ -4,14 +4,14 @@ use std::collections::BTreeMap;
 
 use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError};
-use osms_sim::World;
 use osms_sim::artifacts::WorldArtifact;
 use osms_sim::conditions::sample;
 use osms_sim::control::DrSpec;
+use osms_sim::{Hooks, NoHooks, World};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{Dataset, DatasetItem, DemoRollout, Teacher};
-use crate::catch::{ArmNoise, CatchEpisode, rollout};
+use crate::catch::{ArmNoise, CatchEpisode};
 use crate::osw::{OswSpec, OswWindow};
 
 /// The three teacher datasets of paper section 4, each from its own condition stream.
@@ -160,31 +160,18 @@ impl ItemStage for CollectStage {
         let mut discarded_failures: BTreeMap<String, u32> = BTreeMap::new();
         for attempt in 0..p.max_attempts {
             let condition = sample(&teacher.task.conditions, world.home_palm_pos, rng)?;
-            let dr_stream = ctx.stream_id(
-                "attempt",
-                index as u64 * u64::from(p.max_attempts) + u64::from(attempt),
-            );
-            let record = if p.dart_arm_noise > 0.0 {
-                let noise = ctx.stream_id(
-                    "dart",
-                    index as u64 * u64::from(p.max_attempts) + u64::from(attempt),
-                );
-                CatchEpisode::new(world, &teacher.task, condition, dr_stream.rng()).run_with_hooks(
-                    &mut |obs| teacher.agent.act_deterministic(obs),
-                    &mut ArmNoise {
-                        sigma: p.dart_arm_noise,
-                        rng: noise.rng(),
-                    },
-                )
-            } else {
-                rollout(
-                    world,
-                    &teacher.task,
-                    &teacher.agent,
-                    condition,
-                    dr_stream.rng(),
-                )
+            let stream_index = index as u64 * u64::from(p.max_attempts) + u64::from(attempt);
+            let dr_stream = ctx.stream_id("attempt", stream_index);
+            let mut dart = (p.dart_arm_noise > 0.0).then(|| ArmNoise {
+                sigma: p.dart_arm_noise,
+                rng: ctx.stream_id("dart", stream_index).rng(),
+            });
+            let hooks: &mut dyn Hooks = match &mut dart {
+                Some(noise) => noise,
+                None => &mut NoHooks,
             };
+            let record = CatchEpisode::new(world, &teacher.task, condition, dr_stream.rng())
+                .run_with_hooks(&mut |obs| teacher.agent.act_deterministic(obs), hooks);
             if p.successes_only && !record.outcome.success() {
                 for f in &record.outcome.failures {
                     *discarded_failures.entry(f.name().to_string()).or_default() += 1;
