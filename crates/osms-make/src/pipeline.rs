@@ -27,6 +27,9 @@
 //!
 //! [profiles.tiny.rollouts]    # profile `tiny` overlays params (deep merge) and shards
 //! params = { n = 10 }
+//!
+//! [profiles.decide]
+//! seeds = [0, 1, 2, 3, 4]     # a profile's own run seeds replace [pipeline]'s
 //! ```
 
 use std::collections::BTreeMap;
@@ -46,7 +49,7 @@ struct RawPipeline {
     #[serde(default)]
     stages: BTreeMap<String, RawStage>,
     #[serde(default)]
-    profiles: BTreeMap<String, BTreeMap<String, RawOverlay>>,
+    profiles: BTreeMap<String, RawProfile>,
     #[serde(default)]
     executor: ExecutorConfig,
 }
@@ -94,6 +97,49 @@ struct RawStage {
     shards: Option<u32>,
     folds: Option<u32>,
     seed: Option<u64>,
+}
+
+/// `[profiles.NAME]`: the profile's run seeds (an array, so it cannot be mistaken for a stage's
+/// overlay table) and one overlay per stage.
+#[derive(Default)]
+struct RawProfile {
+    seeds: Option<Vec<u64>>,
+    overlays: BTreeMap<String, RawOverlay>,
+}
+
+impl<'de> Deserialize<'de> for RawProfile {
+    fn deserialize<D: serde::Deserializer<'de>>(
+        deserializer: D,
+    ) -> std::result::Result<Self, D::Error> {
+        deserializer.deserialize_map(RawProfileVisitor)
+    }
+}
+
+struct RawProfileVisitor;
+
+impl<'de> serde::de::Visitor<'de> for RawProfileVisitor {
+    type Value = RawProfile;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a profile: `seeds = [...]` and one table per overlaid stage")
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(
+        self,
+        mut map: A,
+    ) -> std::result::Result<RawProfile, A::Error> {
+        let mut profile = RawProfile::default();
+        while let Some(key) = map.next_key::<String>()? {
+            // Read the value by its own type so that an overlay's errors keep their spans.
+            if key == "seeds" {
+                profile.seeds = Some(map.next_value()?);
+            } else {
+                let overlay = map.next_value()?;
+                profile.overlays.insert(key, overlay);
+            }
+        }
+        Ok(profile)
+    }
 }
 
 #[derive(Deserialize)]
@@ -214,6 +260,23 @@ impl Pipeline {
             )));
         }
 
+        let mut default_seeds = default_seeds;
+        if let Some(seeds) = raw.profiles.get(&profile).and_then(|p| p.seeds.as_ref()) {
+            if seeds.is_empty() {
+                return Err(Error::invalid(
+                    key_location(path, &source, &doc, &["profiles", &profile, "seeds"]),
+                    format!("profile `{profile}`'s `seeds` is empty"),
+                    Some(
+                        "name at least one run seed, or leave `seeds` out to use [pipeline]'s"
+                            .into(),
+                    ),
+                ));
+            }
+            default_seeds = seeds.clone();
+            default_seeds.sort_unstable();
+            default_seeds.dedup();
+        }
+
         let mut stages = BTreeMap::new();
         for (name, s) in raw.stages {
             if !valid_name(&name) {
@@ -221,6 +284,13 @@ impl Pipeline {
                     key_location(path, &source, &doc, &["stages", &name]),
                     format!("stage name `{name}` is not allowed"),
                     Some("use letters, digits, `_` and `-`, starting with a letter".into()),
+                ));
+            }
+            if name == "seeds" {
+                return Err(Error::invalid(
+                    key_location(path, &source, &doc, &["stages", &name]),
+                    "stage name `seeds` is reserved: `[profiles.NAME] seeds = [...]` is a profile's run seeds".to_string(),
+                    Some("rename the stage".into()),
                 ));
             }
             stages.insert(
@@ -239,8 +309,8 @@ impl Pipeline {
                 },
             );
         }
-        if let Some(overlays) = raw.profiles.get(&profile) {
-            for (name, overlay) in overlays {
+        if let Some(raw_profile) = raw.profiles.get(&profile) {
+            for (name, overlay) in &raw_profile.overlays {
                 let Some(stage) = stages.get_mut(name) else {
                     let loc = key_location(path, &source, &doc, &["profiles", &profile, name]);
                     return Err(Error::invalid(
@@ -433,6 +503,42 @@ shards = 3
         );
         let err = parse("[pipeline]\nseeds = []\n", None).expect_err("empty");
         assert!(err.to_string().contains("`seeds` is empty"), "{err}");
+    }
+
+    #[test]
+    fn a_profile_can_name_its_own_run_seeds() {
+        let text = format!(
+            "{TEXT}[profiles.decide]\nseeds = [4, 0, 4, 1]\n[profiles.decide.gen]\nshards = 5\n"
+        );
+        let p = parse(&text, Some("decide")).expect("parse");
+        assert_eq!(p.default_seeds, [0, 1, 4]);
+        assert_eq!(p.stages["gen"].shards, 5);
+        assert_eq!(
+            parse(&text, Some("tiny")).expect("parse").default_seeds,
+            [3]
+        );
+        let err = parse(
+            &format!("{TEXT}[profiles.decide]\nseeds = []\n"),
+            Some("decide"),
+        )
+        .expect_err("empty");
+        assert!(
+            err.to_string()
+                .starts_with("pipeline.toml:22:1: profile `decide`'s `seeds` is empty"),
+            "{err}"
+        );
+        let err = parse("[stages.seeds]\nkind = \"x\"\n", None).expect_err("reserved");
+        assert!(err.to_string().contains("`seeds` is reserved"), "{err}");
+        let err = parse(
+            "[stages.a]\nkind = \"x\"\n[profiles.small.a]\nshard = 2\n",
+            None,
+        )
+        .expect_err("unknown overlay field");
+        assert!(
+            err.to_string()
+                .starts_with("pipeline.toml:4:1: unknown field `shard`"),
+            "{err}"
+        );
     }
 
     #[test]
