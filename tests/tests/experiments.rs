@@ -95,6 +95,28 @@ fn build(plan: &Plan, store: &Store, targets: &[&str]) -> BTreeMap<String, osms_
 }
 
 #[test]
+fn the_decide_profile_is_small_with_ten_run_seeds() {
+    // Same stages, params and seeds as small, so its first three run seeds are small's builds.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
+    let load = |profile| Pipeline::load(&path, Some(profile)).expect("load");
+    let (small, decide) = (load("small"), load("decide"));
+    let spec = |p: &Pipeline| -> Vec<String> {
+        p.stages
+            .values()
+            .map(|s| {
+                format!(
+                    "{} {} {:?} {:?} {} {:?} {:?}",
+                    s.name, s.kind, s.inputs, s.params, s.shards, s.folds, s.fixed_seed
+                )
+            })
+            .collect()
+    };
+    assert_eq!(spec(&small), spec(&decide));
+    assert_eq!(small.default_seeds, [0, 1, 2]);
+    assert_eq!(decide.default_seeds, (0..10).collect::<Vec<u64>>());
+}
+
+#[test]
 fn the_development_stream_shares_no_condition_with_the_held_out_set() {
     // The paper profile's sizes: all 3,000 held-out conditions against all 500 of the stream.
     let (plan, _dir, store) = shipped_plan("paper");
