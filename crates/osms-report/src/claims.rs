@@ -506,6 +506,7 @@ pub fn sizes_markdown(claims: &[Claim]) -> String {
             Column::new("ours", Unit::Text),
             Column::new("resolvable now", Unit::Text),
             Column::new("paper's difference", Unit::Text),
+            Column::new("paper's difference in our 95 % CI", Unit::Text),
             Column::new("seeds per student to resolve it", Unit::Text),
         ],
     );
@@ -518,6 +519,15 @@ pub fn sizes_markdown(claims: &[Claim]) -> String {
                     Cell::text(signed(d.estimate, x.unit)),
                     Cell::text(format!("± {}", magnitude(d.resolvable, x.unit))),
                     Cell::text(x.paper.map_or_else(|| "-".into(), |p| signed(p, x.unit))),
+                    Cell::text(x.paper.map_or("-", |p| {
+                        // Outside: this run already tells the paper's effect apart, so more
+                        // seeds would not be expected to confirm it.
+                        if (d.low..=d.high).contains(&p) {
+                            "yes"
+                        } else {
+                            "no: excluded"
+                        }
+                    })),
                     Cell::text(x.seeds_for_paper.map_or_else(
                         || format!("more than {MAX_SEEDS} at {} conditions", d.n[0]),
                         |s| format!("{s} at {} conditions", d.n[0]),
@@ -694,6 +704,19 @@ mod tests {
             "{sizes}"
         );
         assert!(sizes.contains("at 600 conditions"), "{sizes}");
+        let inside = (x.difference.low..=x.difference.high).contains(&-0.021);
+        let row = sizes
+            .lines()
+            .find(|l| l.contains("(Normal-IL trails Naive-IL)"))
+            .expect("row");
+        assert!(
+            row.contains(if inside {
+                "| yes |"
+            } else {
+                "| no: excluded |"
+            }),
+            "{row}"
+        );
     }
 
     #[test]

@@ -77,7 +77,9 @@ impl Report {
             let _ = writeln!(
                 s,
                 "### What would decide the unresolved claims\n\nThe paper's difference between \
-                 the same rows, and how many run seeds per student would resolve it on the same \
+                 the same rows, whether this run's 95 % interval still contains it (where it \
+                 does not, the run rejects the paper's effect size even though it cannot tell \
+                 the sign), and how many run seeds per student would resolve it on the same \
                  held-out conditions if this run's variance components held (seed spread and \
                  condition variance as measured; docs/report.md).\n\n{sizes}"
             );
