@@ -386,11 +386,41 @@ fn fit_group(
             }
         }
     }
-    let l = robust_cholesky(&cov.covariance(), c);
+    let mut l = robust_cholesky(&cov.covariance(), c);
+    if ar_pairs > 0 && params.stationary == StationaryFit::Residual {
+        let mut spread = Covariance::new(c);
+        for s in sequences {
+            for n in start..s.steps() {
+                if group.contains(s.phase[n]) {
+                    for (k, uk) in u.iter_mut().enumerate() {
+                        *uk = residual(s, n, k);
+                    }
+                    spread.push(&u);
+                }
+            }
+        }
+        match_variances(&mut l, &ar, &spread.covariance(), c);
+    }
     GroupFit::Model(PhaseModel {
         ar_pairs,
         ..assemble(delay, gain, bias, ar, l, samples)
     })
+}
+
+/// Scales row k of `l` by √(γ_k / Σ_kk), with Σ_kk = (LLᵀ)_kk / (1 − a_k²) the Lyapunov
+/// solution's variance and γ_k = `target[k·c + k]`, so that the stationary variances equal γ
+/// and the innovations' correlations are kept (D L Lᵀ D stays positive semi-definite).
+fn match_variances(l: &mut [f64], ar: &[f64], target: &[f64], c: usize) {
+    let q = lower_times_transpose(l, c);
+    for k in 0..c {
+        let stationary = q[k * c + k] / (1.0 - ar[k] * ar[k]);
+        if stationary > 0.0 {
+            let d = (target[k * c + k] / stationary).sqrt();
+            for v in &mut l[k * c..(k + 1) * c] {
+                *v *= d;
+            }
+        }
+    }
 }
 
 /// Table III's global i.i.d. Gaussian: one mean and covariance of `a − ā` over every step.
@@ -558,6 +588,39 @@ mod tests {
         assert_eq!(p.spectral_radius, params.max_ar);
         assert!(p.spectral_radius < 1.0);
         assert!(model.validate().is_ok());
+
+        // The walk's spread over the data, computed here from the deviations themselves
+        // (the gain is 1): the residual fit keeps it, the innovations' Lyapunov solution does
+        // not (0.99 is not 1, so the clamped process forgets the walk's excursions).
+        let spread: Vec<f64> = (0..C)
+            .map(|k| {
+                let d: Vec<f64> = (0..4)
+                    .flat_map(|i| (4..5000).map(move |n| (i, n)))
+                    .map(|(i, n)| f64::from(student[i][n * C + k] - teacher[i][n * C + k]))
+                    .collect();
+                let m = d.iter().sum::<f64>() / d.len() as f64;
+                d.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (d.len() - 1) as f64
+            })
+            .collect();
+        let innovations = fit(
+            &seqs,
+            C,
+            &ErrorFitParams {
+                stationary: StationaryFit::Innovations,
+                ..params.clone()
+            },
+        )
+        .expect("fit");
+        for k in 0..C {
+            let matched = p.stationary[k * C + k] / spread[k];
+            let lyapunov = innovations.phases[0].stationary[k * C + k] / spread[k];
+            println!(
+                "channel {k}: residual fit {matched:.3}, innovations {lyapunov:.3} of the spread"
+            );
+            assert!((matched - 1.0).abs() < 0.02, "{k}: {matched}");
+            assert!(!(0.5..2.0).contains(&lyapunov), "{k}: {lyapunov}");
+        }
+        assert_eq!(p.ar, innovations.phases[0].ar);
     }
 
     #[test]

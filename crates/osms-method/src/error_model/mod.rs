@@ -38,6 +38,8 @@ mod table3;
 pub(crate) mod testdata;
 
 pub use fit::fit;
-pub use model::{ErrorFitParams, ErrorModel, ErrorVariant, N_PHASES, PairSequence, PhaseModel};
+pub use model::{
+    ErrorFitParams, ErrorModel, ErrorVariant, N_PHASES, PairSequence, PhaseModel, StationaryFit,
+};
 pub use perturb::Perturber;
 pub use table3::{Table3Metrics, table3_metrics};

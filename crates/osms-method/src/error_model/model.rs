@@ -54,6 +54,9 @@ pub struct ErrorFitParams {
     /// The AR coefficients are clamped to `[−max_ar, max_ar]` so that the process is stable
     /// and has a stationary distribution to start from; must lie in `[0, 1)`.
     pub max_ar: f64,
+    /// How the AR process's stationary covariance Σ_φ (where validation starts e₀, and the
+    /// spread of e_n) is tied to the data.
+    pub stationary: StationaryFit,
 }
 
 impl Default for ErrorFitParams {
@@ -63,8 +66,25 @@ impl Default for ErrorFitParams {
             max_delay: 4,
             kappa: 1.5,
             max_ar: 0.99,
+            stationary: StationaryFit::Residual,
         }
     }
+}
+
+/// The stationary covariance of the phase-correlated model's AR process.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StationaryFit {
+    /// Σ_φ has the residuals' own variances: each row of L_φ is scaled so that the Lyapunov
+    /// solution's diagonal equals the residual variance of its channel, keeping the
+    /// innovations' correlations. Where the residuals grow within a phase (a raw AR
+    /// coefficient ≥ 1, clamped to `max_ar`) the innovations' Lyapunov solution is several
+    /// times the spread the student ever showed; this keeps the model's marginal moments the
+    /// data's ("A_φ and L_φ from the residual dynamics and covariance", section 4.3).
+    Residual,
+    /// Σ_φ solves Σ = AΣAᵀ + LLᵀ with L the innovations' Cholesky factor, whatever the
+    /// residuals' spread (osms before error_model v2).
+    Innovations,
 }
 
 /// One rollout's pairs, step-major: `student[n*c + k]`, `teacher[n*c + k]`, `phase[n]`.

@@ -14,7 +14,8 @@ use crate::error_model::{ErrorFitParams, ErrorVariant, PairSequence, fit, table3
 pub struct ErrorModelStage;
 impl Stage for ErrorModelStage {
     const KIND: &'static str = "error_model";
-    const CODE_VERSION: u32 = 1;
+    // v2: Σ_φ matched to the residuals' variances (`StationaryFit::Residual`).
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[Slot::gather::<ErrorPairs>("pairs")];
     const DOC: &'static str =
