@@ -238,12 +238,7 @@ impl Pipeline {
                     Some("name at least one run seed, e.g. `seeds = [0, 1, 2]`".into()),
                 ));
             }
-            (_, Some(seeds)) => {
-                let mut s = seeds.clone();
-                s.sort_unstable();
-                s.dedup();
-                s
-            }
+            (_, Some(seeds)) => distinct_sorted(seeds),
             (seed, None) => vec![seed.unwrap_or(0)],
         };
         let mut profiles: Vec<String> = raw.profiles.keys().cloned().collect();
@@ -260,22 +255,15 @@ impl Pipeline {
             )));
         }
 
-        let mut default_seeds = default_seeds;
-        if let Some(seeds) = raw.profiles.get(&profile).and_then(|p| p.seeds.as_ref()) {
-            if seeds.is_empty() {
-                return Err(Error::invalid(
-                    key_location(path, &source, &doc, &["profiles", &profile, "seeds"]),
-                    format!("profile `{profile}`'s `seeds` is empty"),
-                    Some(
-                        "name at least one run seed, or leave `seeds` out to use [pipeline]'s"
-                            .into(),
-                    ),
-                ));
-            }
-            default_seeds = seeds.clone();
-            default_seeds.sort_unstable();
-            default_seeds.dedup();
+        let profile_seeds = raw.profiles.get(&profile).and_then(|p| p.seeds.as_ref());
+        if profile_seeds.is_some_and(|s| s.is_empty()) {
+            return Err(Error::invalid(
+                key_location(path, &source, &doc, &["profiles", &profile, "seeds"]),
+                format!("profile `{profile}`'s `seeds` is empty"),
+                Some("name at least one run seed, or leave `seeds` out to use [pipeline]'s".into()),
+            ));
         }
+        let default_seeds = profile_seeds.map_or(default_seeds, |s| distinct_sorted(s));
 
         let mut stages = BTreeMap::new();
         for (name, s) in raw.stages {
@@ -400,6 +388,13 @@ impl Pipeline {
             _ => self.locate(&base),
         }
     }
+}
+
+fn distinct_sorted(seeds: &[u64]) -> Vec<u64> {
+    let mut s = seeds.to_vec();
+    s.sort_unstable();
+    s.dedup();
+    s
 }
 
 fn valid_name(name: &str) -> bool {

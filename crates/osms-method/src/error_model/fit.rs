@@ -361,10 +361,26 @@ fn fit_group(
             }
         }
     }
-    let mut cov = Covariance::new(c);
-    let mut u = vec![0.0; c];
-    for s in sequences {
-        if ar_pairs > 0 {
+    // The residuals' covariance over the group's regression samples.
+    let residual_covariance = || {
+        let mut cov = Covariance::new(c);
+        let mut u = vec![0.0; c];
+        for s in sequences {
+            for n in start..s.steps() {
+                if group.contains(s.phase[n]) {
+                    for (k, uk) in u.iter_mut().enumerate() {
+                        *uk = residual(s, n, k);
+                    }
+                    cov.push(&u);
+                }
+            }
+        }
+        cov.covariance()
+    };
+    let l = if ar_pairs > 0 {
+        let mut cov = Covariance::new(c);
+        let mut u = vec![0.0; c];
+        for s in sequences {
             for n in start + 1..s.steps() {
                 if !(group.contains(s.phase[n]) && group.contains(s.phase[n - 1])) {
                     continue;
@@ -374,33 +390,15 @@ fn fit_group(
                 }
                 cov.push(&u);
             }
-        } else {
-            for n in start..s.steps() {
-                if !group.contains(s.phase[n]) {
-                    continue;
-                }
-                for (k, uk) in u.iter_mut().enumerate() {
-                    *uk = residual(s, n, k);
-                }
-                cov.push(&u);
-            }
         }
-    }
-    let mut l = robust_cholesky(&cov.covariance(), c);
-    if ar_pairs > 0 && params.stationary == StationaryFit::Residual {
-        let mut spread = Covariance::new(c);
-        for s in sequences {
-            for n in start..s.steps() {
-                if group.contains(s.phase[n]) {
-                    for (k, uk) in u.iter_mut().enumerate() {
-                        *uk = residual(s, n, k);
-                    }
-                    spread.push(&u);
-                }
-            }
+        let mut l = robust_cholesky(&cov.covariance(), c);
+        if params.stationary == StationaryFit::Residual {
+            match_variances(&mut l, &ar, &residual_covariance(), c);
         }
-        match_variances(&mut l, &ar, &spread.covariance(), c);
-    }
+        l
+    } else {
+        robust_cholesky(&residual_covariance(), c)
+    };
     GroupFit::Model(PhaseModel {
         ar_pairs,
         ..assemble(delay, gain, bias, ar, l, samples)
