@@ -1144,6 +1144,16 @@ kind = "dstar"
 inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
 shards = 3
 
+[stages.dstar_direct_intended]
+kind = "dstar"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
+params = { perturbed_labels = "intended" }
+
+[stages.dstar_direct_omit]
+kind = "dstar"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
+params = { perturbed_labels = "omit" }
+
 [stages.validate_unperturbed]
 kind = "validate"
 seed = 0
@@ -1225,6 +1235,49 @@ shards = 3
     assert!(
         stats.perturbed > 0 && stats.unperturbed_successes > stats.perturbed,
         "the tiny direct sets exercise every path: {stats:?}"
+    );
+    let built = |stage: &str| -> DemoSet {
+        osms_make::assemble(
+            &made.store.get(&fast[stage]).expect("object"),
+            &osms_make::StoreObjects(&made.store),
+        )
+        .expect("D_*")
+    };
+    let (intended, omit) = (built("dstar_direct_intended"), built("dstar_direct_omit"));
+    let mut relabelled = 0;
+    for (((g, gi), go), r) in dstar
+        .groups
+        .iter()
+        .zip(&intended.groups)
+        .zip(&omit.groups)
+        .zip(d_r.rollouts())
+    {
+        // The ablations change perturbed rollouts' labels or drop them, nothing else.
+        assert_eq!((g.origin, g.item), (gi.origin, gi.item));
+        assert_eq!((g.origin, g.item), (go.origin, go.item));
+        assert_eq!(g.demos.len(), gi.demos.len());
+        let unperturbed = g.demos.len().min(1);
+        assert_eq!(go.demos[..], g.demos[..unperturbed]);
+        for (e, ei) in g.demos.iter().zip(&gi.demos) {
+            assert_eq!(e.execution, ei.execution);
+            assert_eq!(e.demo.deployable, ei.demo.deployable, "the same states");
+            if matches!(e.execution, Execution::Perturbed { .. }) {
+                assert_ne!(e.demo.actions, ei.demo.actions, "relabelled with ā");
+                let start = r.osw.start;
+                assert_eq!(
+                    ei.demo.actions[start * N_ACTION..start * N_ACTION + N_ARM],
+                    gi.demos[0].demo.actions[start * N_ACTION..start * N_ACTION + N_ARM],
+                    "ā opens the window with ζ*, as the unperturbed rollout does"
+                );
+                relabelled += 1;
+            } else {
+                assert_eq!(e.demo.actions, ei.demo.actions);
+            }
+        }
+    }
+    assert!(
+        relabelled > 0,
+        "the tiny direct sets have perturbed survivors"
     );
 
     // D_*: successes only, as validated; labels are the commanded actions.

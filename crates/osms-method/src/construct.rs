@@ -83,16 +83,33 @@ impl Inputs {
     }
 }
 
+/// What D_* keeps of a selected candidate's successful perturbed rollouts. The paper keeps
+/// them as demonstrations without saying which action labels them; `Executed` (the default)
+/// labels them with the commanded, perturbed action, so the student learns the recovery the
+/// rollout took. The other two are ablations: they separate that labelling from the extra
+/// states the perturbed rollouts visit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PerturbedLabels {
+    /// The commanded action after the modelled perturbation (Eq. 7's a).
+    #[default]
+    Executed,
+    /// The action before the perturbation (Eq. 7's ā: ζ* in the window, the teacher's after).
+    Intended,
+    /// No perturbed rollout enters D_* (nor is re-run).
+    Omit,
+}
+
 /// D_* (Alg. 1 step 4): for a refined or repaired rollout the selected ζ*'s unperturbed
-/// rollout and every successful perturbed one (labels: the commanded actions, modelled
-/// perturbations included); a kept original as it ran; nothing for a dropped one. The
-/// rollouts are re-run with the validation's streams (`errors(q)` for perturbed rollout q of
-/// `q_runs`) and checked against its outcomes.
+/// rollout and every successful perturbed one (labelled as `labels` says); a kept original as
+/// it ran; nothing for a dropped one. The rollouts are re-run with the validation's streams
+/// (`errors(q)` for perturbed rollout q of `q_runs`) and checked against its outcomes.
 pub fn dstar_group(
     inputs: &Inputs,
     index: usize,
     v: &ValidationItem,
     q_runs: usize,
+    labels: PerturbedLabels,
     errors: &dyn Fn(usize) -> StreamRng,
 ) -> Result<DemoGroup> {
     let r = &inputs.rollouts[index];
@@ -147,6 +164,9 @@ pub fn dstar_group(
         &u.record,
         u.commanded,
     ));
+    if labels == PerturbedLabels::Omit {
+        return Ok(group);
+    }
     let mut successes = 0u32;
     for q in 0..q_runs {
         let e = run(Some(Errors {
@@ -155,10 +175,14 @@ pub fn dstar_group(
         }));
         if e.record.outcome.success() {
             successes += 1;
+            let label = match labels {
+                PerturbedLabels::Intended => e.record.intended.clone(),
+                _ => e.commanded,
+            };
             group.demos.push(DemoEntry::labelled(
                 Execution::Perturbed { q: q as u32 },
                 &e.record,
-                e.commanded,
+                label,
             ));
         }
     }

@@ -1,32 +1,45 @@
 //! The ablations of paper 6.4 as their own target (`osms make ablations`): refinement and
 //! repair (success-only filtering, refine-only, repair-only, both) and candidate generation
-//! (direct, unconditional, Euclidean, geodesic), with their claims.
-
-use std::fmt::Write;
+//! (direct, unconditional, Euclidean, geodesic), with their claims decided by 95 % confidence
+//! intervals as the default report's are (docs/report.md, "Claims check").
 
 use osms_policy::artifacts::ConstructionStats;
 use osms_sim::artifacts::Evaluation;
 
-use crate::claims::{Claim, Verdict};
+use crate::claims::{Claim, Policy, all_of, force_comparison, proportion, success_comparison};
 use crate::tables::{POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed};
-use osms_core::table::{Cell, Column, Row, Table, Unit, Value, format_value};
+use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
 
-/// Rows of the refinement-and-repair ablation with the paper's task success and f_max.
-const PAPER_REFINE_REPAIR: [(&str, &str, &str); 4] = [
-    ("Success-only filtering (Naive-IL)", "83.8%", "41.1"),
-    ("Refinement only", "83.2%", "36.2"),
-    ("Repair only", "88.5%", "42.7"),
-    ("Refinement and repair (Ours-IL)", "90.3%", "37.3"),
+/// Rows of the refinement-and-repair ablation with the paper's task success and f_max (N).
+const PAPER_REFINE_REPAIR: [(&str, f64, f64); 4] = [
+    ("Success-only filtering (Naive-IL)", 0.838, 41.1),
+    ("Refinement only", 0.832, 36.2),
+    ("Repair only", 0.885, 42.7),
+    ("Refinement and repair (Ours-IL)", 0.903, 37.3),
 ];
 
 /// Rows of the candidate-generation ablation with the paper's repair, refinement and
-/// student success.
-const PAPER_GENERATORS: [(&str, &str, &str, &str); 4] = [
-    ("Direct perturbation", "5.6%", "8.3%", "83.4%"),
-    ("Unconditional manifold", "25.7%", "33.1%", "86.8%"),
-    ("Conditional Euclidean", "39.6%", "51.9%", "88.5%"),
-    ("Conditional geodesic (ours)", "44.3%", "59.8%", "90.3%"),
+/// student success, in the ascending order of the paper's claim.
+const PAPER_GENERATORS: [(&str, f64, f64, f64); 4] = [
+    ("Direct perturbation", 0.056, 0.083, 0.834),
+    ("Unconditional manifold", 0.257, 0.331, 0.868),
+    ("Conditional Euclidean", 0.396, 0.519, 0.885),
+    ("Conditional geodesic (ours)", 0.443, 0.598, 0.903),
 ];
+
+/// The paper's student success for an ablation row.
+pub(crate) fn paper_success(row: &str) -> Option<f64> {
+    PAPER_REFINE_REPAIR
+        .iter()
+        .map(|(r, s, _)| (r, s))
+        .chain(PAPER_GENERATORS.iter().map(|(r, _, _, s)| (r, s)))
+        .find(|(r, _)| **r == row)
+        .map(|(_, s)| *s)
+}
+
+fn percent(x: f64) -> String {
+    format!("{:.1}%", 100.0 * x)
+}
 
 fn col(name: &str, unit: Unit) -> Column {
     Column {
@@ -51,8 +64,8 @@ pub fn refine_repair(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 4]
         .map(|(i, (label, s, f))| Row {
             label: (*label).into(),
             cells: vec![
-                Cell::new(success(students[i]), Some(s)),
-                Cell::new(force(students[i]), Some(f)),
+                Cell::new(success(students[i]), Some(&percent(*s))),
+                Cell::new(force(students[i]), Some(&format!("{f:.1}"))),
                 Cell::new(Value::One(sets[i].repair_rate), None),
                 Cell::new(Value::One(sets[i].refinement_rate), None),
                 Cell::new(Value::of(sets[i].unperturbed_max_force_n), None),
@@ -89,9 +102,9 @@ pub fn generators(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 4]) -
         .map(|(i, (label, rep, refi, s))| Row {
             label: (*label).into(),
             cells: vec![
-                Cell::new(Value::One(sets[i].repair_rate), Some(rep)),
-                Cell::new(Value::One(sets[i].refinement_rate), Some(refi)),
-                Cell::new(success(students[i]), Some(s)),
+                Cell::new(Value::One(sets[i].repair_rate), Some(&percent(*rep))),
+                Cell::new(Value::One(sets[i].refinement_rate), Some(&percent(*refi))),
+                Cell::new(success(students[i]), Some(&percent(*s))),
                 Cell::new(force(students[i]), None),
                 Cell::new(Value::One(sets[i].conditions as f64), None),
                 Cell::new(Value::One(sets[i].demonstrations as f64), None),
@@ -120,151 +133,159 @@ pub fn generators(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 4]) -
     }
 }
 
-fn mean_of(t: &Table, row: usize, column: &str) -> Option<f64> {
-    let c = t.columns.iter().position(|c| c.name == column)?;
-    t.rows.get(row)?.cells.get(c)?.ours.stats().map(|s| s.mean)
+/// "Refinement mainly lowers force, repair mainly adds success": repair-only's students
+/// succeed more often than refine-only's (paired by held-out condition) and refine-only's
+/// grip more softly (f_max over catch completions, unpaired). Against success-only filtering
+/// both differences are the same: (s_rep − s_0) − (s_ref − s_0) = s_rep − s_ref.
+pub fn refine_repair_claim(students: [&[Evaluation]; 4]) -> Claim {
+    let refine = Policy::of(PAPER_REFINE_REPAIR[1].0, students[1]);
+    let repair = Policy::of(PAPER_REFINE_REPAIR[2].0, students[2]);
+    all_of(
+        "Refinement mainly lowers force, repair mainly adds success",
+        vec![
+            success_comparison(&repair, &refine),
+            force_comparison(&repair, &refine),
+        ],
+        true,
+    )
 }
 
-fn text(t: &Table, row: usize, column: &str) -> String {
-    let c = t.columns.iter().position(|c| c.name == column);
-    match c.and_then(|c| Some((&t.rows.get(row)?.cells[c].ours, t.columns[c].unit))) {
-        Some((v, u)) => format_value(v, u),
-        None => "-".into(),
+/// "geodesic > Euclidean > unconditional > direct" in repair rate (repaired over failed
+/// originals), refinement rate (refined over successful originals), both two proportions, and
+/// student success (paired): each generator against the one below it, every interval in the
+/// paper's direction for the claim to hold.
+pub fn generator_claim(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 4]) -> Claim {
+    let name = |i: usize| PAPER_GENERATORS[i].0.to_string();
+    let repair = |i: usize| {
+        let s = sets[i];
+        (
+            name(i),
+            s.repaired,
+            s.conditions.saturating_sub(s.original_successes),
+        )
+    };
+    let refine = |i: usize| (name(i), sets[i].refined, sets[i].original_successes);
+    let policy = |i: usize| Policy::of(PAPER_GENERATORS[i].0, students[i]);
+    let mut comparisons = Vec::new();
+    for a in (1..4).rev() {
+        let b = a - 1;
+        comparisons.push(proportion(REPAIR_RATE, &repair(a), &repair(b)));
+        comparisons.push(proportion(REFINEMENT_RATE, &refine(a), &refine(b)));
+        comparisons.push(success_comparison(&policy(a), &policy(b)));
     }
-}
-
-/// "Refinement mainly lowers force, repair mainly adds success": refine-only lowers f_max
-/// more than repair-only does, and repair-only adds more success than refine-only does (both
-/// against success-only filtering).
-pub fn refine_repair_claim(t: &Table) -> Claim {
-    let m = |r, c| mean_of(t, r, c);
-    let holds = (|| {
-        let (s0, s_ref, s_rep) = (
-            m(0, TASK_SUCCESS)?,
-            m(1, TASK_SUCCESS)?,
-            m(2, TASK_SUCCESS)?,
-        );
-        let (f0, f_ref, f_rep) = (
-            m(0, POLICY_F_MAX)?,
-            m(1, POLICY_F_MAX)?,
-            m(2, POLICY_F_MAX)?,
-        );
-        Some(f0 - f_ref > f0 - f_rep && s_rep - s0 > s_ref - s0)
-    })();
-    let mut evidence = String::new();
-    for (i, name) in ["filtering", "refine-only", "repair-only"]
-        .iter()
-        .enumerate()
-    {
-        let _ = write!(
-            evidence,
-            "{}{name} {} / {} N",
-            if i > 0 { "; " } else { "" },
-            text(t, i, TASK_SUCCESS),
-            text(t, i, POLICY_F_MAX)
-        );
-    }
-    Claim {
-        claim: "Refinement mainly lowers force, repair mainly adds success".into(),
-        verdict: match holds {
-            Some(true) => Verdict::Holds,
-            Some(false) => Verdict::DoesNotHold,
-            None => Verdict::NotChecked,
-        },
-        evidence: format!("task success / policy f_max: {evidence}"),
-        comparisons: vec![],
-    }
-}
-
-/// "geodesic > Euclidean > unconditional > direct" in repair rate, refinement rate and
-/// student success (rows are in ascending order of the claim).
-pub fn generator_claim(t: &Table) -> Claim {
-    let mut parts = Vec::new();
-    let mut all = Some(true);
-    for column in [REPAIR_RATE, REFINEMENT_RATE, TASK_SUCCESS] {
-        let means: Option<Vec<f64>> = (0..4).map(|r| mean_of(t, r, column)).collect();
-        let ordered = means.map(|v| v.windows(2).all(|w| w[1] > w[0]));
-        all = match (all, ordered) {
-            (Some(a), Some(o)) => Some(a && o),
-            _ => None,
-        };
-        parts.push(format!(
-            "{column} {}",
-            (0..4)
-                .map(|r| text(t, r, column))
-                .collect::<Vec<_>>()
-                .join(" < ")
-        ));
-    }
-    Claim {
-        claim: "Candidate generation: geodesic > Euclidean > unconditional > direct (repair, refinement, student success)".into(),
-        verdict: match all {
-            Some(true) => Verdict::Holds,
-            Some(false) => Verdict::DoesNotHold,
-            None => Verdict::NotChecked,
-        },
-        evidence: format!("direct < unconditional < Euclidean < geodesic needed: {}", parts.join("; ")),
-        comparisons: vec![],
-    }
+    all_of(
+        "Candidate generation: geodesic > Euclidean > unconditional > direct (repair, refinement, student success)",
+        comparisons,
+        true,
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tables::testing::{evals, stats};
+    use crate::claims::Verdict;
+    use crate::tables::testing::{scrambled, stats};
+
+    /// D_R of 1,000 conditions, 500 original successes.
+    fn counted(refined: usize, repaired: usize) -> ConstructionStats {
+        ConstructionStats {
+            conditions: 1000,
+            original_successes: 500,
+            refined,
+            repaired,
+            refinement_rate: refined as f64 / 500.0,
+            repair_rate: repaired as f64 / 500.0,
+            ..stats(0.0, 0.0)
+        }
+    }
 
     #[test]
-    fn claims_follow_the_paper_pattern_and_break_without_it() {
-        let st = stats(0.4, 0.6);
-        let rr = refine_repair(
-            [&st, &st, &st, &st],
-            [
-                &evals(&[0.8, 0.8], 41.0),
-                &evals(&[0.8, 0.8], 36.0),
-                &evals(&[0.9, 0.9], 42.0),
-                &evals(&[0.9, 1.0], 37.0),
-            ],
+    fn refinement_and_repair_are_decided_by_intervals_both_ways() {
+        let n = 600;
+        let filtering = scrambled(0.6, 3, n, 40.0);
+        let (refine, repair) = (scrambled(0.6, 3, n, 30.0), scrambled(0.8, 3, n, 45.0));
+        let claim = refine_repair_claim([&filtering, &refine, &repair, &repair]);
+        assert_eq!(claim.verdict, Verdict::Holds, "{claim:?}");
+        let [success, force] = &claim.comparisons[..] else {
+            panic!("two comparisons: {claim:?}");
+        };
+        assert_eq!(
+            (success.a.as_str(), success.b.as_str()),
+            ("Repair only", "Refinement only")
         );
-        assert_eq!(refine_repair_claim(&rr).verdict, Verdict::Holds);
-        let swapped = refine_repair(
-            [&st, &st, &st, &st],
-            [
-                &evals(&[0.8], 41.0),
-                &evals(&[0.9], 41.0),
-                &evals(&[0.8], 36.0),
-                &evals(&[0.9], 37.0),
-            ],
+        assert!(
+            (success.difference.estimate - 0.2).abs() < 0.02,
+            "{success:?}"
         );
-        assert_eq!(refine_repair_claim(&swapped).verdict, Verdict::DoesNotHold);
+        assert!((success.paper.expect("paper") - (0.885 - 0.832)).abs() < 1e-12);
+        assert!(
+            force.difference.low > 0.0 && force.paper.is_none(),
+            "{force:?}"
+        );
+        let swapped = refine_repair_claim([&filtering, &repair, &refine, &repair]);
+        assert_eq!(swapped.verdict, Verdict::Contradicted, "{swapped:?}");
+        let same = refine_repair_claim([&filtering, &refine, &refine, &refine]);
+        assert_eq!(same.verdict, Verdict::Unresolved, "{same:?}");
+    }
 
+    #[test]
+    fn generators_must_be_ordered_in_every_metric_within_intervals() {
+        let n = 600;
         let sets = [
-            stats(0.1, 0.1),
-            stats(0.2, 0.3),
-            stats(0.3, 0.5),
-            stats(0.4, 0.6),
+            counted(40, 20),
+            counted(150, 100),
+            counted(250, 200),
+            counted(350, 300),
         ];
         let students = [
-            evals(&[0.5, 0.6], 40.0),
-            evals(&[0.6, 0.7], 40.0),
-            evals(&[0.7, 0.8], 40.0),
-            evals(&[0.8, 0.9], 40.0),
+            scrambled(0.3, 3, n, 40.0),
+            scrambled(0.5, 3, n, 40.0),
+            scrambled(0.7, 3, n, 40.0),
+            scrambled(0.9, 3, n, 40.0),
         ];
+        let s = |i: usize| &students[i][..];
+        let c = generator_claim(
+            [&sets[0], &sets[1], &sets[2], &sets[3]],
+            [s(0), s(1), s(2), s(3)],
+        );
+        assert_eq!(c.verdict, Verdict::Holds, "{c:?}");
+        assert_eq!(c.comparisons.len(), 9);
+        let first = &c.comparisons[0];
+        assert_eq!(
+            (first.a.as_str(), first.b.as_str(), first.metric.as_str()),
+            (
+                "Conditional geodesic (ours)",
+                "Conditional Euclidean",
+                REPAIR_RATE
+            )
+        );
+        assert!((first.difference.estimate - 0.2).abs() < 1e-12);
+        assert_eq!(first.difference.n, [500, 500]);
+        assert!((c.comparisons[2].paper.expect("paper") - (0.903 - 0.885)).abs() < 1e-12);
+
+        // Euclidean no better than unconditional: that step is unresolved.
+        let flat = generator_claim(
+            [&sets[0], &sets[1], &sets[1], &sets[3]],
+            [s(0), s(1), s(1), s(3)],
+        );
+        assert_eq!(flat.verdict, Verdict::Unresolved, "{flat:?}");
+        // Direct's students best: contradicted.
+        let direct_best = generator_claim(
+            [&sets[0], &sets[1], &sets[2], &sets[3]],
+            [s(3), s(1), s(2), s(3)],
+        );
+        assert_eq!(
+            direct_best.verdict,
+            Verdict::Contradicted,
+            "{direct_best:?}"
+        );
+
         let g = generators(
             [&sets[0], &sets[1], &sets[2], &sets[3]],
-            [&students[0], &students[1], &students[2], &students[3]],
+            [s(0), s(1), s(2), s(3)],
         );
-        let c = generator_claim(&g);
-        assert_eq!(c.verdict, Verdict::Holds, "{}", c.evidence);
-        assert_eq!(
-            g.cell("Direct perturbation", TASK_SUCCESS)
-                .expect("cell")
-                .ours,
-            Value::Seeds(vec![0.5, 0.6])
-        );
-        let flat = generators(
-            [&sets[0], &sets[0], &sets[2], &sets[3]],
-            [&students[0], &students[1], &students[2], &students[3]],
-        );
-        assert_eq!(generator_claim(&flat).verdict, Verdict::DoesNotHold);
+        let cell = g.cell("Direct perturbation", TASK_SUCCESS).expect("cell");
+        assert_eq!(cell.paper.as_deref(), Some("83.4%"));
+        assert!(matches!(&cell.ours, Value::Seeds(v) if v.len() == 3));
     }
 }

@@ -27,8 +27,6 @@ pub enum Verdict {
     Contradicted,
     /// The intervals span 0: this run cannot tell.
     Unresolved,
-    /// Compared by means only, without an interval (the ablations' claims).
-    DoesNotHold,
     /// The data this claim needs are not part of this report (e.g. the ablations).
     NotChecked,
 }
@@ -39,7 +37,6 @@ impl Verdict {
             Verdict::Holds => "holds",
             Verdict::Contradicted => "contradicted",
             Verdict::Unresolved => "unresolved",
-            Verdict::DoesNotHold => "does not hold",
             Verdict::NotChecked => "not checked",
         }
     }
@@ -86,7 +83,7 @@ pub struct Comparison {
 /// The largest seed count [`Comparison::seeds_for_paper`] looks at.
 pub const MAX_SEEDS: usize = 100;
 
-/// The paper's task success per row (Tables II and III).
+/// The paper's task success per row (Tables II and III, then the ablations').
 fn paper_success(row: &str) -> Option<f64> {
     let [unperturbed, global, independent, correlated] = TABLE3_ROWS;
     [
@@ -102,6 +99,7 @@ fn paper_success(row: &str) -> Option<f64> {
     .iter()
     .find(|(r, _)| *r == row)
     .map(|(_, v)| *v)
+    .or_else(|| crate::ablations::paper_success(row))
 }
 
 impl Comparison {
@@ -185,14 +183,14 @@ fn forces(evals: &[Evaluation]) -> Vec<Vec<f64>> {
 
 /// A policy's name and its per-rollout values, read once from its evaluations.
 #[derive(Clone)]
-struct Policy<'a> {
+pub(crate) struct Policy<'a> {
     name: &'a str,
     success: Vec<Vec<f64>>,
     force: Vec<Vec<f64>>,
 }
 
 impl<'a> Policy<'a> {
-    fn of(name: &'a str, evals: &[Evaluation]) -> Self {
+    pub(crate) fn of(name: &'a str, evals: &[Evaluation]) -> Self {
         Policy {
             name,
             success: successes(evals),
@@ -209,7 +207,7 @@ impl<'a> Policy<'a> {
     }
 }
 
-fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
+pub(crate) fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
     let difference = paired_difference(&a.success, &b.success)?;
     let paper = paper_success(a.name)
         .zip(paper_success(b.name))
@@ -228,7 +226,7 @@ fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
     })
 }
 
-fn force_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
+pub(crate) fn force_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
     Some(Comparison {
         a: a.name.into(),
         b: b.name.into(),
@@ -242,7 +240,7 @@ fn force_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
 
 /// A claim that holds when every comparison's interval favours `a_higher`, is contradicted
 /// when any goes against it, and is unresolved otherwise.
-fn all_of(claim: &str, comparisons: Vec<Option<Comparison>>, a_higher: bool) -> Claim {
+pub(crate) fn all_of(claim: &str, comparisons: Vec<Option<Comparison>>, a_higher: bool) -> Claim {
     decided(claim, comparisons, a_higher, true)
 }
 
@@ -332,7 +330,7 @@ fn coverage(s: &ConstructionStats, name: &str) -> (String, usize, usize) {
     (name.into(), count(s.coverage, s.conditions), s.conditions)
 }
 
-fn proportion(
+pub(crate) fn proportion(
     claim_metric: &str,
     a: &(String, usize, usize),
     b: &(String, usize, usize),
@@ -578,31 +576,7 @@ pub fn markdown(claims: &[Claim]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tables::testing::{evals, stats};
-    use osms_sim::metrics::Failure;
-
-    /// `seeds` evaluations of `n` conditions: rollout (s, c) succeeds when a fixed scramble of
-    /// (s, c) falls below `rate`; every rollout completes its catch, f_max `force` ± 5 N.
-    fn policy(rate: f64, seeds: usize, n: usize, force: f64) -> Vec<Evaluation> {
-        let template = evals(&[1.0], force).remove(0).rows.remove(0);
-        (0..seeds)
-            .map(|s| Evaluation {
-                rows: (0..n)
-                    .map(|c| {
-                        let u = ((c * 7919 + s * 104_729) % 1000) as f64 / 1000.0;
-                        let mut row = template.clone();
-                        row.metrics.max_force_n = force + 10.0 * (u - 0.5);
-                        row.outcome.failures = if u < rate {
-                            vec![]
-                        } else {
-                            vec![Failure::ForceExceeded]
-                        };
-                        row
-                    })
-                    .collect(),
-            })
-            .collect()
-    }
+    use crate::tables::testing::{scrambled as policy, stats};
 
     fn table3() -> Table {
         let mut t = Table::new(

@@ -329,6 +329,29 @@ pub(crate) mod testing {
             })
             .collect()
     }
+
+    /// `seeds` evaluations of `n` conditions: rollout (s, c) succeeds when a fixed scramble of
+    /// (s, c) falls below `rate`; every rollout completes its catch, f_max `force` ± 5 N.
+    pub(crate) fn scrambled(rate: f64, seeds: usize, n: usize, force: f64) -> Vec<Evaluation> {
+        let template = evals(&[1.0], force).remove(0).rows.remove(0);
+        (0..seeds)
+            .map(|s| Evaluation {
+                rows: (0..n)
+                    .map(|c| {
+                        let u = ((c * 7919 + s * 104_729) % 1000) as f64 / 1000.0;
+                        let mut row = template.clone();
+                        row.metrics.max_force_n = force + 10.0 * (u - 0.5);
+                        row.outcome.failures = if u < rate {
+                            vec![]
+                        } else {
+                            vec![Failure::ForceExceeded]
+                        };
+                        row
+                    })
+                    .collect(),
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]

@@ -8,12 +8,13 @@ use osms_sim::artifacts::WorldArtifact;
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{CandidateSets, ErrorModelArtifact, Validation};
-use crate::construct::{Inputs, dstar_group};
+use crate::construct::{Inputs, PerturbedLabels, dstar_group};
 
 /// D_* (Alg. 1 step 4): for a refined or repaired rollout the selected ζ*'s unperturbed
 /// rollout and every successful perturbed one (labels: the commanded actions, modelled
-/// perturbations included); a kept original as it ran; nothing for a dropped one. The
-/// rollouts are re-run with the validation's streams and checked against its outcomes.
+/// perturbations included, unless `perturbed_labels` says otherwise); a kept original as it
+/// ran; nothing for a dropped one. The rollouts are re-run with the validation's streams and
+/// checked against its outcomes.
 pub struct DstarStage;
 impl ItemStage for DstarStage {
     const KIND: &'static str = "dstar";
@@ -55,7 +56,7 @@ impl ItemStage for DstarStage {
     }
     fn run_item(
         &self,
-        _: &Ctx<'_, DstarParams>,
+        ctx: &Ctx<'_, DstarParams>,
         (inputs, validation): &Self::Prepared,
         index: usize,
         _: &mut StreamRng,
@@ -66,6 +67,7 @@ impl ItemStage for DstarStage {
             index,
             &validation.items[index],
             validation.params.q,
+            ctx.params.perturbed_labels,
             &|q| validation.streams.rng(item, q),
         )?)
     }
@@ -84,7 +86,17 @@ impl ItemStage for DstarStage {
     }
 }
 
-/// D_* takes no settings of its own: the validation's are used.
+/// D_*'s own setting; everything else is the validation's.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct DstarParams {}
+pub struct DstarParams {
+    /// How the selected candidates' successful perturbed rollouts enter D_* (an ablation
+    /// knob). The default, `executed`, is left out of the encoded params, so keys built before
+    /// the knob existed stay valid.
+    #[serde(default, skip_serializing_if = "is_executed")]
+    pub perturbed_labels: PerturbedLabels,
+}
+
+fn is_executed(labels: &PerturbedLabels) -> bool {
+    *labels == PerturbedLabels::Executed
+}

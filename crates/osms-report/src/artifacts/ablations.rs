@@ -17,7 +17,8 @@ pub struct Ablations {
 
 impl Artifact for Ablations {
     const TYPE_TAG: &'static str = "report.ablations";
-    const SCHEMA_VERSION: u16 = 1;
+    // 2: claims carry intervals; the means-only verdict "does not hold" is gone.
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl Ablations {

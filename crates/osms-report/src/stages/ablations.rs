@@ -18,7 +18,8 @@ const CONSTRUCTIONS: [&str; 4] = ["filtering", "refine_only", "repair_only", "bo
 pub struct AblationsStage;
 impl Stage for AblationsStage {
     const KIND: &'static str = "ablations";
-    const CODE_VERSION: u32 = 1;
+    // 2: the claims decided by intervals.
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = false;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<DemoSet>("filtering_demos"),
@@ -54,10 +55,16 @@ impl Stage for AblationsStage {
             Ok((stats, evals))
         };
         let (s, e) = load(CONSTRUCTIONS)?;
-        let rr = refine_repair([&s[0], &s[1], &s[2], &s[3]], [&e[0], &e[1], &e[2], &e[3]]);
+        let students = [&e[0][..], &e[1], &e[2], &e[3]];
+        let rr = refine_repair([&s[0], &s[1], &s[2], &s[3]], students);
+        let mut claims = vec![refine_repair_claim(students)];
         let (s, e) = load(SETS)?;
-        let gen_ = generators([&s[0], &s[1], &s[2], &s[3]], [&e[0], &e[1], &e[2], &e[3]]);
-        let claims = vec![refine_repair_claim(&rr), generator_claim(&gen_)];
+        let (sets, students) = (
+            [&s[0], &s[1], &s[2], &s[3]],
+            [&e[0][..], &e[1], &e[2], &e[3]],
+        );
+        let gen_ = generators(sets, students);
+        claims.push(generator_claim(sets, students));
         Ok(Ablations {
             tables: vec![rr, gen_],
             claims,
