@@ -293,6 +293,49 @@ fn the_cost_model_scales_measured_core_seconds_by_planned_work() {
     assert_eq!(get("drops@0").work, 200.0);
     let sum: f64 = e.instances.iter().filter_map(|i| i.core_hours).sum();
     assert!((e.total_core_hours - sum).abs() <= 1e-12 * sum.max(1e-300));
+    assert!(
+        e.instances
+            .iter()
+            .all(|i| !i.measured.as_ref().expect("m").stale)
+    );
+
+    // New numbers: every build is stale. Those whose params are the profile's still measure
+    // their stage (their last build's record); `numbers` itself, whose params changed, does not.
+    p.write_pipeline(&osms_tests::project::ENGINE_PIPELINE.replace(
+        "params = { n = 12, len = 4, scale = 1.0 }",
+        "params = { n = 12, len = 4, scale = 2.0 }",
+    ));
+    let (paper, small) = (
+        p.plan(Some("paper")).expect("plan"),
+        p.plan(Some("small")).expect("plan"),
+    );
+    let e = osms_make::estimate(&paper, &[small], &store, &[0], &names, 1).expect("estimate");
+    let total = e
+        .instances
+        .iter()
+        .find(|i| i.instance == "total@0")
+        .expect("total");
+    let m = total
+        .measured
+        .as_ref()
+        .expect("the stale build measures `total`");
+    assert!(m.stale);
+    assert_eq!((m.work, total.work), (12.0, 1000.0));
+    let old = get("total@0").measured.expect("measured");
+    assert_eq!((m.key, m.core_secs), (old.key, old.core_secs));
+    assert!(
+        e.unmeasured.contains(&"numbers@0".to_string()),
+        "{:?}",
+        e.unmeasured
+    );
+    assert!(
+        e.instances
+            .iter()
+            .find(|i| i.instance == "drops@0")
+            .and_then(|i| i.measured.as_ref())
+            .is_some_and(|m| !m.stale),
+        "drops does not read numbers: up to date"
+    );
     // Nothing measured, nothing estimated: an empty store leaves every instance unmeasured.
     let empty = Project::engine();
     let e = osms_make::estimate(

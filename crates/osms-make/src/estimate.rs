@@ -9,6 +9,10 @@
 //! times target work over measured work, from the measuring profile with the most work (the
 //! least dominated by fixed costs). Fixed costs (model set-up, loading inputs) are scaled too,
 //! which overestimates; network width is not in the teacher's or student's work.
+//!
+//! A stage whose inputs changed since its last build (stale) still has that build's record:
+//! where its params are the profile's, its core-seconds measure the same work on other input
+//! bytes, and the estimate uses it when no up-to-date build of the stage exists.
 
 use std::collections::BTreeMap;
 
@@ -16,6 +20,7 @@ use osms_store::{Hash, Store};
 use serde::Serialize;
 
 use crate::error::Result;
+use crate::heads::Heads;
 use crate::kind::Scale;
 use crate::plan::{InstanceId, Plan};
 use crate::status::{State, status};
@@ -51,6 +56,8 @@ pub struct Measured {
     pub core_secs_per_unit: f64,
     /// The record predates `cpu_secs`: its wall time was multiplied by an assumed thread count.
     pub threads_assumed: bool,
+    /// The instance's last build, from inputs that have changed since (same params).
+    pub stale: bool,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -87,11 +94,20 @@ pub fn estimate(
     let planned = scales(target, &all_targets, seeds)?;
     // Every measured build, by instance name: (core-seconds, work, profile, key, assumed).
     let mut measured: BTreeMap<String, Vec<Measured>> = BTreeMap::new();
+    let heads = Heads::load(store)?;
     for plan in references {
         let sizes = scales(plan, &all_targets, seeds)?;
         for st in status(plan, store, &all_targets, seeds)? {
-            let (State::Cached, Some(key)) = (st.state, st.key) else {
-                continue;
+            let stage = &plan.stages[st.id.stage];
+            let (key, stale) = match (st.state, st.key) {
+                (State::Cached, Some(key)) => (key, false),
+                (State::Stale, _) => match heads.get(&st.instance)? {
+                    Some(h) if h.kind == stage.info.name && h.params == stage.params.json => {
+                        (h.key, true)
+                    }
+                    _ => continue,
+                },
+                _ => continue,
             };
             let Some(rec) = store.record(&key)? else {
                 continue;
@@ -115,6 +131,7 @@ pub fn estimate(
                     work,
                     core_secs_per_unit: core_secs / work,
                     threads_assumed,
+                    stale,
                 });
         }
     }
@@ -129,14 +146,14 @@ pub fn estimate(
         if !instances.contains(&name) {
             continue;
         }
-        // The largest measured build of any instance of the stage (its seeds and folds do the
-        // same work).
+        // The largest up-to-date build of any instance of the stage (its seeds and folds do
+        // the same work), else the largest stale one.
         let stage = &target.stages[id.stage].name;
         let best = measured
             .iter()
             .filter(|(n, _)| n.split(['#', '@']).next() == Some(stage.as_str()))
             .flat_map(|(_, m)| m)
-            .max_by(|a, b| a.work.total_cmp(&b.work))
+            .max_by(|a, b| b.stale.cmp(&a.stale).then(a.work.total_cmp(&b.work)))
             .cloned();
         let core_hours = best
             .as_ref()

@@ -186,10 +186,11 @@ fn print_estimate(e: &osms_make::Estimate) {
                 m.work,
                 m.profile,
                 m.core_secs,
-                if m.threads_assumed {
-                    ", threads assumed"
-                } else {
-                    ""
+                match (m.threads_assumed, m.stale) {
+                    (true, true) => ", threads assumed, stale build",
+                    (true, false) => ", threads assumed",
+                    (false, true) => ", stale build",
+                    (false, false) => "",
                 }
             ),
             _ => eprintln!("  {:<28} {:>10}  (no measured build)", i.instance, "?"),
