@@ -1144,14 +1144,32 @@ kind = "dstar"
 inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
 shards = 3
 
-[stages.dstar_direct_intended]
+# Errors small enough that tiny's selected candidates survive some perturbed rollouts: the
+# ablation labels of D_* act on those.
+[stages.error_model_gentle]
+kind = "error_model"
+seed = 0
+inputs = { pairs = "error_pairs#*" }
+params = { kappa = 0.05 }
+
+[stages.validate_gentle]
+kind = "validate"
+seed = 0
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model_gentle" }
+params = { q = 6, rollouts = 0 }
+
+[stages.dstar_gentle]
 kind = "dstar"
-inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model_gentle", validation = "validate_gentle" }
+
+[stages.dstar_gentle_intended]
+kind = "dstar"
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model_gentle", validation = "validate_gentle" }
 params = { perturbed_labels = "intended" }
 
-[stages.dstar_direct_omit]
+[stages.dstar_gentle_omit]
 kind = "dstar"
-inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model", validation = "validate_direct" }
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model_gentle", validation = "validate_gentle" }
 params = { perturbed_labels = "omit" }
 
 [stages.validate_unperturbed]
@@ -1243,9 +1261,13 @@ shards = 3
         )
         .expect("D_*")
     };
-    let (intended, omit) = (built("dstar_direct_intended"), built("dstar_direct_omit"));
+    let (executed, intended, omit) = (
+        built("dstar_gentle"),
+        built("dstar_gentle_intended"),
+        built("dstar_gentle_omit"),
+    );
     let mut relabelled = 0;
-    for (((g, gi), go), r) in dstar
+    for (((g, gi), go), r) in executed
         .groups
         .iter()
         .zip(&intended.groups)

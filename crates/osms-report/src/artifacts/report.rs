@@ -43,7 +43,8 @@ pub struct Report {
 
 impl Artifact for Report {
     const TYPE_TAG: &'static str = "report.report";
-    const SCHEMA_VERSION: u16 = 1;
+    // 2: `Verdict` lost its means-only variant, so "not checked" has another variant index.
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl Report {
