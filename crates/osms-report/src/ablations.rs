@@ -6,7 +6,9 @@
 use osms_policy::artifacts::ConstructionStats;
 use osms_sim::artifacts::Evaluation;
 
-use crate::claims::{Claim, Policy, all_of, force_comparison, proportion, success_comparison};
+use crate::claims::{
+    Claim, Comparison, Policy, all_of, force_comparison, proportion, success_comparison_with,
+};
 use crate::tables::{POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed};
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
 
@@ -27,14 +29,18 @@ const PAPER_GENERATORS: [(&str, f64, f64, f64); 4] = [
     ("Conditional geodesic (ours)", 0.443, 0.598, 0.903),
 ];
 
-/// The paper's student success for an ablation row.
-pub(crate) fn paper_success(row: &str) -> Option<f64> {
-    PAPER_REFINE_REPAIR
-        .iter()
-        .map(|(r, s, _)| (r, s))
-        .chain(PAPER_GENERATORS.iter().map(|(r, _, _, s)| (r, s)))
-        .find(|(r, _)| **r == row)
-        .map(|(_, s)| *s)
+/// The paired success comparison of two ablation rows with the paper's difference between them.
+fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
+    let paper = |row: &str| {
+        PAPER_REFINE_REPAIR
+            .iter()
+            .map(|(r, s, _)| (r, s))
+            .chain(PAPER_GENERATORS.iter().map(|(r, _, _, s)| (r, s)))
+            .find(|(r, _)| **r == row)
+            .map(|(_, s)| *s)
+    };
+    let difference = paper(a.name).zip(paper(b.name)).map(|(x, y)| x - y);
+    success_comparison_with(a, b, difference)
 }
 
 fn percent(x: f64) -> String {

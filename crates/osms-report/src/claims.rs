@@ -83,7 +83,7 @@ pub struct Comparison {
 /// The largest seed count [`Comparison::seeds_for_paper`] looks at.
 pub const MAX_SEEDS: usize = 100;
 
-/// The paper's task success per row (Tables II and III, then the ablations').
+/// The paper's task success per row (Tables II and III).
 fn paper_success(row: &str) -> Option<f64> {
     let [unperturbed, global, independent, correlated] = TABLE3_ROWS;
     [
@@ -99,7 +99,6 @@ fn paper_success(row: &str) -> Option<f64> {
     .iter()
     .find(|(r, _)| *r == row)
     .map(|(_, v)| *v)
-    .or_else(|| crate::ablations::paper_success(row))
 }
 
 impl Comparison {
@@ -184,7 +183,7 @@ fn forces(evals: &[Evaluation]) -> Vec<Vec<f64>> {
 /// A policy's name and its per-rollout values, read once from its evaluations.
 #[derive(Clone)]
 pub(crate) struct Policy<'a> {
-    name: &'a str,
+    pub(crate) name: &'a str,
     success: Vec<Vec<f64>>,
     force: Vec<Vec<f64>>,
 }
@@ -207,11 +206,20 @@ impl<'a> Policy<'a> {
     }
 }
 
-pub(crate) fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
-    let difference = paired_difference(&a.success, &b.success)?;
+fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
     let paper = paper_success(a.name)
         .zip(paper_success(b.name))
         .map(|(x, y)| x - y);
+    success_comparison_with(a, b, paper)
+}
+
+/// The paired success difference `a − b`, next to the paper's difference between the same rows.
+pub(crate) fn success_comparison_with(
+    a: &Policy<'_>,
+    b: &Policy<'_>,
+    paper: Option<f64>,
+) -> Option<Comparison> {
+    let difference = paired_difference(&a.success, &b.success)?;
     let seeds_for_paper = paper
         .zip(difference.parts)
         .and_then(|(p, parts)| parts.seeds_to_resolve(p, difference.n[0], MAX_SEEDS));
