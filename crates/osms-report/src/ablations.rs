@@ -6,9 +6,7 @@
 use osms_policy::artifacts::ConstructionStats;
 use osms_sim::artifacts::Evaluation;
 
-use crate::claims::{
-    Claim, Comparison, Policy, all_of, force_comparison, proportion, success_comparison_with,
-};
+use crate::claims::{Claim, Policy, all_of, force_comparison, proportion, success_comparison_with};
 use crate::tables::{POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed};
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
 
@@ -28,20 +26,6 @@ const PAPER_GENERATORS: [(&str, f64, f64, f64); 4] = [
     ("Conditional Euclidean", 0.396, 0.519, 0.885),
     ("Conditional geodesic (ours)", 0.443, 0.598, 0.903),
 ];
-
-/// The paired success comparison of two ablation rows with the paper's difference between them.
-fn success_comparison(a: &Policy<'_>, b: &Policy<'_>) -> Option<Comparison> {
-    let paper = |row: &str| {
-        PAPER_REFINE_REPAIR
-            .iter()
-            .map(|(r, s, _)| (r, s))
-            .chain(PAPER_GENERATORS.iter().map(|(r, _, _, s)| (r, s)))
-            .find(|(r, _)| **r == row)
-            .map(|(_, s)| *s)
-    };
-    let difference = paper(a.name).zip(paper(b.name)).map(|(x, y)| x - y);
-    success_comparison_with(a, b, difference)
-}
 
 fn percent(x: f64) -> String {
     format!("{:.1}%", 100.0 * x)
@@ -149,7 +133,11 @@ pub fn refine_repair_claim(students: [&[Evaluation]; 4]) -> Claim {
     all_of(
         "Refinement mainly lowers force, repair mainly adds success",
         vec![
-            success_comparison(&repair, &refine),
+            success_comparison_with(
+                &repair,
+                &refine,
+                Some(PAPER_REFINE_REPAIR[2].1 - PAPER_REFINE_REPAIR[1].1),
+            ),
             force_comparison(&repair, &refine),
         ],
         true,
@@ -177,7 +165,8 @@ pub fn generator_claim(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 
         let b = a - 1;
         comparisons.push(proportion(REPAIR_RATE, &repair(a), &repair(b)));
         comparisons.push(proportion(REFINEMENT_RATE, &refine(a), &refine(b)));
-        comparisons.push(success_comparison(&policy(a), &policy(b)));
+        let paper = PAPER_GENERATORS[a].3 - PAPER_GENERATORS[b].3;
+        comparisons.push(success_comparison_with(&policy(a), &policy(b), Some(paper)));
     }
     all_of(
         "Candidate generation: geodesic > Euclidean > unconditional > direct (repair, refinement, student success)",

@@ -178,7 +178,7 @@ fn print_estimate(e: &osms_make::Estimate) {
     for i in &e.instances {
         match (&i.core_hours, &i.measured) {
             (Some(h), Some(m)) => eprintln!(
-                "  {:<28} {:>10.2}  ({} work {:.0} vs {:.0} on {}: {:.1} core-s{})",
+                "  {:<28} {:>10.2}  ({} work {:.0} vs {:.0} on {}: {:.1} core-s{}{})",
                 i.instance,
                 h,
                 i.kind,
@@ -186,12 +186,12 @@ fn print_estimate(e: &osms_make::Estimate) {
                 m.work,
                 m.profile,
                 m.core_secs,
-                match (m.threads_assumed, m.stale) {
-                    (true, true) => ", threads assumed, stale build",
-                    (true, false) => ", threads assumed",
-                    (false, true) => ", stale build",
-                    (false, false) => "",
-                }
+                if m.threads_assumed {
+                    ", threads assumed"
+                } else {
+                    ""
+                },
+                if m.stale { ", stale build" } else { "" }
             ),
             _ => eprintln!("  {:<28} {:>10}  (no measured build)", i.instance, "?"),
         }
