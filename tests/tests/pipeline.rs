@@ -122,7 +122,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 88, "{reference:?}");
+    assert_eq!(reference.len(), 94, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -316,6 +316,8 @@ fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
             "ab_unconditional",
             "ab_euclidean",
             "ab_geodesic",
+            "intended",
+            "omitted",
         ]
         .iter()
         .flat_map(|s| [format!("student_{s}@{seed}"), format!("eval_{s}@{seed}")])

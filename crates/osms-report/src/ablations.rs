@@ -1,13 +1,16 @@
 //! The ablations of paper 6.4 as their own target (`osms make ablations`): refinement and
 //! repair (success-only filtering, refine-only, repair-only, both) and candidate generation
 //! (direct, unconditional, Euclidean, geodesic), with their claims decided by 95 % confidence
-//! intervals as the default report's are (docs/report.md, "Claims check").
+//! intervals as the default report's are (docs/report.md, "Claims check"); and, beyond the
+//! paper, the labels of D_*'s perturbed survivors (executed, intended, left out).
 
 use osms_policy::artifacts::ConstructionStats;
 use osms_sim::artifacts::Evaluation;
 
 use crate::claims::{Claim, Policy, all_of, force_comparison, proportion, success_comparison_with};
-use crate::tables::{POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed};
+use crate::tables::{
+    CATCH_COMPLETION, POLICY_F_MAX, REFINEMENT_RATE, REPAIR_RATE, TASK_SUCCESS, per_seed,
+};
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
 
 /// Rows of the refinement-and-repair ablation with the paper's task success and f_max (N).
@@ -25,6 +28,13 @@ const PAPER_GENERATORS: [(&str, f64, f64, f64); 4] = [
     ("Unconditional manifold", 0.257, 0.331, 0.868),
     ("Conditional Euclidean", 0.396, 0.519, 0.885),
     ("Conditional geodesic (ours)", 0.443, 0.598, 0.903),
+];
+
+/// Rows of the label ablation (not in the paper): what D_*'s perturbed survivors train on.
+const LABEL_ROWS: [&str; 3] = [
+    "Executed a (paper; Ours-IL)",
+    "Intended ā",
+    "Perturbed survivors left out",
 ];
 
 fn percent(x: f64) -> String {
@@ -121,6 +131,59 @@ pub fn generators(sets: [&ConstructionStats; 4], students: [&[Evaluation]; 4]) -
                 .into(),
         ],
     }
+}
+
+/// The label ablation: D_* with its perturbed survivors labelled by the executed actions a
+/// (paper 5.3, "labels are the actions actually executed … including modeled perturbations"),
+/// by the commanded ā, or left out.
+pub fn labels(sets: [&ConstructionStats; 3], students: [&[Evaluation]; 3]) -> Table {
+    let rows = LABEL_ROWS
+        .iter()
+        .enumerate()
+        .map(|(i, label)| Row {
+            label: (*label).into(),
+            cells: vec![
+                Cell::new(success(students[i]), (i == 0).then_some("90.3%")),
+                Cell::new(per_seed(students[i], |l| Some(l.completion_rate)), None),
+                Cell::new(force(students[i]), None),
+                Cell::new(Value::One(sets[i].demonstrations as f64), None),
+                Cell::new(Value::One(sets[i].steps as f64), None),
+            ],
+        })
+        .collect();
+    Table {
+        id: "ablation_labels".into(),
+        title: "Beyond the paper: the labels of D_*'s perturbed survivors".into(),
+        columns: vec![
+            col(TASK_SUCCESS, Unit::Percent),
+            col(CATCH_COMPLETION, Unit::Percent),
+            col(POLICY_F_MAX, Unit::Number(1)),
+            col("demos", Unit::Count),
+            col("steps", Unit::Count),
+        ],
+        rows,
+        notes: vec![
+            "The same validated candidates and rollouts; only the labels of the rollouts run \
+             under the error model differ (intended: the action the teacher or the snippet \
+             commanded, before the modelled error). The paper trains on the executed ones."
+                .into(),
+        ],
+    }
+}
+
+/// A hypothesis formed on the development stream (`d-labels`, docs/students.md), tested here
+/// on the held-out conditions: ā labels train a better student than the executed labels and
+/// than leaving the perturbed survivors out (both paired by condition).
+pub fn labels_claim(students: [&[Evaluation]; 3]) -> Claim {
+    let policy = |i: usize| Policy::of(LABEL_ROWS[i], students[i]);
+    all_of(
+        "Beyond the paper (from `dev`): ā labels on D_*'s perturbed survivors beat the executed labels and leaving them out",
+        vec![
+            success_comparison_with(&policy(1), &policy(0), None),
+            success_comparison_with(&policy(1), &policy(2), None),
+        ],
+        true,
+    )
 }
 
 /// "Refinement mainly lowers force, repair mainly adds success": repair-only's students
@@ -221,6 +284,51 @@ mod tests {
         assert_eq!(swapped.verdict, Verdict::Contradicted, "{swapped:?}");
         let same = refine_repair_claim([&filtering, &refine, &refine, &refine]);
         assert_eq!(same.verdict, Verdict::Unresolved, "{same:?}");
+    }
+
+    #[test]
+    fn intended_labels_must_beat_both_other_rows() {
+        let n = 600;
+        let (executed, intended, omitted) = (
+            scrambled(0.4, 3, n, 30.0),
+            scrambled(0.6, 3, n, 30.0),
+            scrambled(0.5, 3, n, 30.0),
+        );
+        let claim = labels_claim([&executed, &intended, &omitted]);
+        assert_eq!(claim.verdict, Verdict::Holds, "{claim:?}");
+        let [over_executed, over_omitted] = &claim.comparisons[..] else {
+            panic!("two comparisons: {claim:?}");
+        };
+        assert_eq!(
+            (over_executed.a.as_str(), over_executed.b.as_str()),
+            (LABEL_ROWS[1], LABEL_ROWS[0])
+        );
+        assert!((over_executed.difference.estimate - 0.2).abs() < 0.02);
+        assert!((over_omitted.difference.estimate - 0.1).abs() < 0.02);
+        assert!(over_executed.paper.is_none() && over_executed.seeds_for_paper.is_none());
+        // Better than the executed labels but no better than leaving the rollouts out.
+        let tie = labels_claim([&executed, &intended, &intended]);
+        assert_eq!(tie.verdict, Verdict::Unresolved, "{tie:?}");
+        let worse = labels_claim([&intended, &executed, &omitted]);
+        assert_eq!(worse.verdict, Verdict::Contradicted, "{worse:?}");
+
+        let sets = [counted(100, 0), counted(100, 0), counted(100, 0)];
+        let t = labels(
+            [&sets[0], &sets[1], &sets[2]],
+            [&executed, &intended, &omitted],
+        );
+        let cell = t.cell(LABEL_ROWS[0], TASK_SUCCESS).expect("cell");
+        assert_eq!(cell.paper.as_deref(), Some("90.3%"));
+        assert!(
+            t.cell(LABEL_ROWS[1], TASK_SUCCESS)
+                .expect("cell")
+                .paper
+                .is_none()
+        );
+        assert!(matches!(
+            &t.cell(LABEL_ROWS[2], CATCH_COMPLETION).expect("cell").ours,
+            Value::Seeds(v) if v.len() == 3
+        ));
     }
 
     #[test]

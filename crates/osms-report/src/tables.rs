@@ -84,6 +84,7 @@ pub const TABLE2_ROWS: [&str; 4] = [
 
 pub const TASK_SUCCESS: &str = "task success";
 pub const POLICY_F_MAX: &str = "policy f_max (N)";
+pub const CATCH_COMPLETION: &str = "catch completion";
 pub const COVERAGE: &str = "demo coverage";
 pub const REPAIR_RATE: &str = "repair rate";
 pub const REFINEMENT_RATE: &str = "refinement rate";
@@ -167,7 +168,7 @@ pub fn table2(
             col(REFINEMENT_RATE, Unit::Percent),
             col("unperturbed f_max (N)", Unit::Number(1)),
             col(TASK_SUCCESS, Unit::Percent),
-            col("catch completion", Unit::Percent),
+            col(CATCH_COMPLETION, Unit::Percent),
             col(POLICY_F_MAX, Unit::Number(1)),
             col("policy v_rel (m/s)", Unit::Number(2)),
         ],

@@ -6,7 +6,9 @@ use osms_policy::artifacts::{ConstructionStats, DemoSet};
 use osms_sim::artifacts::Evaluation;
 
 use super::seed_evals;
-use crate::ablations::{generator_claim, generators, refine_repair, refine_repair_claim};
+use crate::ablations::{
+    generator_claim, generators, labels, labels_claim, refine_repair, refine_repair_claim,
+};
 use crate::artifacts::Ablations;
 
 const SETS: [&str; 4] = ["direct", "unconditional", "euclidean", "geodesic"];
@@ -14,12 +16,14 @@ const SETS: [&str; 4] = ["direct", "unconditional", "euclidean", "geodesic"];
 /// Each row's construction statistics and per-seed evaluations.
 type Rows = (Vec<ConstructionStats>, Vec<Vec<Evaluation>>);
 const CONSTRUCTIONS: [&str; 4] = ["filtering", "refine_only", "repair_only", "both"];
+/// D_* as the paper builds it (`both`), with ā labels, and without its perturbed survivors.
+const LABELS: [&str; 3] = ["both", "intended", "omitted"];
 
 pub struct AblationsStage;
 impl Stage for AblationsStage {
     const KIND: &'static str = "ablations";
-    // 2: the claims decided by intervals.
-    const CODE_VERSION: u32 = 2;
+    // 2: the claims decided by intervals. 3: the label ablation.
+    const CODE_VERSION: u32 = 3;
     const USES_RNG: bool = false;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<DemoSet>("filtering_demos"),
@@ -38,14 +42,17 @@ impl Stage for AblationsStage {
         Slot::gather::<Evaluation>("unconditional"),
         Slot::gather::<Evaluation>("euclidean"),
         Slot::gather::<Evaluation>("geodesic"),
+        Slot::one::<DemoSet>("intended_demos"),
+        Slot::one::<DemoSet>("omitted_demos"),
+        Slot::gather::<Evaluation>("intended"),
+        Slot::gather::<Evaluation>("omitted"),
     ];
-    const DOC: &'static str =
-        "the ablations of paper 6.4: refinement/repair and candidate generation, with their claims";
+    const DOC: &'static str = "the ablations of paper 6.4 (refinement/repair, candidate generation) and D_*'s labels, with their claims";
     type Params = NoParams;
     type Output = Ablations;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Ablations, StageError> {
-        let load = |names: [&str; 4]| -> Result<Rows, StageError> {
+        let load = |names: &[&str]| -> Result<Rows, StageError> {
             let mut stats = Vec::new();
             let mut evals = Vec::new();
             for n in names {
@@ -54,19 +61,23 @@ impl Stage for AblationsStage {
             }
             Ok((stats, evals))
         };
-        let (s, e) = load(CONSTRUCTIONS)?;
+        let (s, e) = load(&CONSTRUCTIONS)?;
         let students = [&e[0][..], &e[1], &e[2], &e[3]];
         let rr = refine_repair([&s[0], &s[1], &s[2], &s[3]], students);
         let mut claims = vec![refine_repair_claim(students)];
-        let (s, e) = load(SETS)?;
+        let (s, e) = load(&SETS)?;
         let (sets, students) = (
             [&s[0], &s[1], &s[2], &s[3]],
             [&e[0][..], &e[1], &e[2], &e[3]],
         );
         let gen_ = generators(sets, students);
         claims.push(generator_claim(sets, students));
+        let (s, e) = load(&LABELS)?;
+        let (sets, students) = ([&s[0], &s[1], &s[2]], [&e[0][..], &e[1], &e[2]]);
+        let lab = labels(sets, students);
+        claims.push(labels_claim(students));
         Ok(Ablations {
-            tables: vec![rr, gen_],
+            tables: vec![rr, gen_, lab],
             claims,
         })
     }
