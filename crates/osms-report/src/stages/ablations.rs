@@ -1,4 +1,4 @@
-//! `ablations`: the ablations of paper 6.4 with their claims.
+//! `ablations`: the ablations of paper 6.4 and the label ablation beyond it, with their claims.
 
 use osms_core::NoParams;
 use osms_make::{Ctx, Slot, Stage, StageError};
