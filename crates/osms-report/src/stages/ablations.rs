@@ -13,8 +13,6 @@ use crate::artifacts::Ablations;
 
 const SETS: [&str; 4] = ["direct", "unconditional", "euclidean", "geodesic"];
 
-/// Each row's construction statistics and per-seed evaluations.
-type Rows = (Vec<ConstructionStats>, Vec<Vec<Evaluation>>);
 const CONSTRUCTIONS: [&str; 4] = ["filtering", "refine_only", "repair_only", "both"];
 /// D_* as the paper builds it (`both`), with ā labels, and without its perturbed survivors.
 const LABELS: [&str; 3] = ["both", "intended", "omitted"];
@@ -52,33 +50,49 @@ impl Stage for AblationsStage {
     type Output = Ablations;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Ablations, StageError> {
-        let load = |names: &[&str]| -> Result<Rows, StageError> {
-            let mut stats = Vec::new();
-            let mut evals = Vec::new();
-            for n in names {
-                stats.push(ctx.sharded::<DemoSet>(&format!("{n}_demos"))?.stats());
-                evals.push(seed_evals(ctx, n)?);
-            }
-            Ok((stats, evals))
-        };
-        let (s, e) = load(&CONSTRUCTIONS)?;
-        let students = [&e[0][..], &e[1], &e[2], &e[3]];
-        let rr = refine_repair([&s[0], &s[1], &s[2], &s[3]], students);
-        let mut claims = vec![refine_repair_claim(students)];
-        let (s, e) = load(&SETS)?;
-        let (sets, students) = (
-            [&s[0], &s[1], &s[2], &s[3]],
-            [&e[0][..], &e[1], &e[2], &e[3]],
-        );
-        let gen_ = generators(sets, students);
-        claims.push(generator_claim(sets, students));
-        let (s, e) = load(&LABELS)?;
-        let (sets, students) = ([&s[0], &s[1], &s[2]], [&e[0][..], &e[1], &e[2]]);
-        let lab = labels(sets, students);
-        claims.push(labels_claim(students));
+        let c = Rows::load(ctx, CONSTRUCTIONS)?;
+        let g = Rows::load(ctx, SETS)?;
+        let l = Rows::load(ctx, LABELS)?;
         Ok(Ablations {
-            tables: vec![rr, gen_, lab],
-            claims,
+            tables: vec![
+                refine_repair(c.sets(), c.students()),
+                generators(g.sets(), g.students()),
+                labels(l.sets(), l.students()),
+            ],
+            claims: vec![
+                refine_repair_claim(c.students()),
+                generator_claim(g.sets(), g.students()),
+                labels_claim(l.students()),
+            ],
         })
+    }
+}
+
+/// Each row's construction statistics and per-seed evaluations, in the order of its names.
+struct Rows<const N: usize> {
+    stats: Vec<ConstructionStats>,
+    evals: Vec<Vec<Evaluation>>,
+}
+
+impl<const N: usize> Rows<N> {
+    fn load(ctx: &Ctx<'_, NoParams>, names: [&str; N]) -> Result<Self, StageError> {
+        let mut rows = Rows {
+            stats: Vec::with_capacity(N),
+            evals: Vec::with_capacity(N),
+        };
+        for n in names {
+            rows.stats
+                .push(ctx.sharded::<DemoSet>(&format!("{n}_demos"))?.stats());
+            rows.evals.push(seed_evals(ctx, n)?);
+        }
+        Ok(rows)
+    }
+
+    fn sets(&self) -> [&ConstructionStats; N] {
+        std::array::from_fn(|i| &self.stats[i])
+    }
+
+    fn students(&self) -> [&[Evaluation]; N] {
+        std::array::from_fn(|i| self.evals[i].as_slice())
     }
 }
