@@ -42,4 +42,4 @@ pub use model::{
     ErrorFitParams, ErrorModel, ErrorVariant, N_PHASES, PairSequence, PhaseModel, StationaryFit,
 };
 pub use perturb::Perturber;
-pub use table3::{Table3Metrics, table3_metrics};
+pub use table3::{Table3Bootstrap, Table3Metrics, table3_bootstrap, table3_metrics};

@@ -5,12 +5,13 @@
 // zips would obscure the formulas.
 #![allow(clippy::needless_range_loop)]
 
-use osms_core::rng::StreamRng;
+use osms_core::rng::{StreamRng, below};
 use serde::{Deserialize, Serialize};
 
 use super::fit::check_sequences;
 use super::model::*;
 use super::perturb::Perturber;
+use crate::Result;
 
 /// Table III metrics: simulate the model's deviations ã − ā (before κ and clipping, i.e. with
 /// κ = 1 and no clip) on the recorded teacher sequences (phases as recorded, fresh ν from
@@ -49,28 +50,114 @@ pub fn table3_metrics(
     if let Err(e) = check_sequences(sequences, c) {
         panic!("{e}");
     }
-    let mut perturber = Perturber::new(model);
-    let mut observed = Vec::with_capacity(sequences.len());
-    let mut simulated = Vec::with_capacity(sequences.len());
-    let mut intended = vec![0.0; c];
-    for s in sequences {
-        perturber.reset();
-        let mut obs = Vec::with_capacity(s.student.len());
-        let mut sim = Vec::with_capacity(s.student.len());
-        for n in 0..s.steps() {
-            for k in 0..c {
-                intended[k] = f64::from(s.teacher[n * c + k]);
-                obs.push(f64::from(s.student[n * c + k]) - intended[k]);
-            }
-            let modeled = perturber.step_modeled(&intended, s.phase[n], rng);
-            sim.extend(modeled.iter().zip(&intended).map(|(m, a)| m - a));
-        }
-        observed.push(obs);
-        simulated.push(sim);
-    }
-    let obs = cell_stats(&observed, sequences, c);
-    let sim = cell_stats(&simulated, sequences, c);
+    let all: Vec<usize> = (0..sequences.len()).collect();
+    let obs = cell_stats(&observed_deviations(sequences, c), sequences, &all, c);
+    let sim = cell_stats(
+        &simulated_deviations(model, sequences, rng),
+        sequences,
+        &all,
+        c,
+    );
+    compare(&obs, &sim, c)
+}
 
+/// Table III's metrics of several models on the held-out sequences and on bootstrap
+/// resamples of them (Efron & Tibshirani 1993, ch. 6), conditional on the fitted models.
+pub struct Table3Bootstrap {
+    /// Each model's metrics on every sequence.
+    pub full: Vec<Table3Metrics>,
+    /// Per resample, each model's metrics on the same resampled sequences.
+    pub resamples: Vec<Vec<Table3Metrics>>,
+}
+
+/// Scores `models` as [`table3_metrics`] does, then on `resamples` sets of sequences drawn
+/// with replacement. Each model's deviations are simulated once (models in order, each over
+/// the sequences in order, all from `rng`), and every resample scores every model on the same
+/// sequences against the same observed deviations, so differences between models are paired
+/// by condition. The sequences are the unit of resampling because a rollout's steps are
+/// correlated; the fits are not repeated, so the intervals say how far the conditions alone
+/// move the comparison.
+pub fn table3_bootstrap(
+    models: &[&ErrorModel],
+    sequences: &[PairSequence<'_>],
+    rng: &mut StreamRng,
+    resamples: usize,
+) -> Result<Table3Bootstrap> {
+    let c = models.first().map_or(0, |m| m.channels);
+    for m in models {
+        m.validate()?;
+        check_sequences(sequences, m.channels)?;
+    }
+    check_sequences(sequences, c)?;
+    let observed = observed_deviations(sequences, c);
+    let simulated: Vec<_> = models
+        .iter()
+        .map(|m| simulated_deviations(m, sequences, rng))
+        .collect();
+    let score = |idx: &[usize]| -> Vec<Table3Metrics> {
+        let obs = cell_stats(&observed, sequences, idx, c);
+        simulated
+            .iter()
+            .map(|sim| compare(&obs, &cell_stats(sim, sequences, idx, c), c))
+            .collect()
+    };
+    let all: Vec<usize> = (0..sequences.len()).collect();
+    let full = score(&all);
+    let n = sequences.len() as u64;
+    let resamples = (0..resamples)
+        .map(|_| {
+            let mut idx: Vec<usize> = (0..n).map(|_| below(rng, n.max(1)) as usize).collect();
+            // Cell sums run over sequences in index order whatever order they were drawn in.
+            idx.sort_unstable();
+            score(&idx)
+        })
+        .collect();
+    Ok(Table3Bootstrap { full, resamples })
+}
+
+/// Per sequence, the observed deviations a − ā (row-major, steps × channels).
+fn observed_deviations(sequences: &[PairSequence<'_>], c: usize) -> Vec<Vec<f64>> {
+    sequences
+        .iter()
+        .map(|s| {
+            s.student
+                .iter()
+                .zip(s.teacher)
+                .take(s.steps() * c)
+                .map(|(&a, &t)| f64::from(a) - f64::from(t))
+                .collect()
+        })
+        .collect()
+}
+
+/// Per sequence, the model's simulated deviations ã − ā with a fresh rollout state each.
+fn simulated_deviations(
+    model: &ErrorModel,
+    sequences: &[PairSequence<'_>],
+    rng: &mut StreamRng,
+) -> Vec<Vec<f64>> {
+    let c = model.channels;
+    let mut perturber = Perturber::new(model);
+    let mut intended = vec![0.0; c];
+    sequences
+        .iter()
+        .map(|s| {
+            perturber.reset();
+            let mut sim = Vec::with_capacity(s.steps() * c);
+            for n in 0..s.steps() {
+                for k in 0..c {
+                    intended[k] = f64::from(s.teacher[n * c + k]);
+                }
+                let modeled = perturber.step_modeled(&intended, s.phase[n], rng);
+                sim.extend(modeled.iter().zip(&intended).map(|(m, a)| m - a));
+            }
+            sim
+        })
+        .collect()
+}
+
+/// The moment and lag-1 errors of simulated against observed cell statistics.
+fn compare(obs: &CellStats, sim: &CellStats, c: usize) -> Table3Metrics {
     let (mut moment_sum, mut moment_cells) = (0.0, 0usize);
     let (mut lag_sum, mut lag1_cells) = (0.0, 0usize);
     for phase in 0..N_PHASES {
@@ -115,11 +202,18 @@ struct CellStats {
     rho1: Vec<Option<f64>>,
 }
 
-fn cell_stats(devs: &[Vec<f64>], sequences: &[PairSequence<'_>], c: usize) -> CellStats {
+/// Over the sequences `idx` (repeats count again), in the order given.
+fn cell_stats(
+    devs: &[Vec<f64>],
+    sequences: &[PairSequence<'_>],
+    idx: &[usize],
+    c: usize,
+) -> CellStats {
     let cells = N_PHASES * c;
     let mut count = vec![0usize; N_PHASES];
     let mut sum = vec![0.0; cells];
-    for (dev, s) in devs.iter().zip(sequences) {
+    for &j in idx {
+        let (dev, s) = (&devs[j], &sequences[j]);
         for n in 0..s.steps() {
             let p = usize::from(s.phase[n]);
             count[p] += 1;
@@ -134,7 +228,8 @@ fn cell_stats(devs: &[Vec<f64>], sequences: &[PairSequence<'_>], c: usize) -> Ce
     let mut ss = vec![0.0; cells];
     let mut lag = vec![0.0; cells];
     let mut pairs = [0usize; N_PHASES];
-    for (dev, s) in devs.iter().zip(sequences) {
+    for &j in idx {
+        let (dev, s) = (&devs[j], &sequences[j]);
         for n in 0..s.steps() {
             let p = usize::from(s.phase[n]);
             let paired = n > 0 && s.phase[n - 1] == s.phase[n];
@@ -175,6 +270,7 @@ fn cell_stats(devs: &[Vec<f64>], sequences: &[PairSequence<'_>], c: usize) -> Ce
 mod tests {
     use super::*;
     use crate::error_model::testdata::*;
+    use osms_core::stats::bootstrap_difference;
 
     #[test]
     fn table3_metrics_rank_models() {
@@ -233,5 +329,56 @@ mod tests {
         assert!(none.moment_error > global.moment_error);
         // Same stream, same metrics.
         assert_eq!(m_truth, table3_metrics(&truth, &pairs, &mut rng("t3", 0)));
+    }
+
+    #[test]
+    fn the_bootstrap_scores_every_model_on_shared_resamples() {
+        let data = all_phases_data();
+        let pairs = data.pairs();
+        let fitted = |variant| {
+            let params = ErrorFitParams {
+                variant,
+                ..ErrorFitParams::default()
+            };
+            fit(&pairs, C, &params).expect("fit")
+        };
+        let corr = fitted(ErrorVariant::PhaseCorrelated);
+        let indep = fitted(ErrorVariant::PhaseIndependent);
+        // One model: the full sample is exactly table3_metrics on the same stream.
+        let one = table3_bootstrap(&[&corr], &pairs, &mut rng("t3b", 0), 0).expect("scores");
+        assert_eq!(
+            one.full[0],
+            table3_metrics(&corr, &pairs, &mut rng("t3b", 0))
+        );
+        assert!(one.resamples.is_empty());
+
+        let b = table3_bootstrap(&[&corr, &indep, &corr], &pairs, &mut rng("t3b", 1), 200)
+            .expect("scores");
+        assert_eq!(b.resamples.len(), 200);
+        assert!(b.resamples.iter().all(|r| r.len() == 3));
+        let lag = |i: usize, j: usize| -> Vec<f64> {
+            b.resamples
+                .iter()
+                .map(|r| r[i].lag1_error - r[j].lag1_error)
+                .collect()
+        };
+        let interval = |d: Vec<f64>, estimate: f64| {
+            bootstrap_difference(estimate, &d, pairs.len()).expect("replicates")
+        };
+        // The truth is phase-correlated: the independent model's lag-1 error is far higher,
+        // on every resample's interval.
+        let full = |i: usize| b.full[i].lag1_error;
+        let d = interval(lag(0, 1), full(0) - full(1));
+        assert!(d.high < 0.0, "{d:?}");
+        // The same model simulated twice: a null difference the interval covers.
+        let moment: Vec<f64> = b
+            .resamples
+            .iter()
+            .map(|r| r[0].moment_error - r[2].moment_error)
+            .collect();
+        let null = interval(moment, b.full[0].moment_error - b.full[2].moment_error);
+        assert!(null.low <= 0.0 && 0.0 <= null.high, "{null:?}");
+        // Resamples move the metrics (they are not all the full sample's).
+        assert!(b.resamples.iter().any(|r| r[1] != b.full[1]));
     }
 }

@@ -3,8 +3,9 @@
 use osms_core::NoParams;
 use osms_core::table::Table;
 use osms_make::{Ctx, Slot, Stage, StageError};
-use osms_method::artifacts::{CandidateTable, ConstructionTable};
-use osms_policy::artifacts::TeacherTable;
+use osms_method::artifacts::{CandidateTable, ConstructionTable, ErrorModelArtifact};
+use osms_method::error_model::{PairSequence, table3_bootstrap};
+use osms_policy::artifacts::{ErrorPairs, TeacherTable};
 use osms_sim::artifacts::Evaluation;
 
 use super::seed_evals;
@@ -12,13 +13,18 @@ use crate::artifacts::{Attached, Report};
 use crate::claims::{self, ClaimData};
 use crate::plot::Figure;
 
+/// Bootstrap resamples of the held-out D_E rollouts behind the fit claims: the percentile
+/// interval's 2.5 % tail then rests on 25 replicates.
+const FIT_RESAMPLES: usize = 1000;
+
 pub struct ReportStage;
 impl Stage for ReportStage {
     const KIND: &'static str = "report";
     /// 2: the claims check decides by confidence intervals on the evaluations. 3: the
-    /// claims encoded at report schema 2.
-    const CODE_VERSION: u32 = 3;
-    const USES_RNG: bool = false;
+    /// claims encoded at report schema 2. 4: Table III's fit claims by a bootstrap over the
+    /// held-out D_E rollouts.
+    const CODE_VERSION: u32 = 4;
+    const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<TeacherTable>("table1"),
         Slot::one::<Table>("table2"),
@@ -36,6 +42,8 @@ impl Stage for ReportStage {
         Slot::gather::<Evaluation>("ours"),
         Slot::gather::<Evaluation>("global_iid"),
         Slot::gather::<Evaluation>("phase_independent"),
+        Slot::one::<ErrorModelArtifact>("error_model"),
+        Slot::gather::<ErrorPairs>("pairs"),
     ];
     const DOC: &'static str =
         "the report: Tables I-III, construction and candidate tables, figures, claims check";
@@ -64,6 +72,41 @@ impl Stage for ReportStage {
             .iter()
             .map(|s| seed_evals(ctx, s))
             .collect::<Result<Vec<_>, _>>()?;
+        let error_model: ErrorModelArtifact = ctx.input("error_model")?;
+        let pairs = ctx.gathered_sharded::<ErrorPairs>("pairs")?;
+        let sequences: Vec<PairSequence<'_>> = pairs
+            .iter()
+            .flat_map(|(_, p)| &p.rollouts)
+            .map(|r| PairSequence {
+                student: &r.student,
+                teacher: &r.teacher,
+                phase: &r.phase,
+            })
+            .collect();
+        let models = claims::FITTED_VARIANTS
+            .iter()
+            .map(|&variant| {
+                error_model
+                    .variants
+                    .iter()
+                    .find(|v| v.model.variant == variant)
+                    .map(|v| &v.model)
+                    .ok_or_else(|| {
+                        StageError::from(format!(
+                            "input `error_model` has no `{}` model\nhint: wire it to an \
+                             `error_model` stage, which fits all four of Table III",
+                            variant.name()
+                        ))
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let fits = table3_bootstrap(
+            &models,
+            &sequences,
+            &mut ctx.rng("table3_bootstrap", 0),
+            FIT_RESAMPLES,
+        )
+        .map_err(|e| format!("inputs `error_model` and `pairs` do not fit together: {e}"))?;
         let claims = claims::check(&ClaimData {
             teacher: &teacher,
             naive: &evals[0],
@@ -72,7 +115,8 @@ impl Stage for ReportStage {
             global_iid: &evals[3],
             phase_independent: &evals[4],
             stats: [stats("naive")?, stats("normal")?, stats("ours")?],
-            table3: &table3,
+            fits: &fits,
+            fit_rollouts: sequences.len(),
         });
         let figures = [
             "impact_profiles",
