@@ -98,6 +98,16 @@ pub struct PairSequence<'a> {
     pub phase: &'a [u8],
 }
 
+impl<'a> From<&'a osms_policy::artifacts::PairRollout> for PairSequence<'a> {
+    fn from(r: &'a osms_policy::artifacts::PairRollout) -> Self {
+        PairSequence {
+            student: &r.student,
+            teacher: &r.teacher,
+            phase: &r.phase,
+        }
+    }
+}
+
 impl PairSequence<'_> {
     /// Control steps in the rollout.
     pub fn steps(&self) -> usize {

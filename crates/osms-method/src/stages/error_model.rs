@@ -48,11 +48,7 @@ impl Stage for ErrorModelStage {
         let sequences: Vec<PairSequence<'_>> = gathered
             .iter()
             .flat_map(|(_, pairs)| &pairs.rollouts)
-            .map(|r| PairSequence {
-                student: &r.student,
-                teacher: &r.teacher,
-                phase: &r.phase,
-            })
+            .map(PairSequence::from)
             .collect();
         let mut variants = Vec::with_capacity(ErrorVariant::TABLE3.len());
         for (i, &variant) in ErrorVariant::TABLE3.iter().enumerate() {

@@ -77,11 +77,7 @@ impl Stage for ReportStage {
         let sequences: Vec<PairSequence<'_>> = pairs
             .iter()
             .flat_map(|(_, p)| &p.rollouts)
-            .map(|r| PairSequence {
-                student: &r.student,
-                teacher: &r.teacher,
-                phase: &r.phase,
-            })
+            .map(PairSequence::from)
             .collect();
         let models = claims::FITTED_VARIANTS
             .iter()
