@@ -95,7 +95,7 @@ fn build(plan: &Plan, store: &Store, targets: &[&str]) -> BTreeMap<String, osms_
 }
 
 #[test]
-fn the_decide_profile_is_small_with_twenty_one_run_seeds() {
+fn the_decide_profile_is_small_with_twenty_six_run_seeds() {
     // Same stages, params and seeds as small, so its first three run seeds are small's builds.
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
     let load = |profile| Pipeline::load(&path, Some(profile)).expect("load");
@@ -113,7 +113,7 @@ fn the_decide_profile_is_small_with_twenty_one_run_seeds() {
     };
     assert_eq!(spec(&small), spec(&decide));
     assert_eq!(small.default_seeds, [0, 1, 2]);
-    assert_eq!(decide.default_seeds, (0..21).collect::<Vec<u64>>());
+    assert_eq!(decide.default_seeds, (0..26).collect::<Vec<u64>>());
 }
 
 #[test]
