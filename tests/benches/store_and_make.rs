@@ -431,6 +431,7 @@ fn make_pipeline() {
             targets: vec![],
             seeds: vec![0],
             jobs: 2,
+            stages: 1,
             dry_run: false,
         };
         let report = osms_make::make(&plan, &open, &opts, &Silent).expect("make");

@@ -55,6 +55,7 @@ fn main() {
             targets: targets.iter().map(|t| t.to_string()).collect(),
             seeds: vec![0],
             jobs: 1,
+            stages: 1,
             dry_run: false,
         },
         &Silent,

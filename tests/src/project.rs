@@ -61,11 +61,23 @@ impl Project {
 
     /// Builds everything for `profile` and `seeds` with `jobs` threads through the library.
     pub fn make(&self, profile: Option<&str>, seeds: &[u64], jobs: usize) -> MakeReport {
+        self.make_with_stages(profile, seeds, jobs, 1)
+    }
+
+    /// [`Project::make`] building up to `stages` instances at the same time.
+    pub fn make_with_stages(
+        &self,
+        profile: Option<&str>,
+        seeds: &[u64],
+        jobs: usize,
+        stages: usize,
+    ) -> MakeReport {
         let plan = self.plan(profile).expect("plan");
         let opts = MakeOptions {
             targets: vec![],
             seeds: seeds.to_vec(),
             jobs,
+            stages,
             dry_run: false,
         };
         osms_make::make(&plan, &self.open_store(), &opts, &Silent).expect("make")

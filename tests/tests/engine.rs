@@ -32,6 +32,13 @@ fn outputs_do_not_depend_on_rerun_threads_or_shards() {
         "1 vs 2 threads"
     );
 
+    let concurrent = Project::engine();
+    assert_eq!(
+        hashes(&concurrent.make_with_stages(Some("tiny"), &[0], 2, 2)),
+        h1,
+        "two stages at a time"
+    );
+
     for (numbers, drops) in [(1, 1), (5, 4), (6, 3)] {
         let text = with_shards(numbers, drops);
         assert_ne!(text, ENGINE_PIPELINE);
@@ -132,6 +139,7 @@ fn a_target_with_a_seed_builds_that_instance_only() {
         targets: vec!["total@2".into(), "reference".into()],
         seeds: vec![0, 1],
         jobs: 2,
+        stages: 1,
         dry_run: false,
     };
     let report = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect("make");
@@ -145,6 +153,7 @@ fn a_target_with_a_seed_builds_that_instance_only() {
         targets: vec!["total@two".into()],
         seeds: vec![0],
         jobs: 1,
+        stages: 1,
         dry_run: false,
     };
     let err = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect_err("bad seed");
@@ -159,6 +168,7 @@ fn dry_run_builds_nothing_and_says_what_would_run() {
         targets: vec!["total".into()],
         seeds: vec![0],
         jobs: 1,
+        stages: 1,
         dry_run: true,
     };
     let report = osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect("dry run");
@@ -292,11 +302,40 @@ fn status_names_why_each_stage_would_run() {
 }
 
 #[test]
+fn building_several_stages_at_once_changes_no_byte_and_no_outcome() {
+    let seeds = [0, 1, 2];
+    let one = Project::engine();
+    let sequential = one.make(Some("tiny"), &seeds, 2);
+    for (jobs, stages) in [(2, 2), (3, 3), (1, 4)] {
+        let p = Project::engine();
+        let report = p.make_with_stages(Some("tiny"), &seeds, jobs, stages);
+        assert_eq!(hashes(&report), hashes(&sequential), "{jobs} threads, {stages} stages");
+        assert_eq!(outcomes(&report), outcomes(&sequential));
+        // Each instance exactly once, and after its inputs.
+        let order: Vec<&str> = report.instances.iter().map(|r| r.instance.as_str()).collect();
+        assert_eq!(order.len(), sequential.instances.len(), "{order:?}");
+        let position = |name: &str| order.iter().position(|n| *n == name).expect(name);
+        for seed in seeds {
+            assert!(position(&format!("numbers@{seed}")) < position(&format!("total@{seed}")));
+            assert!(position(&format!("total@{seed}")) < position(&format!("report@{seed}")));
+        }
+        let again = p.make_with_stages(Some("tiny"), &seeds, jobs, stages);
+        assert!(outcomes(&again).values().all(|o| *o == "cached"), "{again:?}");
+    }
+}
+
+#[test]
 fn a_failing_stage_skips_its_dependents_and_the_rest_is_built() {
+    for stages in [1, 2] {
+        a_failing_stage_skips_its_dependents(stages);
+    }
+}
+
+fn a_failing_stage_skips_its_dependents(stages: usize) {
     let p = Project::new(
         &ENGINE_PIPELINE.replace("params = { n = 6 }", "params = { n = 6, fail_at = 4 }"),
     );
-    let report = p.make(Some("tiny"), &[0], 2);
+    let report = p.make_with_stages(Some("tiny"), &[0], 2, stages);
     let o = outcomes(&report);
     assert_eq!(o["numbers@0"], "failed");
     for dependent in ["signs@0", "sign_total@0", "total@0", "report@0"] {

@@ -64,6 +64,7 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
         targets: vec!["eval_scripted".into()],
         seeds: vec![0],
         jobs: 2,
+        stages: 1,
         dry_run: false,
     };
     let report = osms_make::make(&plan, &store, &opts, &Silent).expect("make");

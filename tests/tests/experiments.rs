@@ -24,6 +24,7 @@ fn make_with(p: &Project, overrides: &[&str]) -> MakeReport {
         targets: vec![],
         seeds: vec![0],
         jobs: 2,
+        stages: 1,
         dry_run: false,
     };
     osms_make::make(&plan, &p.open_store(), &opts, &Silent).expect("make")
@@ -87,6 +88,7 @@ fn build(plan: &Plan, store: &Store, targets: &[&str]) -> BTreeMap<String, osms_
         targets: targets.iter().map(|t| t.to_string()).collect(),
         seeds: vec![0],
         jobs: 2,
+        stages: 1,
         dry_run: false,
     };
     let report = osms_make::make(plan, store, &opts, &Silent).expect("make");

@@ -558,6 +558,7 @@ fn a_stale_input_is_reported_once_and_rebuilt_rather_than_failing_its_consumers(
         targets: vec![],
         seeds: vec![0],
         jobs: 1,
+        stages: 1,
         dry_run: false,
     };
     let second = osms_make::make(&plan, &p.open_store(), &opts, &notes).expect("make");

@@ -50,6 +50,7 @@ fn make(text: &str, jobs: usize, teachers_from: Option<&Made>) -> Made {
         targets: vec![],
         seeds: vec![0],
         jobs,
+        stages: 1,
         dry_run: false,
     };
     let report = osms_make::make(&plan, &store, &opts, &Silent).expect("make");
@@ -83,6 +84,7 @@ fn remake_seeds(made: &Made, text: &str, seeds: &[u64]) -> (BTreeMap<String, Has
         targets: vec![],
         seeds: seeds.to_vec(),
         jobs: 2,
+        stages: 1,
         dry_run: false,
     };
     let report = osms_make::make(&plan, &made.store, &opts, &Silent).expect("make");
@@ -700,6 +702,7 @@ fn a_damaged_dataset_shard_is_detected_and_rebuilt(made: &Made) {
         targets: vec!["d_m".into()],
         seeds: vec![0],
         jobs: 2,
+        stages: 1,
         dry_run: false,
     };
     let report = osms_make::make(&made.plan, &made.store, &opts, &Silent).expect("make");

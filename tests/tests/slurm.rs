@@ -107,6 +107,7 @@ fn slurm_make(p: &Project, sched: &Inline) -> MakeReport {
         targets: vec![],
         seeds: vec![0],
         jobs: 1,
+        stages: 1,
         dry_run: false,
     };
     let launch = Launch {

@@ -5,7 +5,7 @@ use std::any::Any;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::ops::Range;
 use std::panic::{self, AssertUnwindSafe};
-use std::sync::Arc;
+use std::sync::{Arc, mpsc};
 use std::time::Instant;
 
 use osms_core::read_header;
@@ -24,6 +24,8 @@ pub struct MakeOptions {
     pub targets: Vec<String>,
     pub seeds: Vec<u64>,
     pub jobs: usize,
+    /// Instances built at the same time, sharing the `jobs` threads (at most `jobs`).
+    pub stages: usize,
     pub dry_run: bool,
 }
 
@@ -126,85 +128,174 @@ pub fn make(
     let mut requeued: BTreeSet<InstanceId> = BTreeSet::new();
     // Instances whose cached artifact no longer decodes: built again whatever their record says.
     let mut stale: BTreeMap<InstanceId, String> = BTreeMap::new();
-    while let Some(id) = queue.pop_front() {
-        let name = plan.display(id);
-        let inputs = plan.input_instances(id, &opts.seeds);
-        let mut input_hashes = Vec::with_capacity(inputs.len());
-        let mut blocked = None;
-        for input in &inputs {
-            match available.get(&input.id) {
-                Some(h) => input_hashes.push((input.label.clone(), *h)),
-                None => {
-                    blocked = Some(
-                        unavailable
-                            .get(&input.id)
-                            .cloned()
-                            .unwrap_or_else(|| plan.display(input.id)),
-                    );
+    // Builds run on threads of their own, sharing the pool; everything else (lookups, records,
+    // heads, the report) stays on this thread. More than one build at a time pays off where a
+    // stage leaves cores idle (a student's training uses ≈ 1.4 of 2).
+    let slots = opts.stages.clamp(1, pool.current_num_threads());
+    let mut running: BTreeMap<InstanceId, Running> = BTreeMap::new();
+    let (done_tx, done_rx) = mpsc::channel::<Finished>();
+    std::thread::scope(|scope| -> Result<()> {
+        loop {
+            // The first queued instance whose inputs are all settled (available, or given up on):
+            // with one slot that is always the queue's head, the order a sequential make keeps.
+            let ready = if running.len() < slots {
+                queue.iter().position(|&id| {
+                    plan.input_instances(id, &opts.seeds).iter().all(|input| {
+                        available.contains_key(&input.id) || unavailable.contains_key(&input.id)
+                    })
+                })
+            } else {
+                None
+            };
+            let Some(position) = ready else {
+                if running.is_empty() {
+                    if let Some(&id) = queue.front() {
+                        return Err(Error::usage(format!(
+                            "internal: `{}` waits for inputs that nothing builds",
+                            plan.display(id)
+                        )));
+                    }
                     break;
                 }
+                let done = done_rx.recv().map_err(|_| {
+                    Error::usage("internal: a build thread ended without reporting".to_string())
+                })?;
+                let Some(Running {
+                    name,
+                    key,
+                    reason,
+                    input_hashes,
+                }) = running.remove(&done.id)
+                else {
+                    continue;
+                };
+                let id = done.id;
+                let wall_time_secs = done.wall_time_secs;
+                let r = match done.result {
+                    Ok((content_hash, size_bytes, parts)) => {
+                        let mut rec = record(
+                            plan,
+                            id,
+                            key,
+                            content_hash,
+                            &input_hashes,
+                            size_bytes,
+                            wall_time_secs,
+                            wall_time_secs * pool.current_num_threads() as f64 / done.sharing,
+                        );
+                        rec.parts = parts;
+                        store.put_record(&rec)?;
+                        if plan.record_heads {
+                            heads.update(&name, &rec)?;
+                        }
+                        available.insert(id, content_hash);
+                        built.insert(id);
+                        InstanceReport {
+                            instance: name,
+                            key: Some(key),
+                            content_hash: Some(content_hash),
+                            outcome: Outcome::Built { reason },
+                            wall_time_secs,
+                        }
+                    }
+                    Err(e) => {
+                        unavailable.insert(id, name.clone());
+                        InstanceReport {
+                            instance: name,
+                            key: Some(key),
+                            content_hash: None,
+                            outcome: Outcome::Failed {
+                                error: e.to_string(),
+                            },
+                            wall_time_secs,
+                        }
+                    }
+                };
+                observer.finished(&r);
+                report.instances.push(r);
+                continue;
+            };
+            let Some(id) = queue.remove(position) else {
+                continue;
+            };
+            let name = plan.display(id);
+            let inputs = plan.input_instances(id, &opts.seeds);
+            let mut input_hashes = Vec::with_capacity(inputs.len());
+            let mut blocked = None;
+            for input in &inputs {
+                match available.get(&input.id) {
+                    Some(h) => input_hashes.push((input.label.clone(), *h)),
+                    None => {
+                        blocked = Some(
+                            unavailable
+                                .get(&input.id)
+                                .cloned()
+                                .unwrap_or_else(|| plan.display(input.id)),
+                        );
+                        break;
+                    }
+                }
             }
-        }
-        if let Some(up) = blocked {
-            let outcome = if opts.dry_run {
-                Outcome::WouldBuild {
-                    reason: format!("input `{up}` will be rebuilt"),
-                }
-            } else {
-                Outcome::Skipped {
-                    failed_input: up.clone(),
-                }
-            };
-            unavailable.insert(id, up);
-            let r = InstanceReport {
-                instance: name,
-                key: None,
-                content_hash: None,
-                outcome,
-                wall_time_secs: 0.0,
-            };
-            observer.finished(&r);
-            report.instances.push(r);
-            continue;
-        }
-
-        let key = plan.key(id, &input_hashes);
-        let found = match stale.get(&id) {
-            Some(reason) => Found::Build(reason.clone()),
-            None => find(plan, store, &heads, id, &name, &key, &input_hashes)?,
-        };
-        let reason = match found {
-            Found::Present(rec) => {
-                let cut_off = inputs.iter().any(|i| built.contains(&i.id));
-                available.insert(id, rec.content_hash);
-                // A dry run holds no lock, so it writes nothing but the stat cache.
-                if !opts.dry_run && plan.record_heads {
-                    heads.update(&name, &rec)?;
-                }
-                let r = cached_report(name, key, &rec, cut_off);
+            if let Some(up) = blocked {
+                let outcome = if opts.dry_run {
+                    Outcome::WouldBuild {
+                        reason: format!("input `{up}` will be rebuilt"),
+                    }
+                } else {
+                    Outcome::Skipped {
+                        failed_input: up.clone(),
+                    }
+                };
+                unavailable.insert(id, up);
+                let r = InstanceReport {
+                    instance: name,
+                    key: None,
+                    content_hash: None,
+                    outcome,
+                    wall_time_secs: 0.0,
+                };
                 observer.finished(&r);
                 report.instances.push(r);
                 continue;
             }
-            Found::Build(reason) => reason,
-        };
 
-        if opts.dry_run {
-            unavailable.insert(id, name.clone());
-            let r = InstanceReport {
-                instance: name,
-                key: Some(key),
-                content_hash: None,
-                outcome: Outcome::WouldBuild { reason },
-                wall_time_secs: 0.0,
+            let key = plan.key(id, &input_hashes);
+            let found = match stale.get(&id) {
+                Some(reason) => Found::Build(reason.clone()),
+                None => find(plan, store, &heads, id, &name, &key, &input_hashes)?,
             };
-            observer.finished(&r);
-            report.instances.push(r);
-            continue;
-        }
+            let reason = match found {
+                Found::Present(rec) => {
+                    let cut_off = inputs.iter().any(|i| built.contains(&i.id));
+                    available.insert(id, rec.content_hash);
+                    // A dry run holds no lock, so it writes nothing but the stat cache.
+                    if !opts.dry_run && plan.record_heads {
+                        heads.update(&name, &rec)?;
+                    }
+                    let r = cached_report(name, key, &rec, cut_off);
+                    observer.finished(&r);
+                    report.instances.push(r);
+                    continue;
+                }
+                Found::Build(reason) => reason,
+            };
 
-        let started = Instant::now();
-        let loaded = match load_inputs(plan, store, &inputs, &input_hashes) {
+            if opts.dry_run {
+                unavailable.insert(id, name.clone());
+                let r = InstanceReport {
+                    instance: name,
+                    key: Some(key),
+                    content_hash: None,
+                    outcome: Outcome::WouldBuild { reason },
+                    wall_time_secs: 0.0,
+                };
+                observer.finished(&r);
+                report.instances.push(r);
+                continue;
+            }
+
+            let started = Instant::now();
+            let loaded = match load_inputs(plan, store, &inputs, &input_hashes) {
             Ok(loaded) => loaded,
             // The stat cache vouched for this input when it was found cached, but its bytes no
             // longer match: rebuild it (once), then come back to this instance.
@@ -260,66 +351,89 @@ pub fn make(
             )
             .into()),
         };
-        let progress = observer.started(&name, &reason);
-        let result = loaded.and_then(|loaded| {
-            build(
-                plan,
-                store,
+            let progress = observer.started(&name, &reason);
+            let loaded = match loaded {
+                Ok(loaded) => loaded,
+                Err(e) => {
+                    drop(progress);
+                    unavailable.insert(id, name.clone());
+                    let r = InstanceReport {
+                        instance: name,
+                        key: Some(key),
+                        content_hash: None,
+                        outcome: Outcome::Failed {
+                            error: e.to_string(),
+                        },
+                        wall_time_secs: started.elapsed().as_secs_f64(),
+                    };
+                    observer.finished(&r);
+                    report.instances.push(r);
+                    continue;
+                }
+            };
+            running.insert(
                 id,
-                key,
-                loaded,
-                &input_hashes,
-                &pool,
-                progress.as_ref(),
-            )
-        });
-        drop(progress);
-        let wall_time_secs = started.elapsed().as_secs_f64();
-        let r = match result {
-            Ok((content_hash, size_bytes, parts)) => {
-                let mut rec = record(
-                    plan,
-                    id,
+                Running {
+                    name,
                     key,
-                    content_hash,
-                    &input_hashes,
-                    size_bytes,
-                    wall_time_secs,
-                    wall_time_secs * pool.current_num_threads() as f64,
-                );
-                rec.parts = parts;
-                store.put_record(&rec)?;
-                if plan.record_heads {
-                    heads.update(&name, &rec)?;
-                }
-                available.insert(id, content_hash);
-                built.insert(id);
-                InstanceReport {
-                    instance: name,
-                    key: Some(key),
-                    content_hash: Some(content_hash),
-                    outcome: Outcome::Built { reason },
-                    wall_time_secs,
-                }
-            }
-            Err(e) => {
-                unavailable.insert(id, name.clone());
-                InstanceReport {
-                    instance: name,
-                    key: Some(key),
-                    content_hash: None,
-                    outcome: Outcome::Failed {
-                        error: e.to_string(),
-                    },
-                    wall_time_secs,
-                }
-            }
-        };
-        observer.finished(&r);
-        report.instances.push(r);
-    }
+                    reason,
+                    input_hashes: input_hashes.clone(),
+                },
+            );
+            // A record's core-seconds count this build's share of the threads: all of them alone,
+            // half with another build beside it from start to end.
+            let sharing = running.len() as f64;
+            let done_tx = done_tx.clone();
+            let pool = &pool;
+            scope.spawn(move || {
+                // Every build reports, even one that panics outside its kind (which `build`
+                // catches): the make waits for a report from each.
+                let result = panic::catch_unwind(AssertUnwindSafe(|| {
+                    build(
+                        plan,
+                        store,
+                        id,
+                        key,
+                        loaded,
+                        &input_hashes,
+                        pool,
+                        progress.as_ref(),
+                    )
+                }))
+                .unwrap_or_else(|payload| {
+                    Err(format!("build panicked: {}", panic_message(payload.as_ref())).into())
+                });
+                drop(progress);
+                // The receiver lives until every build has reported.
+                let _ = done_tx.send(Finished {
+                    id,
+                    result,
+                    wall_time_secs: started.elapsed().as_secs_f64(),
+                    sharing,
+                });
+            });
+        }
+        Ok(())
+    })?;
     store.save_stat_cache()?;
     Ok(report)
+}
+
+/// A build in flight: what the report and the record need when it ends.
+struct Running {
+    name: String,
+    key: Hash,
+    reason: String,
+    input_hashes: Vec<(String, Hash)>,
+}
+
+/// A build's end, sent from its thread.
+struct Finished {
+    id: InstanceId,
+    result: Result<(Hash, u64, Vec<Hash>), StageError>,
+    wall_time_secs: f64,
+    /// Builds running when it started, itself included.
+    sharing: f64,
 }
 
 /// An instance's artifact in the store, or why it must be built.

@@ -126,6 +126,10 @@ pub struct ExpRunArgs {
     /// Worker threads [default: all cores]
     #[arg(long, short = 'j')]
     pub jobs: Option<usize>,
+    /// Stage instances built at the same time, sharing the worker threads (at most --jobs);
+    /// 2 on 2 cores keeps both busy while a student trains [default: 1]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub stages: Option<u32>,
     /// Print the experiment's record as JSON on stdout
     #[arg(long)]
     pub json: bool,
@@ -212,6 +216,10 @@ pub struct MakeArgs {
     /// Worker threads [default: all cores]
     #[arg(long, short = 'j')]
     pub jobs: Option<usize>,
+    /// Stage instances built at the same time, sharing the worker threads (at most --jobs);
+    /// 2 on 2 cores keeps both busy while a student trains [default: 1]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub stages: Option<u32>,
     /// Where stages run: `local`, or `slurm` (a job array per sharded stage; see "Running on a
     /// cluster" in README.md) [default: `[executor] kind`, else local]
     #[arg(long, value_name = "local|slurm")]

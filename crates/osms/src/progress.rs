@@ -2,13 +2,14 @@
 
 use std::time::Duration;
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 use osms_make::{InstanceReport, Observer, Outcome, Progress};
 
 pub struct MakeObserver {
-    pub show_progress: bool,
     pub quiet: bool,
     pub verbose: bool,
+    /// One line per build in flight (`make --stages N` runs several).
+    bars: MultiProgress,
 }
 
 struct Bar(ProgressBar);
@@ -39,9 +40,21 @@ impl MakeObserver {
     /// The observer a command's global options ask for.
     pub fn of(ctx: &crate::context::Context) -> Self {
         MakeObserver {
-            show_progress: ctx.progress,
             quiet: ctx.quiet,
             verbose: ctx.verbose,
+            bars: MultiProgress::with_draw_target(if ctx.progress {
+                ProgressDrawTarget::stderr()
+            } else {
+                ProgressDrawTarget::hidden()
+            }),
+        }
+    }
+
+    /// A log line above the bars; plainly where they are not drawn (no terminal, or hidden),
+    /// since a hidden `MultiProgress` drops what it is asked to print.
+    fn line(&self, text: &str) {
+        if self.bars.is_hidden() || self.bars.println(text).is_err() {
+            eprintln!("{text}");
         }
     }
 }
@@ -49,26 +62,21 @@ impl MakeObserver {
 impl Observer for MakeObserver {
     fn waiting_for_lock(&self) {
         if !self.quiet {
-            eprintln!("waiting for another osms process to release the store lock...");
+            self.line("waiting for another osms process to release the store lock...");
         }
     }
 
     fn note(&self, text: &str) {
         if !self.quiet {
-            eprintln!("{text}");
+            self.line(text);
         }
     }
 
     fn started(&self, instance: &str, reason: &str) -> Box<dyn Progress + '_> {
         if !self.quiet {
-            eprintln!("building {instance} ({reason})");
+            self.line(&format!("building {instance} ({reason})"));
         }
-        let target = if self.show_progress {
-            ProgressDrawTarget::stderr()
-        } else {
-            ProgressDrawTarget::hidden()
-        };
-        let bar = ProgressBar::with_draw_target(None, target);
+        let bar = self.bars.add(ProgressBar::no_length());
         bar.set_style(
             ProgressStyle::with_template("{spinner} {prefix:.bold} {elapsed}")
                 .unwrap_or_else(|_| ProgressStyle::default_spinner()),
@@ -84,20 +92,25 @@ impl Observer for MakeObserver {
         }
         let hash = r.content_hash.map(|h| h.short()).unwrap_or_default();
         match &r.outcome {
-            Outcome::Built { .. } => eprintln!(
+            Outcome::Built { .. } => self.line(&format!(
                 "  built {} -> {hash} in {:.2}s",
                 r.instance, r.wall_time_secs
-            ),
-            Outcome::Failed { error } => eprintln!("  FAILED {}: {error}", r.instance),
-            Outcome::Skipped { failed_input } => {
-                eprintln!("  skipped {} (input {failed_input} failed)", r.instance)
+            )),
+            Outcome::Failed { error } => self.line(&format!("  FAILED {}: {error}", r.instance)),
+            Outcome::Skipped { failed_input } => self.line(&format!(
+                "  skipped {} (input {failed_input} failed)",
+                r.instance
+            )),
+            Outcome::WouldBuild { reason } => {
+                self.line(&format!("would build {} ({reason})", r.instance))
             }
-            Outcome::WouldBuild { reason } => eprintln!("would build {} ({reason})", r.instance),
-            Outcome::Cached if self.verbose => eprintln!("  cached {} {hash}", r.instance),
-            Outcome::CutOff if self.verbose => eprintln!(
+            Outcome::Cached if self.verbose => {
+                self.line(&format!("  cached {} {hash}", r.instance))
+            }
+            Outcome::CutOff if self.verbose => self.line(&format!(
                 "  cut off {} {hash} (inputs rebuilt to the same bytes)",
                 r.instance
-            ),
+            )),
             Outcome::Cached | Outcome::CutOff => {}
         }
     }

@@ -17,7 +17,7 @@ use super::stored::{Manifest, assemble, load_item};
 pub type StageError = Box<dyn std::error::Error + Send + Sync>;
 
 /// Reports progress of a running stage.
-pub trait Progress: Sync {
+pub trait Progress: Send + Sync {
     fn set_total(&self, total: u64);
     fn inc(&self, n: u64);
 }

@@ -31,6 +31,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         targets,
         seeds: seeds.clone(),
         jobs,
+        stages: args.stages.map_or(1, |s| s as usize),
         dry_run: args.dry_run,
     };
     let observer = MakeObserver::of(ctx);
