@@ -309,10 +309,18 @@ fn building_several_stages_at_once_changes_no_byte_and_no_outcome() {
     for (jobs, stages) in [(2, 2), (3, 3), (1, 4)] {
         let p = Project::engine();
         let report = p.make_with_stages(Some("tiny"), &seeds, jobs, stages);
-        assert_eq!(hashes(&report), hashes(&sequential), "{jobs} threads, {stages} stages");
+        assert_eq!(
+            hashes(&report),
+            hashes(&sequential),
+            "{jobs} threads, {stages} stages"
+        );
         assert_eq!(outcomes(&report), outcomes(&sequential));
         // Each instance exactly once, and after its inputs.
-        let order: Vec<&str> = report.instances.iter().map(|r| r.instance.as_str()).collect();
+        let order: Vec<&str> = report
+            .instances
+            .iter()
+            .map(|r| r.instance.as_str())
+            .collect();
         assert_eq!(order.len(), sequential.instances.len(), "{order:?}");
         let position = |name: &str| order.iter().position(|n| *n == name).expect(name);
         for seed in seeds {
@@ -320,7 +328,10 @@ fn building_several_stages_at_once_changes_no_byte_and_no_outcome() {
             assert!(position(&format!("total@{seed}")) < position(&format!("report@{seed}")));
         }
         let again = p.make_with_stages(Some("tiny"), &seeds, jobs, stages);
-        assert!(outcomes(&again).values().all(|o| *o == "cached"), "{again:?}");
+        assert!(
+            outcomes(&again).values().all(|o| *o == "cached"),
+            "{again:?}"
+        );
     }
 }
 

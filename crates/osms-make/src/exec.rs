@@ -160,57 +160,21 @@ pub fn make(
                 let done = done_rx.recv().map_err(|_| {
                     Error::usage("internal: a build thread ended without reporting".to_string())
                 })?;
-                let Some(Running {
-                    name,
-                    key,
-                    reason,
-                    input_hashes,
-                }) = running.remove(&done.id)
-                else {
+                let Some(run) = running.remove(&done.id) else {
                     continue;
                 };
                 let id = done.id;
-                let wall_time_secs = done.wall_time_secs;
-                let r = match done.result {
-                    Ok((content_hash, size_bytes, parts)) => {
-                        let mut rec = record(
-                            plan,
-                            id,
-                            key,
-                            content_hash,
-                            &input_hashes,
-                            size_bytes,
-                            wall_time_secs,
-                            wall_time_secs * pool.current_num_threads() as f64 / done.sharing,
-                        );
-                        rec.parts = parts;
-                        store.put_record(&rec)?;
-                        if plan.record_heads {
-                            heads.update(&name, &rec)?;
-                        }
+                let threads = pool.current_num_threads();
+                let r = settle(plan, store, &heads, threads, run, done)?;
+                match r.content_hash {
+                    Some(content_hash) => {
                         available.insert(id, content_hash);
                         built.insert(id);
-                        InstanceReport {
-                            instance: name,
-                            key: Some(key),
-                            content_hash: Some(content_hash),
-                            outcome: Outcome::Built { reason },
-                            wall_time_secs,
-                        }
                     }
-                    Err(e) => {
-                        unavailable.insert(id, name.clone());
-                        InstanceReport {
-                            instance: name,
-                            key: Some(key),
-                            content_hash: None,
-                            outcome: Outcome::Failed {
-                                error: e.to_string(),
-                            },
-                            wall_time_secs,
-                        }
+                    None => {
+                        unavailable.insert(id, r.instance.clone());
                     }
-                };
+                }
                 observer.finished(&r);
                 report.instances.push(r);
                 continue;
@@ -296,81 +260,62 @@ pub fn make(
 
             let started = Instant::now();
             let loaded = match load_inputs(plan, store, &inputs, &input_hashes) {
-            Ok(loaded) => loaded,
-            // The stat cache vouched for this input when it was found cached, but its bytes no
-            // longer match: rebuild it (once), then come back to this instance.
-            Err(BadInput::Damaged { input, hash }) if !requeued.contains(&input) => {
-                let up = plan.display(input);
-                tracing::warn!(
-                    "input `{up}` of `{name}`: object {} is damaged; rebuilding it",
-                    hash.short()
-                );
-                store.distrust(&hash);
-                available.remove(&input);
-                requeued.insert(input);
-                report.instances.retain(|r| r.instance != up);
-                queue.push_front(id);
-                queue.push_front(input);
-                continue;
-            }
-            Err(BadInput::Damaged { input, hash }) => Err(format!(
-                "input `{}`: object {} is damaged again after a rebuild",
-                plan.display(input),
-                hash.short()
-            )
-            .into()),
-            // Like a damaged input, but the bytes are intact: the kind's output type changed
-            // under them. Said once, here, where the first consumer meets it.
-            Err(BadInput::Stale {
-                input,
-                hash,
-                tag,
-                reason,
-            }) if !requeued.contains(&input) => {
-                let up = plan.display(input);
-                observer.note(&format!(
-                    "warning: stage `{up}`: its cached `{tag}` artifact {} does not decode ({reason}); rebuilding it",
-                    hash.short()
-                ));
-                stale.insert(
-                    input,
-                    format!("its cached `{tag}` artifact does not decode as this osms's type"),
-                );
-                available.remove(&input);
-                requeued.insert(input);
-                report.instances.retain(|r| r.instance != up);
-                queue.push_front(id);
-                queue.push_front(input);
-                continue;
-            }
-            Err(BadInput::Stale {
-                input, tag, reason, ..
-            }) => Err(format!(
-                "input `{}`: its `{tag}` artifact does not decode even after a rebuild: {reason}\nhint: the kind writes bytes its own output type cannot read; bump its SCHEMA_VERSION or fix its serialisation",
-                plan.display(input)
-            )
-            .into()),
-        };
-            let progress = observer.started(&name, &reason);
-            let loaded = match loaded {
                 Ok(loaded) => loaded,
-                Err(e) => {
-                    drop(progress);
-                    unavailable.insert(id, name.clone());
-                    let r = InstanceReport {
-                        instance: name,
-                        key: Some(key),
-                        content_hash: None,
-                        outcome: Outcome::Failed {
-                            error: e.to_string(),
-                        },
-                        wall_time_secs: started.elapsed().as_secs_f64(),
-                    };
-                    observer.finished(&r);
-                    report.instances.push(r);
+                // The stat cache vouched for this input when it was found cached, but its bytes no
+                // longer match: rebuild it (once), then come back to this instance.
+                Err(BadInput::Damaged { input, hash }) if !requeued.contains(&input) => {
+                    let up = plan.display(input);
+                    tracing::warn!(
+                        "input `{up}` of `{name}`: object {} is damaged; rebuilding it",
+                        hash.short()
+                    );
+                    store.distrust(&hash);
+                    available.remove(&input);
+                    requeued.insert(input);
+                    report.instances.retain(|r| r.instance != up);
+                    queue.push_front(id);
+                    queue.push_front(input);
                     continue;
                 }
+                Err(BadInput::Damaged { input, hash }) => Err(format!(
+                    "input `{}`: object {} is damaged again after a rebuild",
+                    plan.display(input),
+                    hash.short()
+                )
+                .into()),
+                // Like a damaged input, but the bytes are intact: the kind's output type changed
+                // under them. Said once, here, where the first consumer meets it.
+                Err(BadInput::Stale {
+                    input,
+                    hash,
+                    tag,
+                    reason,
+                }) if !requeued.contains(&input) => {
+                    let up = plan.display(input);
+                    observer.note(&format!(
+                        "warning: stage `{up}`: its cached `{tag}` artifact {} does not decode ({reason}); rebuilding it",
+                        hash.short()
+                    ));
+                    stale.insert(
+                        input,
+                        format!("its cached `{tag}` artifact does not decode as this osms's type"),
+                    );
+                    available.remove(&input);
+                    requeued.insert(input);
+                    report.instances.retain(|r| r.instance != up);
+                    queue.push_front(id);
+                    queue.push_front(input);
+                    continue;
+                }
+                Err(BadInput::Stale {
+                    input, tag, reason, ..
+                }) => Err(format!(
+                    "input `{}`: its `{tag}` artifact does not decode even after a rebuild: {reason}\nhint: the kind writes bytes its own output type cannot read; bump its SCHEMA_VERSION or fix its serialisation",
+                    plan.display(input)
+                )
+                .into()),
             };
+            let progress = observer.started(&name, &reason);
             running.insert(
                 id,
                 Running {
@@ -383,6 +328,20 @@ pub fn make(
             // A record's core-seconds count this build's share of the threads: all of them alone,
             // half with another build beside it from start to end.
             let sharing = running.len() as f64;
+            let loaded = match loaded {
+                Ok(loaded) => loaded,
+                // Settled with the builds, as a build that failed at once.
+                Err(e) => {
+                    drop(progress);
+                    let _ = done_tx.send(Finished {
+                        id,
+                        result: Err(e),
+                        wall_time_secs: started.elapsed().as_secs_f64(),
+                        sharing,
+                    });
+                    continue;
+                }
+            };
             let done_tx = done_tx.clone();
             let pool = &pool;
             scope.spawn(move || {
@@ -434,6 +393,60 @@ struct Finished {
     wall_time_secs: f64,
     /// Builds running when it started, itself included.
     sharing: f64,
+}
+
+/// Stores a finished build's record (and head) if it succeeded, and reports it: a report with
+/// a content hash is a build, one without a failure.
+fn settle(
+    plan: &Plan,
+    store: &Store,
+    heads: &Heads,
+    threads: usize,
+    run: Running,
+    done: Finished,
+) -> Result<InstanceReport> {
+    let Running {
+        name,
+        key,
+        reason,
+        input_hashes,
+    } = run;
+    let wall_time_secs = done.wall_time_secs;
+    Ok(match done.result {
+        Ok((content_hash, size_bytes, parts)) => {
+            let mut rec = record(
+                plan,
+                done.id,
+                key,
+                content_hash,
+                &input_hashes,
+                size_bytes,
+                wall_time_secs,
+                wall_time_secs * threads as f64 / done.sharing,
+            );
+            rec.parts = parts;
+            store.put_record(&rec)?;
+            if plan.record_heads {
+                heads.update(&name, &rec)?;
+            }
+            InstanceReport {
+                instance: name,
+                key: Some(key),
+                content_hash: Some(content_hash),
+                outcome: Outcome::Built { reason },
+                wall_time_secs,
+            }
+        }
+        Err(e) => InstanceReport {
+            instance: name,
+            key: Some(key),
+            content_hash: None,
+            outcome: Outcome::Failed {
+                error: e.to_string(),
+            },
+            wall_time_secs,
+        },
+    })
 }
 
 /// An instance's artifact in the store, or why it must be built.
