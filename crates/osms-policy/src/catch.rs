@@ -9,11 +9,12 @@
 
 use osms_core::rng;
 use osms_sim::catcher::{
-    CatcherSpec, PALM_MOTION_DAMPING, ScriptedCatcher, follow_through_direction,
-    palm_motion_channels,
+    CatcherSpec, PALM_MOTION_DAMPING, Perception, ScriptedCatcher, palm_motion_channels,
 };
 use osms_sim::control::{DrSpec, hold_action};
-use osms_sim::episode::{PRIVILEGED_LEN, Snapshot};
+use osms_sim::episode::{
+    DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_LEN, PRIVILEGED_PALM, Snapshot,
+};
 use osms_sim::vec3::{norm, sub};
 use osms_sim::{
     Action, ConditionSpec, Episode, Hooks, N_ACTION, N_ARM, NoHooks, Phase, Policy, PolicyView,
@@ -50,6 +51,11 @@ pub struct RewardSpec {
     /// met δ_f and δ_ℓ, so a policy trades an impact failure (−`impact_force`, or a little
     /// less follow-through) for any lower risk of a drop (−`catching`). 0: the paper's reward.
     pub success: f32,
+    /// Smoothness, not one of the paper's terms (issue 54): per second, times the squared
+    /// change of the policy's action channels (residuals, follow-through, grasp) from the
+    /// previous step, summed over the channels. Smoother commands are easier for a student to
+    /// imitate and survive modelled action errors better. 0: off.
+    pub residual_rate: f32,
 }
 
 impl Default for RewardSpec {
@@ -62,6 +68,7 @@ impl Default for RewardSpec {
             follow_through: 5.0,
             follow_through_reach: 1.0,
             success: 0.0,
+            residual_rate: 0.0,
         }
     }
 }
@@ -78,6 +85,75 @@ impl RewardSpec {
         }
     }
 }
+
+/// What the teacher's actor acts on (issue 54): a ladder from the privileged actor to the
+/// students' own inputs, each rung removing more of what no student can know. The critic
+/// always reads the privileged observation (asymmetric actor-critic), and the scripted prior
+/// reads the world as the rung's actor does ([`ActorInputs::perception`]), so the teacher's
+/// whole command (prior + residual) is a function of the rung's inputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ActorInputs {
+    /// The privileged frame (robot, observed object state with its delayed exact velocity,
+    /// palm, contact force and count, ω's mass and variant, time), the prior's action and the
+    /// phase.
+    #[default]
+    Privileged,
+    /// Without ω's mass and variant and the episode time; the prior aims with the variants'
+    /// mean radius.
+    NoIdentity,
+    /// And the object's velocity and orientation replaced by what the students get: the
+    /// observed positions' differences over [`REALISABLE_HISTORY`] frames and a ballistic
+    /// least-squares fit to them (position and velocity), which the prior reads too.
+    ObservedVelocity,
+    /// And no contact count, contact force or phase (the phase is entered on the simulator's
+    /// contact): the prior closes the hand on the observed distance only, and the
+    /// follow-through moves along the flight direction seen when it began to close.
+    NoContact,
+    /// The students' exact observation ([`REALISABLE_HISTORY`] deployable frames, the palm's
+    /// position and velocity and the object's offset from it, the observed positions'
+    /// differences), plus the ballistic fit and the prior's action, both functions of it.
+    Deployable,
+}
+
+/// Frames of deployable history the realisable rungs read: the students' default history.
+pub const REALISABLE_HISTORY: usize = 8;
+
+impl ActorInputs {
+    /// How the prior reads the world on this rung.
+    pub fn perception(self) -> Perception {
+        Perception {
+            nominal_radius: self >= ActorInputs::NoIdentity,
+            estimated_object: self >= ActorInputs::ObservedVelocity,
+            close_on_distance_only: self >= ActorInputs::NoContact,
+        }
+    }
+
+    /// Frames of deployable history the rung needs (the rollout keeps at least this many).
+    pub fn history(self) -> usize {
+        if self >= ActorInputs::ObservedVelocity {
+            REALISABLE_HISTORY
+        } else {
+            1
+        }
+    }
+
+    /// Length of the actor's observation.
+    pub fn len(self) -> usize {
+        let h = REALISABLE_HISTORY;
+        let differences = 3 * (h - 1);
+        match self {
+            ActorInputs::Privileged => OBS_LEN,
+            ActorInputs::NoIdentity => IDENTITY + N_ACTION + 5,
+            ActorInputs::ObservedVelocity => 48 + 3 + 9 + 2 + 6 + differences + N_ACTION + 5,
+            ActorInputs::NoContact => 48 + 3 + 9 + 6 + differences + N_ACTION,
+            ActorInputs::Deployable => h * DEPLOYABLE_LEN + 9 + differences + 6 + N_ACTION,
+        }
+    }
+}
+
+/// Where ω's mass, the variant one-hot and the time start in a privileged frame.
+const IDENTITY: usize = 48 + 13 + 9 + 2;
 
 /// How the teacher's episodes are made. Every default lives here.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -112,6 +188,9 @@ pub struct CatchTaskSpec {
     /// reachable follow-through (docs/sim.md), and on the development stream the teacher
     /// completed 74.2 % of catches at 0 against 60.8 % at 0.3 (400 iterations).
     pub palm_motion_orientation_weight: f64,
+    /// What the actor (and the prior) act on: today's privileged actor or a more realisable
+    /// rung (issue 54).
+    pub actor_inputs: ActorInputs,
 }
 
 impl Default for CatchTaskSpec {
@@ -127,6 +206,7 @@ impl Default for CatchTaskSpec {
             follow_through_channel: true,
             grasp_channel: true,
             palm_motion_orientation_weight: 0.0,
+            actor_inputs: ActorInputs::Privileged,
         }
     }
 }
@@ -152,6 +232,37 @@ impl CatchTaskSpec {
         }
     }
 
+    /// This task with the rollouts' history raised to what the actor reads.
+    pub fn realised(&self) -> CatchTaskSpec {
+        let mut task = self.clone();
+        let h = self.actor_inputs.history();
+        task.rollout.history_steps = task.rollout.history_steps.max(h);
+        task
+    }
+
+    /// The observation's length: the actor's inputs, then (on a realisable rung) the
+    /// privileged observation the critic reads besides.
+    pub fn obs_len(&self) -> usize {
+        match self.actor_inputs {
+            ActorInputs::Privileged => OBS_LEN,
+            rung => rung.len() + OBS_LEN,
+        }
+    }
+
+    /// How many leading observation entries the actor reads.
+    pub fn actor_obs_len(&self) -> usize {
+        self.actor_inputs.len()
+    }
+
+    /// The scripted prior as this task's actor rung reads the world.
+    pub fn prior(&self) -> ScriptedCatcher {
+        ScriptedCatcher::with_perception(
+            self.catcher.clone(),
+            self.rollout.control.clone(),
+            self.actor_inputs.perception(),
+        )
+    }
+
     /// The policy's action size: the residual channels, the follow-through channel and the
     /// grasp channel.
     pub fn act_len(&self) -> usize {
@@ -161,7 +272,8 @@ impl CatchTaskSpec {
     }
 }
 
-/// Observation: the privileged frame, the prior's action and the phase (one-hot).
+/// The privileged observation: the privileged frame, the prior's action and the phase
+/// (one-hot). The privileged actor's input and, on every rung, the critic's.
 pub const OBS_LEN: usize = PRIVILEGED_LEN + N_ACTION + 5;
 
 /// The catching task. Episode `i` draws ω from stream (`stream`, i) of (`seed`, `stage`), and
@@ -185,6 +297,14 @@ impl<'w> CatchTask<'w> {
         stream: &str,
     ) -> osms_sim::Result<Self> {
         spec.catcher.validate()?;
+        if spec.rollout.history_steps < spec.actor_inputs.history() {
+            return Err(osms_sim::SimError::Params(format!(
+                "task.rollout.history_steps = {}: actor_inputs = {:?} reads {} frames (use the task's `realised()` spec)",
+                spec.rollout.history_steps,
+                spec.actor_inputs,
+                spec.actor_inputs.history()
+            )));
+        }
         draw(world, &spec, (seed, stage, stream), 0)?;
         Ok(CatchTask {
             world,
@@ -223,34 +343,126 @@ struct Residual<'a, 'b> {
     spec: &'a CatchTaskSpec,
     phase: u8,
     act: &'a mut dyn FnMut(&[f32]) -> Vec<f32>,
-    executed: &'b mut Action,
+    /// The policy's raw output r of this step.
+    residual: &'b mut Vec<f32>,
 }
 
 impl Policy for Residual<'_, '_> {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
-        let out = residual_action(self.prior, self.spec, self.phase, view, self.act);
-        *self.executed = out;
+        let (out, r) = residual_action(self.prior, self.spec, self.phase, view, self.act);
+        *self.residual = r;
         out
     }
 }
 
-/// The executed action of the residual policy `act` on the prior (advancing the prior's state).
+/// The observation of the residual policy: the actor's inputs on the task's rung, then (on a
+/// realisable rung) the privileged observation for the critic.
+fn observation(
+    spec: &CatchTaskSpec,
+    prior_state: &ScriptedCatcher,
+    prior: &Action,
+    phase: u8,
+    view: &PolicyView<'_>,
+) -> Vec<f32> {
+    let mut obs = Vec::with_capacity(spec.obs_len());
+    let privileged = |obs: &mut Vec<f32>| {
+        obs.extend(view.privileged.iter().map(|&v| v as f32));
+        obs.extend(prior.iter().map(|&v| v as f32));
+        obs.extend((0..5u8).map(|p| f32::from(u8::from(p == phase))));
+    };
+    let rung = spec.actor_inputs;
+    if rung == ActorInputs::Privileged {
+        privileged(&mut obs);
+        return obs;
+    }
+    let p = |range: std::ops::Range<usize>| view.privileged[range].iter().map(|&v| v as f32);
+    let h = REALISABLE_HISTORY;
+    // The newest `h` deployable frames, the oldest repeated before the rollout's start (as the
+    // students' observation holds them).
+    let frame = |i: usize| {
+        let frames = view.history;
+        &frames[(frames.len() + i).saturating_sub(h).min(frames.len() - 1)]
+    };
+    let differences = (1..h).flat_map(|i| {
+        (0..3).map(move |c| {
+            (frame(i)[OBSERVED_OBJECT + c] - frame(i - 1)[OBSERVED_OBJECT + c]) as f32
+        })
+    });
+    let fit = prior_state.object(view);
+    let fitted = fit.pos.into_iter().chain(fit.vel).map(|v| v as f32);
+    match rung {
+        ActorInputs::Privileged => unreachable!("returned above"),
+        ActorInputs::NoIdentity => {
+            obs.extend(p(0..IDENTITY));
+        }
+        ActorInputs::ObservedVelocity | ActorInputs::NoContact => {
+            obs.extend(p(0..48));
+            obs.extend(p(48..51));
+            obs.extend(p(PRIVILEGED_PALM..PRIVILEGED_PALM + 9));
+            if rung == ActorInputs::ObservedVelocity {
+                obs.extend(p(PRIVILEGED_PALM + 9..IDENTITY));
+            }
+            obs.extend(fitted);
+            obs.extend(differences);
+        }
+        ActorInputs::Deployable => {
+            for i in 0..h {
+                obs.extend(frame(i)[..DEPLOYABLE_LEN].iter().map(|&v| v as f32));
+            }
+            let palm = &view.privileged[PRIVILEGED_PALM..];
+            obs.extend(palm[..3].iter().map(|&v| v as f32));
+            obs.extend(palm[6..9].iter().map(|&v| v as f32));
+            let object = &view.deployable[OBSERVED_OBJECT..];
+            obs.extend((0..3).map(|c| (object[c] - palm[c]) as f32));
+            obs.extend(differences);
+            obs.extend(fitted);
+        }
+    }
+    obs.extend(prior.iter().map(|&v| v as f32));
+    if rung <= ActorInputs::ObservedVelocity {
+        obs.extend((0..5u8).map(|p| f32::from(u8::from(p == phase))));
+    }
+    debug_assert_eq!(obs.len(), rung.len());
+    privileged(&mut obs);
+    obs
+}
+
+/// The direction the follow-through channel moves the palm along. On rungs that see contacts,
+/// after t_c the pre-contact incoming direction that ℓ_max is measured along (frozen with the
+/// first contact); on rungs that do not, the direction of flight the prior saw when it began
+/// to close. Before either, the direction of flight as the prior reads it.
+fn follow_through_direction(
+    spec: &CatchTaskSpec,
+    prior: &ScriptedCatcher,
+    view: &PolicyView<'_>,
+) -> [f64; 3] {
+    if spec.actor_inputs >= ActorInputs::NoContact {
+        if let Some(d) = prior.closing_direction() {
+            return d;
+        }
+    } else if let Some(c) = view.first_contact {
+        return c.incoming_dir;
+    }
+    let v = prior.object(view).vel;
+    let n = norm(v).max(1e-12);
+    [v[0] / n, v[1] / n, v[2] / n]
+}
+
+/// The executed action of the residual policy `act` on the prior (advancing the prior's
+/// state), and the policy's raw output.
 fn residual_action(
-    prior: &mut ScriptedCatcher,
+    prior_state: &mut ScriptedCatcher,
     spec: &CatchTaskSpec,
     phase: u8,
     view: &PolicyView<'_>,
     act: &mut dyn FnMut(&[f32]) -> Vec<f32>,
-) -> Action {
+) -> (Action, Vec<f32>) {
     let prior = if spec.from_scratch {
         [0.0; N_ACTION]
     } else {
-        prior.act(view)
+        prior_state.act(view)
     };
-    let mut obs = Vec::with_capacity(OBS_LEN);
-    obs.extend(view.privileged.iter().map(|&v| v as f32));
-    obs.extend(prior.iter().map(|&v| v as f32));
-    obs.extend((0..5u8).map(|p| f32::from(u8::from(p == phase))));
+    let obs = observation(spec, prior_state, &prior, phase, view);
     let r = act(&obs);
     let scale = f64::from(spec.residual_scale);
     let mut out = prior;
@@ -263,7 +475,7 @@ fn residual_action(
         if u != 0.0 {
             let g = palm_motion_channels(
                 view,
-                follow_through_direction(view),
+                follow_through_direction(spec, prior_state, view),
                 spec.palm_motion_orientation_weight,
                 PALM_MOTION_DAMPING,
             );
@@ -286,7 +498,7 @@ fn residual_action(
     for o in &mut out {
         *o = o.clamp(-1.0, 1.0);
     }
-    out
+    (out, r)
 }
 
 /// The frozen teacher queried at states another policy visits (paper 4.3: the IL students'
@@ -305,7 +517,7 @@ impl<'a> TeacherQuery<'a> {
         TeacherQuery {
             agent,
             spec,
-            prior: ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone()),
+            prior: spec.prior(),
             phase: Phase::Approach as u8,
         }
     }
@@ -316,6 +528,7 @@ impl<'a> TeacherQuery<'a> {
         residual_action(&mut self.prior, self.spec, self.phase, view, &mut |obs| {
             agent.act_deterministic(obs)
         })
+        .0
     }
 
     /// The phase the last control step ended in (`Phase as u8`), the teacher's phase input at
@@ -340,6 +553,9 @@ pub struct CatchEpisode<'w> {
     phase: u8,
     /// The follow-through already rewarded (m, up to δ_ℓ).
     rewarded_follow_through: f64,
+    /// The policy's raw output at the last step (empty before the first), for the smoothness
+    /// term.
+    last_residual: Vec<f32>,
 }
 
 /// An exact copy of a catching episode at the start of a control step: the simulator's
@@ -351,6 +567,7 @@ pub struct CatchSnapshot {
     prior: ScriptedCatcher,
     phase: u8,
     rewarded_follow_through: f64,
+    last_residual: Vec<f32>,
 }
 
 impl<'w> Task for CatchTask<'w> {
@@ -361,7 +578,11 @@ impl<'w> Task for CatchTask<'w> {
     type Error = osms_sim::SimError;
 
     fn obs_len(&self) -> usize {
-        OBS_LEN
+        self.spec.obs_len()
+    }
+
+    fn actor_obs_len(&self) -> usize {
+        self.spec.actor_obs_len()
     }
 
     fn act_len(&self) -> usize {
@@ -386,11 +607,12 @@ impl<'w> CatchEpisode<'w> {
     ) -> Self {
         CatchEpisode {
             episode: Episode::new(world, &spec.rollout, condition, rng),
-            prior: ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone()),
+            prior: spec.prior(),
             reward: spec.reward.clone(),
             spec,
             phase: Phase::Approach as u8,
             rewarded_follow_through: 0.0,
+            last_residual: Vec::new(),
         }
     }
 
@@ -406,6 +628,7 @@ impl<'w> CatchEpisode<'w> {
             prior: self.prior.clone(),
             phase: self.phase,
             rewarded_follow_through: self.rewarded_follow_through,
+            last_residual: self.last_residual.clone(),
         }
     }
 
@@ -415,6 +638,7 @@ impl<'w> CatchEpisode<'w> {
         self.prior = snapshot.prior.clone();
         self.phase = snapshot.phase;
         self.rewarded_follow_through = snapshot.rewarded_follow_through;
+        self.last_residual.clone_from(&snapshot.last_residual);
     }
 
     /// Runs the episode to its end with `act` choosing the policy's actions, and returns its
@@ -494,13 +718,13 @@ impl CatchEpisode<'_> {
         if episode.is_done() {
             return (0.0, true);
         }
-        let mut executed = [0.0; N_ACTION];
+        let mut residual = Vec::new();
         let mut policy = Residual {
             prior: &mut self.prior,
             spec: self.spec,
             phase: self.phase,
             act,
-            executed: &mut executed,
+            residual: &mut residual,
         };
         let running = episode.step(&mut policy, hooks);
         let dt = episode.control_period_secs();
@@ -510,6 +734,15 @@ impl CatchEpisode<'_> {
         let k = rec.steps - 1;
         let phase_after = rec.phase.get(k).copied().unwrap_or(0);
         let mut reward = 0.0f64;
+        if w.residual_rate != 0.0 && residual.len() == self.last_residual.len() {
+            let change: f64 = residual
+                .iter()
+                .zip(&self.last_residual)
+                .map(|(a, b)| f64::from(a - b).powi(2))
+                .sum();
+            reward -= f64::from(w.residual_rate) * change * dt;
+        }
+        self.last_residual = residual;
         let force = f64::from(rec.normal_force[k]);
         if episode.first_contact().is_none() {
             if phase_after == Phase::VelocityMatching as u8 {

@@ -94,7 +94,13 @@ pub trait Task: Sync {
         Self: 'a;
     /// Why an episode could not start (e.g. its condition could not be drawn).
     type Error: std::error::Error + Send + Sync + 'static;
+    /// The observation's length: what the critic reads.
     fn obs_len(&self) -> usize;
+    /// How many leading entries of the observation the actor reads (asymmetric actor-critic,
+    /// Pinto et al. 2018: the rest is for the critic only). All of them by default.
+    fn actor_obs_len(&self) -> usize {
+        self.obs_len()
+    }
     fn act_len(&self) -> usize;
     fn start(&self, index: u64) -> Result<Self::Episode<'_>, Self::Error>;
 }
@@ -139,7 +145,8 @@ pub struct IterationStats {
 }
 
 /// A trained (or training) agent: networks, noise, frozen observation statistics, and the
-/// learning curve that produced it.
+/// learning curve that produced it. The critic reads the whole observation, the actor its
+/// leading entries (as many as its first layer has inputs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Agent {
     pub actor: Mlp,
@@ -156,16 +163,33 @@ impl Agent {
         obs_len: usize,
         act_len: usize,
         config: &PpoConfig,
+        streams: (u64, &str),
+    ) -> crate::Result<Self> {
+        Self::asymmetric(obs_len, obs_len, act_len, config, streams)
+    }
+
+    /// A fresh agent whose actor reads the first `actor_obs_len` of the `obs_len` observation
+    /// entries and whose critic reads them all.
+    pub fn asymmetric(
+        obs_len: usize,
+        actor_obs_len: usize,
+        act_len: usize,
+        config: &PpoConfig,
         (seed, stage): (u64, &str),
     ) -> crate::Result<Self> {
-        let sizes = |out: usize| {
-            std::iter::once(obs_len)
+        if actor_obs_len == 0 || actor_obs_len > obs_len {
+            return Err(crate::Error::Params(format!(
+                "the actor reads {actor_obs_len} of {obs_len} observation entries: must be 1 to {obs_len}"
+            )));
+        }
+        let sizes = |inputs: usize, out: usize| {
+            std::iter::once(inputs)
                 .chain(config.hidden.iter().copied())
                 .chain(std::iter::once(out))
                 .collect::<Vec<_>>()
         };
         let mut actor = Mlp::new(
-            &sizes(act_len),
+            &sizes(actor_obs_len, act_len),
             config.activation,
             Activation::Identity,
             seed,
@@ -178,7 +202,7 @@ impl Agent {
             last.b.fill(0.0);
         }
         let critic = Mlp::new(
-            &sizes(1),
+            &sizes(obs_len, 1),
             config.activation,
             Activation::Identity,
             seed,
@@ -193,10 +217,29 @@ impl Agent {
         })
     }
 
+    /// How many leading observation entries the actor reads.
+    pub fn actor_obs_len(&self) -> usize {
+        self.actor.layers.first().map_or(0, |l| l.w.rows)
+    }
+
+    /// The actor's mean μ(s) at normalised observations `x` (one row per observation).
+    fn actor_mean(&self, x: &Matrix) -> Matrix {
+        self.actor.forward(&self.actor_input(x))
+    }
+
+    /// The actor's columns of normalised observations (the same matrix when it reads all).
+    fn actor_input(&self, x: &Matrix) -> Matrix {
+        let n = self.actor_obs_len();
+        if n == x.cols {
+            return x.clone();
+        }
+        Matrix::from_fn(x.rows, n, |i, j| x.get(i, j))
+    }
+
     /// The deterministic action tanh(μ(s)) for a raw observation.
     pub fn act_deterministic(&self, obs: &[f32]) -> Vec<f32> {
         let x = self.obs_norm.apply(obs);
-        let mean = self.actor.forward(&Matrix::from_vec(1, x.len(), x));
+        let mean = self.actor_mean(&Matrix::from_vec(1, x.len(), x));
         mean.data.iter().map(|&m| libm::tanhf(m)).collect()
     }
 
@@ -247,9 +290,7 @@ fn run_episode<T: Task>(
     loop {
         let mut act = |raw: &[f32]| {
             let x = agent.obs_norm.apply(raw);
-            let mean = agent
-                .actor
-                .forward(&Matrix::from_vec(1, x.len(), x.clone()));
+            let mean = agent.actor_mean(&Matrix::from_vec(1, x.len(), x.clone()));
             let mut logp = 0.0f32;
             let mut action = Vec::with_capacity(act_len);
             for (j, &mu) in mean.data.iter().enumerate() {
@@ -494,7 +535,7 @@ fn update(
     let act_len = agent.log_std.len();
     let inv_b = 1.0 / b as f32;
 
-    let (mean, actor_cache) = agent.actor.forward_cached(&mb.obs);
+    let (mean, actor_cache) = agent.actor.forward_cached(&agent.actor_input(&mb.obs));
     let log_std = Matrix::from_fn(b, act_len, |_, j| agent.log_std[j]);
     let dist = DiagGaussian {
         mean: &mean,
@@ -563,6 +604,36 @@ fn update(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_asymmetric_actor_reads_only_the_leading_entries_and_the_critic_all() {
+        let config = PpoConfig {
+            hidden: vec![8],
+            zero_init_actor_output: false,
+            ..PpoConfig::default()
+        };
+        let agent = Agent::asymmetric(6, 4, 2, &config, (3, "test")).expect("agent");
+        assert_eq!(agent.actor_obs_len(), 4);
+        let obs = [0.1f32, -0.4, 0.7, 0.2, 1.5, -2.0];
+        let mut critic_only = obs;
+        critic_only[4] = -3.0;
+        critic_only[5] = 0.9;
+        assert_eq!(
+            agent.act_deterministic(&obs),
+            agent.act_deterministic(&critic_only)
+        );
+        let mut actor_seen = obs;
+        actor_seen[3] = 0.9;
+        assert_ne!(
+            agent.act_deterministic(&obs),
+            agent.act_deterministic(&actor_seen)
+        );
+        let value = |o: &[f32]| agent.value(&agent.obs_norm.apply(o));
+        assert_ne!(value(&obs), value(&critic_only));
+        for bad in [0, 7] {
+            assert!(Agent::asymmetric(6, bad, 2, &config, (3, "test")).is_err());
+        }
+    }
 
     #[test]
     fn gae_with_lambda_one_is_the_discounted_return_minus_the_value() {

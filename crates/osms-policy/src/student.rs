@@ -25,7 +25,7 @@
 use osms_core::rng::{self, StreamRng};
 use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
 use osms_sim::conditions::TaskCondition;
-use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_PALM};
+use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
 use osms_sim::{
     Action, Episode, N_ACTION, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec, World,
 };
@@ -218,9 +218,6 @@ impl StudentParams {
 
 /// Values per step of [`Demo::state`].
 pub const DEMO_STATE_LEN: usize = 9;
-
-/// Index of the observed object position in a deployable frame.
-const OBSERVED_OBJECT: usize = 48;
 
 /// One demonstration rollout as students read it: its deployable frames, the palm and object
 /// state the optional features come from, and its action labels.
@@ -902,7 +899,10 @@ pub fn paired_rollout(
         actions: Vec::new(),
         phases: Vec::new(),
     };
-    let mut episode = Episode::new(world, spec, condition, dr);
+    // A realisable teacher reads a history of its own; the student reads the newest of it.
+    let mut spec = spec.clone();
+    spec.history_steps = spec.history_steps.max(teacher.1.actor_inputs.history());
+    let mut episode = Episode::new(world, &spec, condition, dr);
     while episode.step(&mut paired, &mut NoHooks) {
         if let Some(&p) = episode.record().phase.last() {
             paired.teacher.observe_phase(p);

@@ -2,7 +2,7 @@
 //! teacher training gives the same bytes on a rerun and on 1 or 2 threads.
 
 use osms_core::rng;
-use osms_policy::catch::{CatchTask, CatchTaskSpec};
+use osms_policy::catch::{ActorInputs, CatchTask, CatchTaskSpec, OBS_LEN};
 use osms_policy::{Agent, PpoConfig, Task, TaskEpisode, train};
 use osms_sim::catcher::ScriptedCatcher;
 use osms_sim::{Episode, NoHooks, World, WorldSpec};
@@ -20,6 +20,100 @@ fn a_zero_residual_reproduces_the_scripted_catcher() {
             ..CatchTaskSpec::default()
         };
         zero_residual_is_the_prior(&world, &spec);
+    }
+}
+
+/// On every rung of the actor-input ladder the zero residual is the prior that reads the world
+/// as the rung's actor does (issue 54).
+#[test]
+fn a_zero_residual_reproduces_the_rungs_prior() {
+    let world = world();
+    for rung in rungs() {
+        let spec = CatchTaskSpec {
+            actor_inputs: rung,
+            ..CatchTaskSpec::default()
+        }
+        .realised();
+        zero_residual_is_the_prior(&world, &spec);
+    }
+}
+
+fn rungs() -> [ActorInputs; 5] {
+    [
+        ActorInputs::Privileged,
+        ActorInputs::NoIdentity,
+        ActorInputs::ObservedVelocity,
+        ActorInputs::NoContact,
+        ActorInputs::Deployable,
+    ]
+}
+
+/// The actor's part of the observation has the rung's length and ends before the critic's
+/// privileged part; on the rungs without identity it is the same for two throws that differ in
+/// ω's mass alone (at the first step, before contact could tell them apart), while the
+/// critic's part is not.
+#[test]
+fn each_rungs_actor_reads_its_own_inputs_and_the_critic_the_privileged_ones() {
+    let world = world();
+    for rung in rungs() {
+        let spec = CatchTaskSpec {
+            actor_inputs: rung,
+            ..CatchTaskSpec::default()
+        }
+        .realised();
+        let task = CatchTask::new(&world, spec.clone(), 5, "test", "inputs").expect("task");
+        assert_eq!(task.actor_obs_len(), rung.len(), "{rung:?}");
+        let expected_obs = if rung == ActorInputs::Privileged {
+            OBS_LEN
+        } else {
+            rung.len() + OBS_LEN
+        };
+        assert_eq!(task.obs_len(), expected_obs, "{rung:?}");
+        let first_obs = |mass: Option<f64>| {
+            let mut condition = task.condition(0).expect("condition");
+            if let Some(m) = mass {
+                condition.mass_kg = m;
+            }
+            let mut episode = osms_policy::catch::CatchEpisode::new(
+                &world,
+                &spec,
+                condition,
+                rng::stream(5, "test", "inputs-dr", 0),
+            );
+            let mut seen = Vec::new();
+            let mut steps = 0;
+            while steps < 12 {
+                let (_, done) = episode.step(&mut |obs| {
+                    assert_eq!(obs.len(), expected_obs, "{rung:?}");
+                    assert!(obs.iter().all(|v| v.is_finite()), "{rung:?}");
+                    if seen.is_empty() {
+                        seen = obs.to_vec();
+                    }
+                    vec![0.0; spec.act_len()]
+                });
+                steps += 1;
+                if done {
+                    break;
+                }
+            }
+            seen
+        };
+        let (light, heavy) = (first_obs(Some(0.04)), first_obs(Some(0.06)));
+        let actor = rung.len();
+        if rung == ActorInputs::Privileged {
+            assert_ne!(
+                light[..actor],
+                heavy[..actor],
+                "the privileged actor reads ω's mass"
+            );
+        } else {
+            assert_eq!(light[..actor], heavy[..actor], "{rung:?} reads ω's mass");
+            assert_ne!(
+                light[actor..],
+                heavy[actor..],
+                "{rung:?}: the critic reads ω's mass"
+            );
+        }
     }
 }
 
@@ -44,7 +138,11 @@ fn zero_residual_is_the_prior(world: &World, spec: &CatchTaskSpec) {
             rng::stream(5, "test", "train-dr", index),
         )
         .run(
-            &mut ScriptedCatcher::new(spec.catcher.clone(), spec.rollout.control.clone()),
+            &mut ScriptedCatcher::with_perception(
+                spec.catcher.clone(),
+                spec.rollout.control.clone(),
+                spec.actor_inputs.perception(),
+            ),
             &mut NoHooks,
         );
         assert_eq!(
@@ -421,4 +519,44 @@ fn dart_arm_noise_perturbs_executed_arm_channels_and_keeps_intended_labels() {
         noisy.steps
     );
     assert_ne!(noisy.executed, clean.executed);
+}
+
+/// The smoothness term (issue 54) costs `residual_rate` per second times the squared change of
+/// the policy's action channels since the last step, and nothing at the first step: the same
+/// actions with and without it give the same rollout and rewards that differ by exactly that.
+#[test]
+fn the_smoothness_term_costs_the_squared_change_of_the_policys_action() {
+    let world = world();
+    let spec = CatchTaskSpec::default();
+    let dt = world.control_period_secs();
+    let rewards = |rate: f32| {
+        let mut spec = spec.clone();
+        spec.reward.residual_rate = rate;
+        let task = CatchTask::new(&world, spec.clone(), 5, "test", "smooth").expect("task");
+        let mut episode = task.start(0).expect("condition");
+        let mut out = Vec::new();
+        let mut k = 0usize;
+        loop {
+            // Channel 0 alternates 0.0, 0.2, 0.0, …: a change of 0.2 at every step after the
+            // first; the rest stays at 0.
+            let (r, done) = episode.step(&mut |_| {
+                let mut a = vec![0.0; spec.act_len()];
+                a[0] = if k % 2 == 1 { 0.2 } else { 0.0 };
+                a
+            });
+            k += 1;
+            out.push(f64::from(r));
+            if done {
+                break;
+            }
+        }
+        out
+    };
+    let (smooth, free) = (rewards(3.0), rewards(0.0));
+    assert_eq!(smooth.len(), free.len());
+    assert!(smooth.len() > 2);
+    for (k, (s, f)) in smooth.iter().zip(&free).enumerate() {
+        let want = if k == 0 { 0.0 } else { 3.0 * 0.04 * dt };
+        assert!((f - s - want).abs() < 1e-5, "step {k}: {}", f - s);
+    }
 }

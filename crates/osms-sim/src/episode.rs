@@ -64,6 +64,8 @@ pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + N_ACTION;
 /// position with its noise), palm position, normal and velocity (9), admissible normal force
 /// and contact count (2), ω's mass and variant one-hot (11), time (1).
 pub const PRIVILEGED_LEN: usize = 48 + 13 + 9 + 2 + 11 + 1;
+/// Index of the observed object position (3) in a deployable frame.
+pub const OBSERVED_OBJECT: usize = 7 + 7 + 17 + 17;
 /// Index of the palm's position in a privileged frame; its normal follows at + 3 and its
 /// linear velocity at + 6 (3 each).
 pub const PRIVILEGED_PALM: usize = 48 + 13;
@@ -425,7 +427,7 @@ impl<'w> Episode<'w> {
 
     /// The control period (s): physics steps per control step times the timestep.
     pub fn control_period_secs(&self) -> f64 {
-        self.world.spec.timestep_secs * f64::from(self.world.spec.substeps)
+        self.world.control_period_secs()
     }
 
     /// The observation at the start of a control step. Kinematics are recomputed first

@@ -127,6 +127,11 @@ fn ids(model: &MjModel) -> Result<Ids> {
 }
 
 impl World {
+    /// The control period (s): physics steps per control step times the timestep.
+    pub fn control_period_secs(&self) -> f64 {
+        self.spec.timestep_secs * f64::from(self.spec.substeps)
+    }
+
     /// Builds and compiles the ten variants.
     pub fn new(spec: WorldSpec) -> Result<Self> {
         spec.validate()?;

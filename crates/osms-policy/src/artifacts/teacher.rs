@@ -20,7 +20,8 @@ pub struct Teacher {
 
 impl Artifact for Teacher {
     const TYPE_TAG: &'static str = "policy.teacher";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: the task has `actor_inputs` and the reward `residual_rate` (issue 54).
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 /// Means of the curve's points over consecutive blocks of iterations.
@@ -60,6 +61,8 @@ impl Summarize for Teacher {
             "env_steps": curve.iter().map(|s| s.steps).sum::<u64>(),
             "episodes": curve.iter().map(|s| u64::from(s.episodes)).sum::<u64>(),
             "obs_len": self.agent.obs_norm.mean.len(),
+            "actor_inputs": self.task.actor_inputs,
+            "actor_obs_len": self.agent.actor_obs_len(),
             "act_len": self.agent.log_std.len(),
             "last_tenth": last.map(|(a, b, m)| serde_json::json!({
                 "iterations": [a, b],

@@ -20,7 +20,9 @@ pub struct TeacherParams {
 pub struct TeacherStage;
 impl Stage for TeacherStage {
     const KIND: &'static str = "teacher";
-    const CODE_VERSION: u32 = 2;
+    /// 3: the actor's inputs are a declared rung (`task.actor_inputs`) with a privileged
+    /// critic, and the task is stored realised (issue 54).
+    const CODE_VERSION: u32 = 3;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[Slot::one::<WorldArtifact>("world")];
     const DOC: &'static str =
@@ -62,17 +64,21 @@ impl Stage for TeacherStage {
             )
             .into());
         }
-        let task = CatchTask::new(&world, p.task.clone(), seed, ctx.stage(), "train")?;
-        let mut agent = Agent::new(task.obs_len(), task.act_len(), &p.ppo, (seed, ctx.stage()))
-            .map_err(|e| format!("params.ppo: {e}"))?;
+        let spec = p.task.realised();
+        let task = CatchTask::new(&world, spec.clone(), seed, ctx.stage(), "train")?;
+        let mut agent = Agent::asymmetric(
+            task.obs_len(),
+            task.actor_obs_len(),
+            task.act_len(),
+            &p.ppo,
+            (seed, ctx.stage()),
+        )
+        .map_err(|e| format!("params.ppo: {e}"))?;
         let progress = ctx.progress();
         progress.set_total(u64::from(p.ppo.iterations));
         train(&task, &mut agent, &p.ppo, (seed, ctx.stage()), &|_| {
             progress.inc(1)
         })?;
-        Ok(Teacher {
-            task: p.task.clone(),
-            agent,
-        })
+        Ok(Teacher { task: spec, agent })
     }
 }
