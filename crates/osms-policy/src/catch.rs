@@ -120,6 +120,10 @@ pub enum ActorInputs {
 pub const REALISABLE_HISTORY: usize = 8;
 
 impl ActorInputs {
+    pub fn is_privileged(&self) -> bool {
+        *self == ActorInputs::Privileged
+    }
+
     /// How the prior reads the world on this rung.
     pub fn perception(self) -> Perception {
         Perception {

@@ -27,7 +27,8 @@ use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
 use osms_sim::{
-    Action, Episode, N_ACTION, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec, World,
+    Action, Episode, N_ACTION, N_ARM, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec,
+    World,
 };
 use serde::{Deserialize, Serialize};
 
@@ -87,6 +88,10 @@ pub struct StudentParams {
     /// Append the object's true linear velocity at the current step (3 values). Privileged:
     /// for the diagnosis only (does the student lack information?), never a final student.
     pub oracle_object_velocity: bool,
+    /// Append the arm's commanded servo targets at the current step (7 values; deployable:
+    /// the controller's own accumulated command, which the frames' joint positions and last
+    /// action do not determine). Issue 54's arm interface.
+    pub arm_target: bool,
     /// Decay of an exponential moving average of the weights, updated after every step and
     /// used as the trained network (0: none, the last step's weights).
     pub ema_decay: f32,
@@ -124,6 +129,7 @@ impl Default for StudentParams {
             palm: true,
             object_differences: true,
             oracle_object_velocity: false,
+            arm_target: false,
             ema_decay: 0.0,
             phase_weights: [1.0; 5],
         }
@@ -208,6 +214,7 @@ impl StudentParams {
         9 * usize::from(self.palm)
             + 3 * (self.history - 1) * usize::from(self.object_differences)
             + 3 * usize::from(self.oracle_object_velocity)
+            + N_ARM * usize::from(self.arm_target)
     }
 
     /// Width of an action chunk.
@@ -217,7 +224,7 @@ impl StudentParams {
 }
 
 /// Values per step of [`Demo::state`].
-pub const DEMO_STATE_LEN: usize = 9;
+pub const DEMO_STATE_LEN: usize = 9 + N_ARM;
 
 /// One demonstration rollout as students read it: its deployable frames, the palm and object
 /// state the optional features come from, and its action labels.
@@ -227,8 +234,8 @@ pub struct Demo {
     /// [`DEPLOYABLE_LEN`] per step.
     pub deployable: Vec<f32>,
     /// [`DEMO_STATE_LEN`] per step, at the step's start: the palm's position and linear
-    /// velocity, the object's true linear velocity (the record's `palm_pos`, `palm_vel`,
-    /// `object_vel`).
+    /// velocity, the object's true linear velocity, the arm's servo targets (the record's
+    /// `palm_pos`, `palm_vel`, `object_vel`, `arm_targets`).
     pub state: Vec<f32>,
     /// The phase each step ended in (`Phase as u8`, the record's).
     pub phase: Vec<u8>,
@@ -253,9 +260,10 @@ impl Demo {
                     row
                 };
                 [
-                    at(&record.palm_pos),
-                    at(&record.palm_vel),
-                    at(&record.object_vel),
+                    &at(&record.palm_pos)[..],
+                    &at(&record.palm_vel),
+                    &at(&record.object_vel),
+                    &record.arm_targets[N_ARM * n..N_ARM * (n + 1)],
                 ]
                 .concat()
             })
@@ -313,6 +321,7 @@ impl Demo {
             &state[3..6],
             object,
             &state[6..9],
+            &state[9..9 + N_ARM],
             out,
         );
     }
@@ -733,7 +742,10 @@ impl Student {
         let palm_vel = f32s(&view.privileged[PRIVILEGED_PALM + 6..]);
         let object = f32s(&view.deployable[OBSERVED_OBJECT..]);
         let velocity = f32s(&view.data.qvel()[view.world.ids.object_dof..]);
-        push_features(p, 0, &palm_pos, &palm_vel, &object, &velocity, &mut out);
+        let targets = view.arm_targets.map(|v| v as f32);
+        push_features(
+            p, 0, &palm_pos, &palm_vel, &object, &velocity, &targets, &mut out,
+        );
         out
     }
 }
@@ -747,6 +759,7 @@ fn push_features(
     palm_vel: &[f32],
     object: &[f32],
     object_vel: &[f32],
+    arm_targets: &[f32],
     out: &mut Vec<f32>,
 ) {
     if p.palm {
@@ -764,6 +777,9 @@ fn push_features(
     }
     if p.oracle_object_velocity {
         out.extend_from_slice(&object_vel[..3]);
+    }
+    if p.arm_target {
+        out.extend_from_slice(&arm_targets[..N_ARM]);
     }
 }
 
@@ -977,6 +993,7 @@ mod tests {
             palm: true,
             object_differences: true,
             oracle_object_velocity: true,
+            arm_target: true,
             ..StudentParams::default()
         };
         let mut out = Vec::new();
@@ -985,7 +1002,8 @@ mod tests {
         assert_eq!(p.frame_len(), DEPLOYABLE_LEN - N_ACTION);
         // Frames 1 and 2 without their previous actions, then step 2's features: palm
         // position (20, 21, 22), velocity (23, 24, 25), object − palm (3 − 20, ...), the
-        // object's change from frame 1 to 2 (1, 1, 1) and its velocity (26, 27, 28).
+        // object's change from frame 1 to 2 (1, 1, 1), its velocity (26, 27, 28) and the arm's
+        // targets (29 … 35).
         let frames = 2 * p.frame_len();
         assert!(out[..p.frame_len()].iter().all(|&v| v == 2.0));
         assert!(out[p.frame_len()..frames].iter().all(|&v| v == 3.0));
@@ -993,7 +1011,7 @@ mod tests {
             out[frames..],
             [
                 20.0, 21.0, 22.0, 23.0, 24.0, 25.0, -17.0, -18.0, -19.0, 1.0, 1.0, 1.0, 26.0, 27.0,
-                28.0
+                28.0, 29.0, 30.0, 31.0, 32.0, 33.0, 34.0, 35.0
             ]
         );
     }

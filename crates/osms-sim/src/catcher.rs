@@ -11,8 +11,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::conditions::GRAVITY_MPS2;
 use crate::control::{Action, ControlSpec, N_ACTION, N_ARM, N_HAND, hold_action};
-use std::collections::VecDeque;
-
 use crate::episode::{OBSERVED_OBJECT, ObservedObject, Policy, PolicyView};
 use crate::spec::ObjectVariant;
 use crate::vec3::{cross, norm, sub};
@@ -151,7 +149,17 @@ impl ScriptedCatcher {
     /// The object as this catcher reads it at `view`.
     pub fn object(&self, view: &PolicyView<'_>) -> ObservedObject {
         if self.perception.estimated_object {
-            estimate_object(view.history, view.world.control_period_secs())
+            // Under an observation delay of d steps the first observation repeats for the
+            // first d + 1 steps (the delay line starts full of the first state), which a fit
+            // would read as an object at rest; it is left out while it is in the history.
+            let first_in_history = view.step + 1 == view.history.len() && view.history.len() > 2;
+            let frames: Vec<&[f64]> = view
+                .history
+                .iter()
+                .skip(usize::from(first_in_history))
+                .map(Vec::as_slice)
+                .collect();
+            estimate_object(&frames, view.world.control_period_secs())
         } else {
             view.object
         }
@@ -165,13 +173,13 @@ pub fn nominal_radius_m() -> f64 {
     all.iter().map(|v| v.geom().1[0]).sum::<f64>() / all.len() as f64
 }
 
-/// The object's position and velocity at the newest frame of `history` (deployable frames,
+/// The object's position and velocity at the newest of `history`'s frames (deployable frames,
 /// oldest first, `dt` seconds apart), from a least-squares fit of a ballistic flight (gravity
 /// known) to the observed positions: what a deployed robot can compute from its own
 /// observations. The velocity's error falls with the number of frames (8 frames at 5 mm of
 /// noise and 50 Hz: about 4 cm/s against 35 cm/s for one difference). With one frame the
 /// velocity is 0.
-pub fn estimate_object(history: &VecDeque<Vec<f64>>, dt: f64) -> ObservedObject {
+pub fn estimate_object(history: &[&[f64]], dt: f64) -> ObservedObject {
     let n = history.len();
     let newest = n.saturating_sub(1);
     let t = |k: usize| (k as f64 - newest as f64) * dt;
@@ -413,7 +421,7 @@ mod tests {
     use super::*;
 
     /// Frames of a noiseless ballistic flight, `dt` apart, ending at `p` with velocity `v`.
-    fn flight(n: usize, dt: f64, p: [f64; 3], v: [f64; 3]) -> VecDeque<Vec<f64>> {
+    fn flight(n: usize, dt: f64, p: [f64; 3], v: [f64; 3]) -> Vec<Vec<f64>> {
         (0..n)
             .map(|k| {
                 let t = (k as f64 - (n - 1) as f64) * dt;
@@ -431,17 +439,21 @@ mod tests {
             .collect()
     }
 
+    fn frames(v: &[Vec<f64>]) -> Vec<&[f64]> {
+        v.iter().map(Vec::as_slice).collect()
+    }
+
     #[test]
     fn the_ballistic_fit_recovers_a_noiseless_flight_exactly() {
         let (p, v) = ([0.4, -0.1, 1.2], [-3.5, 0.6, 1.1]);
         for n in [2, 3, 8] {
-            let got = estimate_object(&flight(n, 0.02, p, v), 0.02);
+            let got = estimate_object(&frames(&flight(n, 0.02, p, v)), 0.02);
             for c in 0..3 {
                 assert!((got.pos[c] - p[c]).abs() < 1e-12, "{n} frames: pos {c}");
                 assert!((got.vel[c] - v[c]).abs() < 1e-9, "{n} frames: vel {c}");
             }
         }
-        let one = estimate_object(&flight(1, 0.02, p, v), 0.02);
+        let one = estimate_object(&frames(&flight(1, 0.02, p, v)), 0.02);
         assert_eq!(one.vel, [0.0; 3]);
         for c in 0..3 {
             assert!((one.pos[c] - p[c]).abs() < 1e-12);
@@ -457,11 +469,11 @@ mod tests {
         let draws = 4000;
         let mut sum_sq = 0.0;
         for _ in 0..draws {
-            let mut frames = flight(n, dt, [0.0; 3], [1.0, 0.0, 0.0]);
-            for f in &mut frames {
+            let mut flown = flight(n, dt, [0.0; 3], [1.0, 0.0, 0.0]);
+            for f in &mut flown {
                 f[OBSERVED_OBJECT] += sigma * osms_core::rng::normal(&mut r);
             }
-            sum_sq += (estimate_object(&frames, dt).vel[0] - 1.0).powi(2);
+            sum_sq += (estimate_object(&frames(&flown), dt).vel[0] - 1.0).powi(2);
         }
         let sd = (sum_sq / draws as f64).sqrt();
         let mean_t = -(n as f64 - 1.0) / 2.0 * dt;

@@ -101,6 +101,9 @@ pub struct PolicyView<'a> {
     /// The palm site's 6 × 7 Jacobian over the arm joints (linear rows, then angular), computed
     /// once per step for the palm velocity and shared by every controller that needs it.
     pub palm_jacobian: [[f64; N_ARM]; 6],
+    /// The arm's servo targets at the step's start: the target the controller has accumulated
+    /// from its commanded increments (a deployed controller knows its own command).
+    pub arm_targets: [f64; N_ARM],
     /// The simulator at the step's start: positions, velocities, kinematics, contacts and
     /// Jacobians are current; acceleration-stage fields only at steps with an admissible
     /// contact and only if the policy [reads the contact force](Policy::reads_contact_force)
@@ -564,6 +567,7 @@ impl<'w> Episode<'w> {
             condition: &self.condition,
             first_contact: self.evaluator.first_contact(),
             palm_jacobian: frame.palm_jacobian,
+            arm_targets: frame.arm_targets,
             data: &self.data,
         }
     }

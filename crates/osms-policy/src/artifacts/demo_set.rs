@@ -106,7 +106,8 @@ pub struct DemoSet {
 
 impl osms_core::Artifact for DemoSet {
     const TYPE_TAG: &'static str = "policy.demo_set";
-    const SCHEMA_VERSION: u16 = 2;
+    /// 3: a demonstration's state holds the arm's servo targets (issue 54).
+    const SCHEMA_VERSION: u16 = 3;
 }
 
 impl osms_make::Sharded for DemoSet {

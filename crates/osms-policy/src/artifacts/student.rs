@@ -22,7 +22,8 @@ pub struct StudentArtifact {
 
 impl Artifact for StudentArtifact {
     const TYPE_TAG: &'static str = "policy.student_artifact";
-    const SCHEMA_VERSION: u16 = 2;
+    /// 3: the params have `arm_target` (issue 54).
+    const SCHEMA_VERSION: u16 = 3;
 }
 
 impl Summarize for StudentArtifact {

@@ -9,6 +9,7 @@ use osms_sim::{Episode, NoHooks, RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{StudentArtifact, Teacher};
+use crate::catch::ActorInputs;
 use crate::student::{ROLLOUT_BATCH, Student};
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -20,6 +21,12 @@ pub struct EvaluateParams {
     pub rollout: RolloutSpec,
     /// The scripted catcher's gains (used when neither a teacher nor a student is wired).
     pub catcher: CatcherSpec,
+    /// The scripted catcher reads the world as the prior of this rung of the teacher's
+    /// actor-input ladder does (issue 54): the prior a realisable teacher builds on. The
+    /// default, `privileged`, is left out of the encoded params, so keys built before it stay
+    /// valid.
+    #[serde(skip_serializing_if = "ActorInputs::is_privileged")]
+    pub prior_inputs: ActorInputs,
 }
 
 /// The policy an `evaluate` stage rolls out.
@@ -99,10 +106,14 @@ impl ItemStage for EvaluateStage {
         let record = match policy {
             Evaluated::Scripted => {
                 let p = ctx.params;
-                let mut catcher =
-                    ScriptedCatcher::new(p.catcher.clone(), p.rollout.control.clone());
-                Episode::new(world, &p.rollout, condition, rng.clone())
-                    .run(&mut catcher, &mut NoHooks)
+                let mut catcher = ScriptedCatcher::with_perception(
+                    p.catcher.clone(),
+                    p.rollout.control.clone(),
+                    p.prior_inputs.perception(),
+                );
+                let mut spec = p.rollout.clone();
+                spec.history_steps = spec.history_steps.max(p.prior_inputs.history());
+                Episode::new(world, &spec, condition, rng.clone()).run(&mut catcher, &mut NoHooks)
             }
             Evaluated::Teacher(t) => {
                 crate::catch::rollout(world, &t.task, &t.agent, condition, rng.clone())
