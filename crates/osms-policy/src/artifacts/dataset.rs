@@ -54,7 +54,8 @@ impl osms_core::Artifact for Dataset {
     /// the arm's servo targets and ω̄ ends with them; 5: each rollout names its DR stream and
     /// the dataset keeps the task spec it ran; 6: records keep their servo targets and
     /// physics-step counts (open-loop replay).
-    const SCHEMA_VERSION: u16 = 6;
+    /// 7: the task has the actor-input rung and the smoothness weight (issue 54).
+    const SCHEMA_VERSION: u16 = 7;
 }
 
 impl osms_make::Sharded for Dataset {
