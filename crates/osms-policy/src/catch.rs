@@ -143,7 +143,7 @@ impl ActorInputs {
     }
 
     /// Length of the actor's observation.
-    pub fn len(self) -> usize {
+    pub fn obs_len(self) -> usize {
         let h = REALISABLE_HISTORY;
         let differences = 3 * (h - 1);
         match self {
@@ -249,13 +249,13 @@ impl CatchTaskSpec {
     pub fn obs_len(&self) -> usize {
         match self.actor_inputs {
             ActorInputs::Privileged => OBS_LEN,
-            rung => rung.len() + OBS_LEN,
+            rung => rung.obs_len() + OBS_LEN,
         }
     }
 
     /// How many leading observation entries the actor reads.
     pub fn actor_obs_len(&self) -> usize {
-        self.actor_inputs.len()
+        self.actor_inputs.obs_len()
     }
 
     /// The scripted prior as this task's actor rung reads the world.
@@ -426,7 +426,7 @@ fn observation(
     if rung <= ActorInputs::ObservedVelocity {
         obs.extend((0..5u8).map(|p| f32::from(u8::from(p == phase))));
     }
-    debug_assert_eq!(obs.len(), rung.len());
+    debug_assert_eq!(obs.len(), rung.obs_len());
     privileged(&mut obs);
     obs
 }

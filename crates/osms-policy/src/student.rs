@@ -314,16 +314,14 @@ impl Demo {
         }
         let state = &self.state[n * DEMO_STATE_LEN..(n + 1) * DEMO_STATE_LEN];
         let object = &self.deployable[n * DEPLOYABLE_LEN + OBSERVED_OBJECT..][..3];
-        push_features(
-            p,
-            start,
-            &state[0..3],
-            &state[3..6],
+        let now = Current {
+            palm_pos: &state[0..3],
+            palm_vel: &state[3..6],
             object,
-            &state[6..9],
-            &state[9..9 + N_ARM],
-            out,
-        );
+            object_vel: &state[6..9],
+            arm_targets: &state[9..9 + N_ARM],
+        };
+        push_features(p, start, &now, out);
     }
 
     /// The label chunk at step n and its mask: steps past the end repeat the last action with
@@ -743,25 +741,40 @@ impl Student {
         let object = f32s(&view.deployable[OBSERVED_OBJECT..]);
         let velocity = f32s(&view.data.qvel()[view.world.ids.object_dof..]);
         let targets = view.arm_targets.map(|v| v as f32);
-        push_features(
-            p, 0, &palm_pos, &palm_vel, &object, &velocity, &targets, &mut out,
-        );
+        let now = Current {
+            palm_pos: &palm_pos,
+            palm_vel: &palm_vel,
+            object: &object,
+            object_vel: &velocity,
+            arm_targets: &targets,
+        };
+        push_features(p, 0, &now, &mut out);
         out
     }
 }
 
+/// What the current step's features are computed from, as training (from a demonstration's
+/// state) and acting (from the running rollout) both have it.
+struct Current<'a> {
+    palm_pos: &'a [f32],
+    palm_vel: &'a [f32],
+    /// The observed object position.
+    object: &'a [f32],
+    /// The object's true velocity (the oracle diagnostic only).
+    object_vel: &'a [f32],
+    arm_targets: &'a [f32],
+}
+
 /// The current step's features (see the module's doc), in the order training and acting share.
 /// The history's frames are already in `out`, from index `frames`.
-fn push_features(
-    p: &StudentParams,
-    frames: usize,
-    palm_pos: &[f32],
-    palm_vel: &[f32],
-    object: &[f32],
-    object_vel: &[f32],
-    arm_targets: &[f32],
-    out: &mut Vec<f32>,
-) {
+fn push_features(p: &StudentParams, frames: usize, now: &Current<'_>, out: &mut Vec<f32>) {
+    let Current {
+        palm_pos,
+        palm_vel,
+        object,
+        object_vel,
+        arm_targets,
+    } = *now;
     if p.palm {
         out.extend_from_slice(&palm_pos[..3]);
         out.extend_from_slice(&palm_vel[..3]);

@@ -62,11 +62,11 @@ fn each_rungs_actor_reads_its_own_inputs_and_the_critic_the_privileged_ones() {
         }
         .realised();
         let task = CatchTask::new(&world, spec.clone(), 5, "test", "inputs").expect("task");
-        assert_eq!(task.actor_obs_len(), rung.len(), "{rung:?}");
+        assert_eq!(task.actor_obs_len(), rung.obs_len(), "{rung:?}");
         let expected_obs = if rung == ActorInputs::Privileged {
             OBS_LEN
         } else {
-            rung.len() + OBS_LEN
+            rung.obs_len() + OBS_LEN
         };
         assert_eq!(task.obs_len(), expected_obs, "{rung:?}");
         let first_obs = |mass: Option<f64>| {
@@ -99,7 +99,7 @@ fn each_rungs_actor_reads_its_own_inputs_and_the_critic_the_privileged_ones() {
             seen
         };
         let (light, heavy) = (first_obs(Some(0.04)), first_obs(Some(0.06)));
-        let actor = rung.len();
+        let actor = rung.obs_len();
         if rung == ActorInputs::Privileged {
             assert_ne!(
                 light[..actor],

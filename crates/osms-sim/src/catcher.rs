@@ -455,8 +455,8 @@ mod tests {
         }
         let one = estimate_object(&frames(&flight(1, 0.02, p, v)), 0.02);
         assert_eq!(one.vel, [0.0; 3]);
-        for c in 0..3 {
-            assert!((one.pos[c] - p[c]).abs() < 1e-12);
+        for (got, want) in one.pos.iter().zip(p) {
+            assert!((got - want).abs() < 1e-12);
         }
     }
 
