@@ -128,7 +128,7 @@ impl ActorInputs {
     pub fn perception(self) -> Perception {
         Perception {
             nominal_radius: self >= ActorInputs::NoIdentity,
-            estimated_object: self >= ActorInputs::ObservedVelocity,
+            estimated_object: (self >= ActorInputs::ObservedVelocity).then_some(REALISABLE_HISTORY),
             close_on_distance_only: self >= ActorInputs::NoContact,
         }
     }

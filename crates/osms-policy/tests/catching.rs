@@ -28,17 +28,13 @@ fn a_zero_residual_reproduces_the_scripted_catcher() {
 #[test]
 fn a_zero_residual_reproduces_the_rungs_prior() {
     let world = world();
-    for rung in rungs() {
-        let spec = CatchTaskSpec {
-            actor_inputs: rung,
-            ..CatchTaskSpec::default()
-        }
-        .realised();
+    for (_, spec) in rung_specs() {
         zero_residual_is_the_prior(&world, &spec);
     }
 }
 
-fn rungs() -> [ActorInputs; 5] {
+/// Every rung with the default task, realised.
+fn rung_specs() -> Vec<(ActorInputs, CatchTaskSpec)> {
     [
         ActorInputs::Privileged,
         ActorInputs::NoIdentity,
@@ -46,6 +42,15 @@ fn rungs() -> [ActorInputs; 5] {
         ActorInputs::NoContact,
         ActorInputs::Deployable,
     ]
+    .into_iter()
+    .map(|rung| {
+        let spec = CatchTaskSpec {
+            actor_inputs: rung,
+            ..CatchTaskSpec::default()
+        };
+        (rung, spec.realised())
+    })
+    .collect()
 }
 
 /// The actor's part of the observation has the rung's length and ends before the critic's
@@ -55,12 +60,7 @@ fn rungs() -> [ActorInputs; 5] {
 #[test]
 fn each_rungs_actor_reads_its_own_inputs_and_the_critic_the_privileged_ones() {
     let world = world();
-    for rung in rungs() {
-        let spec = CatchTaskSpec {
-            actor_inputs: rung,
-            ..CatchTaskSpec::default()
-        }
-        .realised();
+    for (rung, spec) in rung_specs() {
         let task = CatchTask::new(&world, spec.clone(), 5, "test", "inputs").expect("task");
         assert_eq!(task.actor_obs_len(), rung.obs_len(), "{rung:?}");
         let expected_obs = if rung == ActorInputs::Privileged {

@@ -103,9 +103,10 @@ pub struct Perception {
     /// Aim with the mean radius of the object variants ([`nominal_radius_m`]) instead of ω's.
     pub nominal_radius: bool,
     /// Read the object's position and velocity from a least-squares ballistic fit to the
-    /// observed positions of the history ([`estimate_object`]) instead of the observed
-    /// (delayed, exact) velocity.
-    pub estimated_object: bool,
+    /// observed positions of the newest this many frames of the history
+    /// ([`estimate_object`]) instead of the observed (delayed, exact) velocity. A fixed window,
+    /// so the catcher reads the same whatever history a rollout keeps.
+    pub estimated_object: Option<usize>,
     /// Close the hand on the observed object's distance to the palm only, not on the
     /// simulator's contact count.
     pub close_on_distance_only: bool,
@@ -148,21 +149,21 @@ impl ScriptedCatcher {
 
     /// The object as this catcher reads it at `view`.
     pub fn object(&self, view: &PolicyView<'_>) -> ObservedObject {
-        if self.perception.estimated_object {
-            // Under an observation delay of d steps the first observation repeats for the
-            // first d + 1 steps (the delay line starts full of the first state), which a fit
-            // would read as an object at rest; it is left out while it is in the history.
-            let first_in_history = view.step + 1 == view.history.len() && view.history.len() > 2;
-            let frames: Vec<&[f64]> = view
-                .history
-                .iter()
-                .skip(usize::from(first_in_history))
-                .map(Vec::as_slice)
-                .collect();
-            estimate_object(&frames, view.world.control_period_secs())
-        } else {
-            view.object
-        }
+        let Some(window) = self.perception.estimated_object else {
+            return view.object;
+        };
+        let n = window.min(view.history.len());
+        // Under an observation delay of d steps the first observation is seen d + 1 times (the
+        // delay line starts full of the first state), which a fit would read as an object
+        // at rest; the episode's first frame is left out while it is in the window.
+        let first_in_window = view.step < n && n > 2;
+        let frames: Vec<&[f64]> = view
+            .history
+            .range(view.history.len() - n..)
+            .skip(usize::from(first_in_window))
+            .map(Vec::as_slice)
+            .collect();
+        estimate_object(&frames, view.world.control_period_secs())
     }
 }
 
