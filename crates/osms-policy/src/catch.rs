@@ -133,13 +133,17 @@ impl ActorInputs {
         }
     }
 
-    /// Frames of deployable history the rung needs (the rollout keeps at least this many).
+    /// Frames of deployable history the rung needs: the prior's fit window, else one.
     pub fn history(self) -> usize {
-        if self >= ActorInputs::ObservedVelocity {
-            REALISABLE_HISTORY
-        } else {
-            1
-        }
+        self.perception().estimated_object.unwrap_or(1)
+    }
+
+    /// `base` keeping at least the history this rung reads (a longer one is left alone: the
+    /// rung reads the newest frames).
+    pub fn rollout(self, base: &RolloutSpec) -> RolloutSpec {
+        let mut spec = base.clone();
+        spec.history_steps = spec.history_steps.max(self.history());
+        spec
     }
 
     /// Length of the actor's observation.
@@ -238,10 +242,10 @@ impl CatchTaskSpec {
 
     /// This task with the rollouts' history raised to what the actor reads.
     pub fn realised(&self) -> CatchTaskSpec {
-        let mut task = self.clone();
-        let h = self.actor_inputs.history();
-        task.rollout.history_steps = task.rollout.history_steps.max(h);
-        task
+        CatchTaskSpec {
+            rollout: self.actor_inputs.rollout(&self.rollout),
+            ..self.clone()
+        }
     }
 
     /// The observation's length: the actor's inputs, then (on a realisable rung) the
@@ -431,27 +435,6 @@ fn observation(
     obs
 }
 
-/// The direction the follow-through channel moves the palm along. On rungs that see contacts,
-/// after t_c the pre-contact incoming direction that ℓ_max is measured along (frozen with the
-/// first contact); on rungs that do not, the direction of flight the prior saw when it began
-/// to close. Before either, the direction of flight as the prior reads it.
-fn follow_through_direction(
-    spec: &CatchTaskSpec,
-    prior: &ScriptedCatcher,
-    view: &PolicyView<'_>,
-) -> [f64; 3] {
-    if spec.actor_inputs >= ActorInputs::NoContact {
-        if let Some(d) = prior.closing_direction() {
-            return d;
-        }
-    } else if let Some(c) = view.first_contact {
-        return c.incoming_dir;
-    }
-    let v = prior.object(view).vel;
-    let n = norm(v).max(1e-12);
-    [v[0] / n, v[1] / n, v[2] / n]
-}
-
 /// The executed action of the residual policy `act` on the prior (advancing the prior's
 /// state), and the policy's raw output.
 fn residual_action(
@@ -479,7 +462,7 @@ fn residual_action(
         if u != 0.0 {
             let g = palm_motion_channels(
                 view,
-                follow_through_direction(spec, prior_state, view),
+                prior_state.follow_through_direction(view),
                 spec.palm_motion_orientation_weight,
                 PALM_MOTION_DAMPING,
             );

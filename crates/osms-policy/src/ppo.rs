@@ -9,6 +9,8 @@
 //! [-1, 1]. Probability ratios use the density of u; the tanh Jacobian is the same for the old
 //! and the new policy at a stored u and cancels. The entropy bonus is the Gaussian's.
 
+use std::borrow::Cow;
+
 use osms_core::rng::{self, StreamRng};
 use osms_nn::{Activation, Adam, AdamConfig, DiagGaussian, Matrix, Mlp, Schedule, flatten_grads};
 use rayon::prelude::*;
@@ -227,13 +229,13 @@ impl Agent {
         self.actor.forward(&self.actor_input(x))
     }
 
-    /// The actor's columns of normalised observations (the same matrix when it reads all).
-    fn actor_input(&self, x: &Matrix) -> Matrix {
+    /// The actor's columns of normalised observations (borrowed when it reads them all).
+    fn actor_input<'x>(&self, x: &'x Matrix) -> Cow<'x, Matrix> {
         let n = self.actor_obs_len();
         if n == x.cols {
-            return x.clone();
+            return Cow::Borrowed(x);
         }
-        Matrix::from_fn(x.rows, n, |i, j| x.get(i, j))
+        Cow::Owned(Matrix::from_fn(x.rows, n, |i, j| x.get(i, j)))
     }
 
     /// The deterministic action tanh(μ(s)) for a raw observation.

@@ -929,8 +929,7 @@ pub fn paired_rollout(
         phases: Vec::new(),
     };
     // A realisable teacher reads a history of its own; the student reads the newest of it.
-    let mut spec = spec.clone();
-    spec.history_steps = spec.history_steps.max(teacher.1.actor_inputs.history());
+    let spec = teacher.1.actor_inputs.rollout(spec);
     let mut episode = Episode::new(world, &spec, condition, dr);
     while episode.step(&mut paired, &mut NoHooks) {
         if let Some(&p) = episode.record().phase.last() {

@@ -13,7 +13,7 @@ use crate::conditions::GRAVITY_MPS2;
 use crate::control::{Action, ControlSpec, N_ACTION, N_ARM, N_HAND, hold_action};
 use crate::episode::{OBSERVED_OBJECT, ObservedObject, Policy, PolicyView};
 use crate::spec::ObjectVariant;
-use crate::vec3::{cross, norm, sub};
+use crate::vec3::{cross, norm, sub, unit};
 use crate::world::palm_normal;
 
 /// The catcher's params. Every default lives here.
@@ -142,9 +142,17 @@ impl ScriptedCatcher {
         }
     }
 
-    /// The direction of flight the catcher saw when it began to close the hand, once it has.
-    pub fn closing_direction(&self) -> Option<[f64; 3]> {
-        self.closing_direction
+    /// The direction a follow-through moves the palm along: the pre-contact incoming
+    /// direction that ℓ_max is measured along once there has been a contact (frozen with the
+    /// first contact); for a catcher that does not read contacts, the direction of flight it
+    /// saw when it began to close. Before either, the direction of flight as it reads it.
+    pub fn follow_through_direction(&self, view: &PolicyView<'_>) -> [f64; 3] {
+        let frozen = if self.perception.close_on_distance_only {
+            self.closing_direction
+        } else {
+            view.first_contact.map(|c| c.incoming_dir)
+        };
+        frozen.unwrap_or_else(|| unit(self.object(view).vel))
     }
 
     /// The object as this catcher reads it at `view`.
@@ -267,18 +275,6 @@ pub fn dls_step(jac: &[[f64; N_ARM]; 6], err: [f64; 6], damping: f64) -> [f64; N
 /// follow-through channel and [`crate::reach::FollowThroughProbe`]).
 pub const PALM_MOTION_DAMPING: f64 = 0.05;
 
-/// The direction a follow-through moves the palm along: after t_c the pre-contact incoming
-/// direction that ℓ_max is measured along (frozen with the first contact), before it the
-/// observed object's direction of flight.
-pub fn follow_through_direction(view: &PolicyView<'_>) -> [f64; 3] {
-    if let Some(c) = view.first_contact {
-        return c.incoming_dir;
-    }
-    let v = view.object.vel;
-    let n = norm(v).max(1e-12);
-    [v[0] / n, v[1] / n, v[2] / n]
-}
-
 /// Arm action channels that move the palm along the unit vector `dir`, scaled so that the
 /// largest channel has magnitude 1 (the fastest such motion one control step allows). The
 /// angular rows of the Jacobian are weighted by `orientation_weight`: 1 holds the palm's
@@ -384,8 +380,7 @@ impl Policy for ScriptedCatcher {
                 .is_some_and(|n| *n > 0.0);
         if !self.closed && (dist < self.spec.close_distance_m || touching) {
             self.closed = true;
-            let n = norm(v).max(1e-12);
-            self.closing_direction = Some([v[0] / n, v[1] / n, v[2] / n]);
+            self.closing_direction = Some(unit(v));
         }
         let hand = match (self.closed, self.spec.grip_margin_rad) {
             (false, _) => self.spec.open_hand_rad,

@@ -5,10 +5,7 @@
 //! the world's ceiling from below (a cleverer motion may reach further), measured with the same
 //! evaluator as every rollout.
 
-use crate::catcher::{
-    CatcherSpec, PALM_MOTION_DAMPING, ScriptedCatcher, follow_through_direction,
-    palm_motion_channels,
-};
+use crate::catcher::{CatcherSpec, PALM_MOTION_DAMPING, ScriptedCatcher, palm_motion_channels};
 use crate::control::{Action, ControlSpec, N_ARM};
 use crate::episode::{Policy, PolicyView};
 use crate::vec3::{norm, sub};
@@ -62,7 +59,7 @@ impl Policy for FollowThroughProbe {
             }
         };
         if moving {
-            let dir = follow_through_direction(view);
+            let dir = self.catcher.follow_through_direction(view);
             let g = palm_motion_channels(view, dir, self.orientation_weight, PALM_MOTION_DAMPING);
             action[..N_ARM].copy_from_slice(&g);
         }

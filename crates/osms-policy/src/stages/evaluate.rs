@@ -111,8 +111,7 @@ impl ItemStage for EvaluateStage {
                     p.rollout.control.clone(),
                     p.prior_inputs.perception(),
                 );
-                let mut spec = p.rollout.clone();
-                spec.history_steps = spec.history_steps.max(p.prior_inputs.history());
+                let spec = p.prior_inputs.rollout(&p.rollout);
                 Episode::new(world, &spec, condition, rng.clone()).run(&mut catcher, &mut NoHooks)
             }
             Evaluated::Teacher(t) => {
