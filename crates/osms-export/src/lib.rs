@@ -187,6 +187,7 @@ pub fn state_names() -> Vec<String> {
     let mut n = Vec::with_capacity(DEPLOYABLE_LEN);
     push_robot_names(&mut n);
     n.extend(["object.x", "object.y", "object.z"].map(String::from));
+    n.push("palm.touch".into());
     n.extend(
         action_names()
             .into_iter()

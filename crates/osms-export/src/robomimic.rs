@@ -10,8 +10,8 @@
 //!     dones            i64 [N]   1 on the last frame
 //!     states           f64 [N, state_size]   mjSTATE_FULLPHYSICS (with physics only)
 //!     obs/<key>        f32 [N, width]: arm_qpos, arm_qvel, hand_qpos, hand_qvel, object_pos
-//!                      (observed: delayed and noisy), prev_action; `privileged` only with
-//!                      `--privileged-obs`
+//!                      (observed: delayed and noisy), palm_touch (N, noisy), prev_action;
+//!                      `privileged` only with `--privileged-obs`
 //!     next_obs/<key>   obs/<key> of the next step; the last step repeats the last observation
 //!     osms/            servo_targets f64 [N, 24] and physics_steps u8 [N] (with physics),
 //!                      phase u8 [N], intended_actions f32 [N, 24], omega f32 [OMEGA_LEN],
@@ -48,12 +48,13 @@ use crate::{Error, ExportEpisode, ExportOptions, ExportSet};
 pub const ENV_NAME: &str = "osms-catch";
 
 /// The deployable observation's keys and widths, in frame order.
-pub const OBS_KEYS: [(&str, usize); 6] = [
+pub const OBS_KEYS: [(&str, usize); 7] = [
     ("arm_qpos", ARM_JOINTS.len()),
     ("arm_qvel", ARM_JOINTS.len()),
     ("hand_qpos", HAND_JOINTS.len()),
     ("hand_qvel", HAND_JOINTS.len()),
     ("object_pos", 3),
+    ("palm_touch", 1),
     ("prev_action", N_ACTION),
 ];
 
@@ -670,6 +671,7 @@ mod tests {
                 "hand_qpos",
                 "hand_qvel",
                 "object_pos",
+                "palm_touch",
                 "prev_action"
             ])
         );

@@ -13,7 +13,7 @@ use osms_sim::catcher::{
 };
 use osms_sim::control::{DrSpec, hold_action};
 use osms_sim::episode::{
-    DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_LEN, PRIVILEGED_PALM, Snapshot,
+    DEPLOYABLE_LEN, OBSERVED_OBJECT, PALM_TOUCH, PRIVILEGED_LEN, PRIVILEGED_PALM, Snapshot,
 };
 use osms_sim::vec3::{norm, sub};
 use osms_sim::{
@@ -114,6 +114,10 @@ pub enum ActorInputs {
     /// position and velocity and the object's offset from it, the observed positions'
     /// differences), plus the ballistic fit and the prior's action, both functions of it.
     Deployable,
+    /// `NoContact` plus the palm's touch readings of the last [`REALISABLE_HISTORY`] frames
+    /// (the deployable contact signal, `osms_sim::episode::PALM_TOUCH`). Declared last so the
+    /// other rungs keep their keys; on the ladder it sits between `NoContact` and `Deployable`.
+    Touch,
 }
 
 /// Frames of deployable history the realisable rungs read: the students' default history.
@@ -156,6 +160,7 @@ impl ActorInputs {
             ActorInputs::ObservedVelocity => 48 + 3 + 9 + 2 + 6 + differences + N_ACTION + 5,
             ActorInputs::NoContact => 48 + 3 + 9 + 6 + differences + N_ACTION,
             ActorInputs::Deployable => h * DEPLOYABLE_LEN + 9 + differences + 6 + N_ACTION,
+            ActorInputs::Touch => 48 + 3 + 9 + 6 + differences + h + N_ACTION,
         }
     }
 }
@@ -403,7 +408,7 @@ fn observation(
         ActorInputs::NoIdentity => {
             obs.extend(p(0..IDENTITY));
         }
-        ActorInputs::ObservedVelocity | ActorInputs::NoContact => {
+        ActorInputs::ObservedVelocity | ActorInputs::NoContact | ActorInputs::Touch => {
             obs.extend(p(0..48));
             obs.extend(p(48..51));
             obs.extend(p(PRIVILEGED_PALM..PRIVILEGED_PALM + 9));
@@ -412,6 +417,9 @@ fn observation(
             }
             obs.extend(fitted);
             obs.extend(differences);
+            if rung == ActorInputs::Touch {
+                obs.extend((0..h).map(|i| frame(i)[PALM_TOUCH] as f32));
+            }
         }
         ActorInputs::Deployable => {
             for i in 0..h {

@@ -40,6 +40,7 @@ fn rung_specs() -> Vec<(ActorInputs, CatchTaskSpec)> {
         ActorInputs::NoIdentity,
         ActorInputs::ObservedVelocity,
         ActorInputs::NoContact,
+        ActorInputs::Touch,
         ActorInputs::Deployable,
     ]
     .into_iter()

@@ -57,8 +57,8 @@ impl Default for RolloutSpec {
 }
 
 /// Length of a deployable observation frame: arm q, q̇ (7 + 7), hand q, q̇ (17 + 17), observed
-/// object position (3), previous executed action (24).
-pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + N_ACTION;
+/// object position (3), the palm's touch reading (1), previous executed action (24).
+pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + 1 + N_ACTION;
 /// Length of a privileged frame: arm and hand q, q̇ (48), object position, quaternion, linear
 /// and angular velocity (13, observed: delayed like the deployable frame's object position, the
 /// position with its noise), palm position, normal and velocity (9), admissible normal force
@@ -66,6 +66,17 @@ pub const DEPLOYABLE_LEN: usize = 7 + 7 + 17 + 17 + 3 + N_ACTION;
 pub const PRIVILEGED_LEN: usize = 48 + 13 + 9 + 2 + 11 + 1;
 /// Index of the observed object position (3) in a deployable frame.
 pub const OBSERVED_OBJECT: usize = 7 + 7 + 17 + 17;
+/// Index of the palm's touch reading in a deployable frame: the summed normal force of the
+/// palm's contacts (N), as a touch sensor over the palm reads it, with [`TOUCH_NOISE_N`] of
+/// sensor noise under domain randomisation (issue 54: a deployable contact signal).
+pub const PALM_TOUCH: usize = OBSERVED_OBJECT + 3;
+/// Standard deviation of the palm touch reading's noise (N) whenever domain randomisation is
+/// on: about 1 % of a 20 N force-sensing pad's range, the noise floor of a resistive taxel or
+/// of a servo's current reading converted to force (docs/sim.md).
+pub const TOUCH_NOISE_N: f64 = 0.2;
+/// The ChaCha stream of a rollout's seed that the touch noise draws from: a stream of its own,
+/// so reading the sensor leaves every other draw of the rollout where it was.
+const TOUCH_STREAM: u64 = 1;
 /// Index of the palm's position in a privileged frame; its normal follows at + 3 and its
 /// linear velocity at + 6 (3 each).
 pub const PRIVILEGED_PALM: usize = 48 + 13;
@@ -218,6 +229,8 @@ struct Controller {
     /// the observation delay's queue.
     pending_object: VecDeque<[f64; 13]>,
     history: VecDeque<Vec<f64>>,
+    /// The touch sensor's noise ([`TOUCH_STREAM`] of the rollout's seed).
+    touch_rng: StreamRng,
 }
 
 /// An exact copy of an episode's state at the start of a control step.
@@ -370,12 +383,16 @@ impl<'w> Episode<'w> {
 
         let hand_home: [f64; N_HAND] = std::array::from_fn(|i| posture[N_ARM + i]);
         let hold = hold_action(&hand_home);
+        let mut touch_rng = rng.clone();
+        touch_rng.set_stream(TOUCH_STREAM);
+        touch_rng.set_word_pos(0);
         let controller = Controller {
             targets: posture,
             executed: hold,
             pending_actions: VecDeque::from(vec![hold; dr.actuation_delay_steps as usize]),
             pending_object: VecDeque::new(),
             history: VecDeque::new(),
+            touch_rng,
         };
         let record = RolloutRecord::empty(condition.clone(), dr.clone());
         Episode {
@@ -439,6 +456,8 @@ impl<'w> Episode<'w> {
     /// episode observes exactly what an uninterrupted one does. The admissible normal force is
     /// the constraint solve's at this state under the controls of the last physics step; it
     /// is solved for only where it can be non-zero and someone reads it (`forces`), else NaN.
+    /// The palm's touch reading is the same solve's, wherever the palm has a contact (every
+    /// policy reads it: it is part of the deployable frame).
     /// A replay (`noisy = false`) leaves out the observation noise: it reads no stream, and
     /// the recorded deployable frames keep the noisy values.
     fn observe(&mut self, noisy: bool, forces: bool) -> Frame {
@@ -446,15 +465,19 @@ impl<'w> Episode<'w> {
         self.stepped1 = true;
         let ids = &self.world.ids;
         let mut contacts = scan(&self.data, &ids.geom_class, false);
-        if contacts.admissible_contacts > 0 {
-            if forces {
-                // The acceleration stage under the last physics step's controls; the physics
-                // step's `mj_step2` redoes it under the new ones.
-                self.data.forward_skip(mjtStage::mjSTAGE_VEL, false);
-                contacts = scan(&self.data, &ids.geom_class, true);
-            } else {
-                contacts.admissible_force_n = f64::NAN;
-            }
+        let solve = contacts.palm_contacts > 0 || (forces && contacts.admissible_contacts > 0);
+        if solve {
+            // The acceleration stage under the last physics step's controls; the physics
+            // step's `mj_step2` redoes it under the new ones, so the solve leaves the rollout's
+            // bits alone.
+            self.data.forward_skip(mjtStage::mjSTAGE_VEL, false);
+            contacts = scan(&self.data, &ids.geom_class, true);
+        } else if contacts.admissible_contacts > 0 {
+            contacts.admissible_force_n = f64::NAN;
+        }
+        let mut touch = contacts.palm_force_n;
+        if noisy && !self.spec.dr.is_off() {
+            touch += TOUCH_NOISE_N * rng::normal(&mut self.controller.touch_rng);
         }
         let qpos = self.data.qpos();
         let qvel = self.data.qvel();
@@ -506,6 +529,7 @@ impl<'w> Episode<'w> {
         // Deployable: the observed object's position only.
         let mut deployable = robot;
         deployable.extend(&observed[..3]);
+        deployable.push(touch);
         deployable.extend(self.controller.executed);
         Frame {
             deployable,
@@ -674,14 +698,16 @@ impl<'w> Episode<'w> {
         };
         let intended = row(&record.intended, N_ACTION);
         let executed = row(&record.executed, N_ACTION);
-        // The observed object position is the record's: it is an observation, not a state,
-        // and drew from the stream. The deployable and privileged frames share it.
-        let seen = 48..51;
-        for c in 0..3 {
-            let v = f64::from(record.deployable[k * DEPLOYABLE_LEN + seen.start + c]);
-            frame.deployable[seen.start + c] = v;
-            frame.privileged[seen.start + c] = v;
+        // The observed object position and the touch reading are the record's: they are
+        // observations, not states, and drew from the stream. The deployable and privileged
+        // frames share the position.
+        let seen = OBSERVED_OBJECT..OBSERVED_OBJECT + 3;
+        for c in seen.clone() {
+            let v = f64::from(record.deployable[k * DEPLOYABLE_LEN + c]);
+            frame.deployable[c] = v;
+            frame.privileged[c] = v;
         }
+        frame.deployable[PALM_TOUCH] = f64::from(record.deployable[k * DEPLOYABLE_LEN + PALM_TOUCH]);
         let n = record.physics_steps[k];
         if n == 0 {
             self.evaluator.abort(Failure::InvalidAction);

@@ -191,6 +191,10 @@ pub struct ContactScan {
     /// Summed normal force over admissible (palm, finger) contacts with the object (N).
     pub admissible_force_n: f64,
     pub admissible_contacts: usize,
+    /// Contacts on the palm, with anything: what a touch sensor over the palm feels.
+    pub palm_contacts: usize,
+    /// Summed normal force over the palm's contacts (N), with `forces`.
+    pub palm_force_n: f64,
     /// An arm link touches the palm or a finger.
     pub self_collision: bool,
 }
@@ -210,6 +214,12 @@ pub fn scan<M: ModelType>(data: &MjData<M>, classes: &[GeomClass], forces: bool)
     let mut out = ContactScan::default();
     for (i, c) in data.contact().iter().enumerate() {
         let (a, b) = (classes[c.geom[0] as usize], classes[c.geom[1] as usize]);
+        if a == GeomClass::Palm || b == GeomClass::Palm {
+            out.palm_contacts += 1;
+            if forces {
+                out.palm_force_n += data.contact_force(i)[0];
+            }
+        }
         let other = match (a, b) {
             (GeomClass::Object, o) | (o, GeomClass::Object) => Some(o),
             _ => None,

@@ -594,7 +594,9 @@ fn the_observed_contact_force_matches_a_full_forward_pass_and_skipping_it_change
             );
             let (blind_count, blind_force) = blind.seen[k];
             assert_eq!(blind_count, count);
-            if count > 0.0 {
+            // The palm's touch reading needs the same solve wherever the palm has a contact,
+            // so there even a policy that does not read the force sees it.
+            if count > 0.0 && scan.palm_contacts == 0 {
                 contact_steps += 1;
                 assert!(
                     blind_force.is_nan(),
@@ -611,6 +613,81 @@ fn the_observed_contact_force_matches_a_full_forward_pass_and_skipping_it_change
         assert_eq!(data.qpos(), final_qpos.as_slice(), "condition {i}");
     }
     assert!(contact_steps > 10, "{contact_steps} steps with contact");
+}
+
+/// The palm's touch reading in the deployable frame is the summed normal force of the palm's
+/// contacts at the control step's start, as a full forward pass and a summation by geom names
+/// give it, and exactly 0 without a palm contact while domain randomisation (and with it the
+/// sensor's noise) is off.
+#[test]
+fn the_touch_reading_is_the_palms_contact_force() {
+    let w = world();
+    let spec = RolloutSpec::default();
+    let mut controls = Controls::default();
+    let mut ep = Episode::new(&w, &spec, palm_throw(&w), rng::stream(0, "t", "touch", 0));
+    let mut hand = open_hand();
+    while ep.step(&mut hand, &mut controls) {}
+    let record = ep.finish();
+    let len = osms_sim::episode::DEPLOYABLE_LEN;
+    let touch = osms_sim::episode::PALM_TOUCH;
+    let mut data = osms_sim::episode::initial_data(&w, &record.condition, &record.dr);
+    let ends = controls
+        .starts
+        .iter()
+        .skip(1)
+        .copied()
+        .chain([controls.ctrl.len()]);
+    let mut touched = 0;
+    for (k, (&start, end)) in controls.starts.iter().zip(ends).enumerate() {
+        data.forward();
+        let mut expected = 0.0;
+        for (i, c) in data.contact().iter().enumerate() {
+            let (a, b) = geom_names(data.model(), c);
+            if a == "hand_palm_geom" || b == "hand_palm_geom" {
+                expected += data.contact_force(i)[0];
+            }
+        }
+        let read = record.deployable[k * len + touch];
+        assert_eq!(read, expected as f32, "step {k}");
+        touched += usize::from(read > 0.0);
+        for ctrl in &controls.ctrl[start..end] {
+            data.ctrl_mut().copy_from_slice(ctrl);
+            data.step();
+        }
+    }
+    assert!(touched > 3, "{touched} steps with the palm touched");
+}
+
+/// Under domain randomisation the touch reading carries zero-mean noise of
+/// `TOUCH_NOISE_N` before anything touches the palm.
+#[test]
+fn the_touch_readings_noise_has_its_stated_size() {
+    let w = world();
+    let spec = RolloutSpec {
+        dr: osms_sim::control::DrSpec::paper(),
+        ..RolloutSpec::default()
+    };
+    let len = osms_sim::episode::DEPLOYABLE_LEN;
+    let mut readings = Vec::new();
+    for i in 0..12 {
+        let record = Episode::new(&w, &spec, sampled(i, &w), rng::stream(0, "t", "noise", i))
+            .run(&mut open_hand(), &mut NoHooks);
+        let before = record
+            .metrics
+            .contact_time_secs
+            .map_or(record.steps, |t| (t / w.control_period_secs()) as usize)
+            .saturating_sub(2);
+        readings.extend(
+            (0..before).map(|k| f64::from(record.deployable[k * len + osms_sim::episode::PALM_TOUCH])),
+        );
+    }
+    let n = readings.len() as f64;
+    assert!(n > 100.0, "{n} readings");
+    let mean = readings.iter().sum::<f64>() / n;
+    let sd = (readings.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let sigma = osms_sim::episode::TOUCH_NOISE_N;
+    assert!(mean.abs() < 4.0 * sigma / n.sqrt(), "mean {mean}");
+    assert!((sd / sigma - 1.0).abs() < 0.2, "sd {sd} against {sigma}");
 }
 
 /// A record that keeps privileged frames gets the solved force even from a policy that does

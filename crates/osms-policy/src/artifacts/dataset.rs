@@ -55,7 +55,8 @@ impl osms_core::Artifact for Dataset {
     /// the dataset keeps the task spec it ran; 6: records keep their servo targets and
     /// physics-step counts (open-loop replay).
     /// 7: the task has the actor-input rung and the smoothness weight (issue 54).
-    const SCHEMA_VERSION: u16 = 7;
+    /// 8: deployable frames carry the palm's touch reading (issue 54, item 2).
+    const SCHEMA_VERSION: u16 = 8;
 }
 
 impl osms_make::Sharded for Dataset {

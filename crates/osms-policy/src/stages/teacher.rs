@@ -21,8 +21,9 @@ pub struct TeacherStage;
 impl Stage for TeacherStage {
     const KIND: &'static str = "teacher";
     /// 3: the actor's inputs are a declared rung (`task.actor_inputs`) with a privileged
-    /// critic, and the task is stored realised (issue 54).
-    const CODE_VERSION: u32 = 3;
+    /// critic, and the task is stored realised (issue 54). 4: deployable frames carry the
+    /// palm's touch reading, which the `touch` and `deployable` rungs' actors read.
+    const CODE_VERSION: u32 = 4;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[Slot::one::<WorldArtifact>("world")];
     const DOC: &'static str =
