@@ -25,6 +25,7 @@
 use osms_core::rng::{self, StreamRng};
 use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
 use osms_sim::conditions::TaskCondition;
+use osms_sim::control::joint_ranges;
 use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
 use osms_sim::{
     Action, Episode, N_ACTION, N_ARM, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec,
@@ -92,6 +93,15 @@ pub struct StudentParams {
     /// the controller's own accumulated command, which the frames' joint positions and last
     /// action do not determine). Issue 54's arm interface.
     pub arm_target: bool,
+    /// Label and predict the arm channels as the arm's absolute servo target after each step
+    /// (the demonstrator's integrated command: its target at the step's start plus its
+    /// increment, clamped to the joint's range), executed as the increment from the
+    /// controller's current target (clamped to ±1): an error in one step's prediction is not
+    /// integrated into every later target, as it is with increment labels (issue 54, item 3b;
+    /// Diffusion Policy's position control). Needs `arm_target`, the current target the
+    /// increment is taken from. Assumes the default control spec's arm step
+    /// ([`ARM_STEP_RAD`]); the student stage refuses a dataset that ran another.
+    pub target_labels: bool,
     /// Decay of an exponential moving average of the weights, updated after every step and
     /// used as the trained network (0: none, the last step's weights).
     pub ema_decay: f32,
@@ -130,6 +140,7 @@ impl Default for StudentParams {
             object_differences: true,
             oracle_object_velocity: false,
             arm_target: false,
+            target_labels: false,
             ema_decay: 0.0,
             phase_weights: [1.0; 5],
         }
@@ -185,6 +196,11 @@ impl StudentParams {
                 self.ema_decay
             )));
         }
+        if self.target_labels && !self.arm_target {
+            return Err(Error::Params(
+                "params.target_labels needs params.arm_target = true: an absolute arm target is executed as the increment from the controller's current target, which the student must then read".into(),
+            ));
+        }
         if !(self.lr > 0.0 && self.min_lr >= 0.0 && self.min_lr <= self.lr) {
             return Err(Error::Params(format!(
                 "params: need 0 <= min_lr <= lr and lr > 0, got lr {} and min_lr {}",
@@ -222,6 +238,10 @@ impl StudentParams {
         self.chunk * N_ACTION
     }
 }
+
+/// The arm's largest target step per control step (rad) under the default control spec:
+/// the scale between an arm action and its target increment, for `target_labels`.
+pub const ARM_STEP_RAD: f64 = 0.15;
 
 /// Values per step of [`Demo::state`].
 pub const DEMO_STATE_LEN: usize = 9 + N_ARM;
@@ -274,6 +294,25 @@ impl Demo {
             state,
             phase: record.phase.clone(),
             actions,
+        }
+    }
+
+    /// The demonstration with its arm labels as the absolute servo target after each step:
+    /// clamp(target at the step's start + [`ARM_STEP_RAD`] · increment) to the joint's range,
+    /// as the controller integrates it (`osms_sim::control::targets`).
+    pub fn with_target_labels(&self) -> Demo {
+        let ranges = joint_ranges();
+        let mut actions = self.actions.clone();
+        for n in 0..self.steps {
+            let target = &self.state[n * DEMO_STATE_LEN + 9..][..N_ARM];
+            for (i, a) in actions[n * N_ACTION..][..N_ARM].iter_mut().enumerate() {
+                let [lo, hi] = ranges[i];
+                *a = (f64::from(target[i]) + f64::from(*a) * ARM_STEP_RAD).clamp(lo, hi) as f32;
+            }
+        }
+        Demo {
+            actions,
+            ..self.clone()
         }
     }
 
@@ -461,6 +500,13 @@ impl Student {
         for (index, d) in demos.iter().enumerate() {
             d.check(index)?;
         }
+        let relabelled: Vec<Demo>;
+        let demos = if p.target_labels {
+            relabelled = demos.iter().map(Demo::with_target_labels).collect();
+            &relabelled[..]
+        } else {
+            demos
+        };
         let held = |i: usize| p.holdout_every > 1 && i % p.holdout_every == p.holdout_every - 1;
         let nonempty = |i: &usize| demos[*i].steps > 0;
         let train_idx: Vec<usize> = (0..demos.len())
@@ -716,9 +762,18 @@ impl Student {
         (0..rows)
             .map(|i| {
                 let x = x.row(i);
-                std::array::from_fn(|k| {
-                    f64::from(x[k] * self.act_norm.std[k] + self.act_norm.mean[k]).clamp(-1.0, 1.0)
-                })
+                let mut action: Action = std::array::from_fn(|k| {
+                    f64::from(x[k] * self.act_norm.std[k] + self.act_norm.mean[k])
+                });
+                if self.params.target_labels {
+                    // The arm target features close the observation (`push_features`).
+                    let o = obs[i].as_ref();
+                    let current = &o[o.len() - N_ARM..];
+                    for (a, t) in action[..N_ARM].iter_mut().zip(current) {
+                        *a = (*a - f64::from(*t)) / ARM_STEP_RAD;
+                    }
+                }
+                action.map(|a| a.clamp(-1.0, 1.0))
             })
             .collect()
     }
@@ -1092,16 +1147,64 @@ mod tests {
     /// labels' spread), and training is a function of its seed.
     #[test]
     fn students_learn_a_deterministic_policy_reproducibly() {
-        learns_a_deterministic_policy(0.0);
+        learns_a_deterministic_policy(0.0, false);
+    }
+
+    /// With absolute-target labels the student predicts where the arm's target goes and
+    /// executes the increment from the current target: it still reproduces the
+    /// demonstrator's increments, whatever target each step starts from.
+    #[test]
+    fn students_with_target_labels_execute_the_demonstrated_increments() {
+        learns_a_deterministic_policy(0.0, true);
+    }
+
+    /// The arm step the target labels assume is the default control spec's.
+    #[test]
+    fn target_labels_use_the_default_arm_step_and_the_controllers_integration() {
+        let control = osms_sim::control::ControlSpec::default();
+        assert_eq!(ARM_STEP_RAD, control.arm_max_delta_rad);
+        let mut d = numbered(3);
+        for n in 0..3 {
+            d.state[n * DEMO_STATE_LEN + 9..][..N_ARM]
+                .copy_from_slice(&[0.1, -0.2, 0.3, 1.0, 0.0, 0.5, 3.1]);
+            d.actions[n * N_ACTION..][..N_ARM]
+                .copy_from_slice(&[0.5, -1.0, 0.0, 1.0, 0.2, -0.4, 1.0]);
+        }
+        let relabelled = d.with_target_labels();
+        let previous: [f64; N_ACTION] = std::array::from_fn(|i| {
+            if i < N_ARM {
+                f64::from(d.state[9 + i])
+            } else {
+                0.0
+            }
+        });
+        let action: Action = std::array::from_fn(|i| f64::from(d.actions[i]));
+        let integrated = osms_sim::control::targets(&control, &previous, &action);
+        for (i, t) in integrated[..N_ARM].iter().enumerate() {
+            assert_eq!(relabelled.actions[i], *t as f32, "joint {i}");
+        }
+        assert_eq!(
+            relabelled.actions[N_ARM..N_ACTION],
+            d.actions[N_ARM..N_ACTION]
+        );
+        assert!(
+            StudentParams {
+                target_labels: true,
+                ..StudentParams::default()
+            }
+            .check()
+            .is_err_and(|e| e.to_string().contains("arm_target")),
+            "target labels without the current target"
+        );
     }
 
     /// The moving average of the weights is the trained network, and it learns as well.
     #[test]
     fn students_with_a_moving_average_of_weights_learn_too() {
-        learns_a_deterministic_policy(0.99);
+        learns_a_deterministic_policy(0.99, false);
     }
 
-    fn learns_a_deterministic_policy(ema_decay: f32) {
+    fn learns_a_deterministic_policy(ema_decay: f32, target_labels: bool) {
         let demos: Vec<Demo> = (0..12)
             .map(|r| {
                 let steps = 10;
@@ -1122,10 +1225,20 @@ mod tests {
                         (0..N_ACTION).map(move |k| 0.8 * x * if k % 2 == 0 { 1.0 } else { -1.0 })
                     })
                     .collect();
+                // With target labels each step starts from its own arm target.
+                let state = (0..steps * DEMO_STATE_LEN)
+                    .map(|i| {
+                        if target_labels && i % DEMO_STATE_LEN >= 9 {
+                            rng::uniform(&mut rng, -0.5, 0.5) as f32
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
                 Demo {
                     steps,
                     deployable,
-                    state: vec![0.0; steps * DEMO_STATE_LEN],
+                    state,
                     phase: vec![0; steps],
                     actions,
                 }
@@ -1144,6 +1257,8 @@ mod tests {
             holdout_every: 4,
             log_every: 100,
             ema_decay,
+            arm_target: target_labels,
+            target_labels,
             ..StudentParams::default()
         };
         let student = Student::train(&demos, &params, (1, "s"), &|| {}).expect("train");

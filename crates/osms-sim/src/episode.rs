@@ -707,7 +707,8 @@ impl<'w> Episode<'w> {
             frame.deployable[c] = v;
             frame.privileged[c] = v;
         }
-        frame.deployable[PALM_TOUCH] = f64::from(record.deployable[k * DEPLOYABLE_LEN + PALM_TOUCH]);
+        frame.deployable[PALM_TOUCH] =
+            f64::from(record.deployable[k * DEPLOYABLE_LEN + PALM_TOUCH]);
         let n = record.physics_steps[k];
         if n == 0 {
             self.evaluator.abort(Failure::InvalidAction);

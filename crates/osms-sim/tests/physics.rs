@@ -678,7 +678,8 @@ fn the_touch_readings_noise_has_its_stated_size() {
             .map_or(record.steps, |t| (t / w.control_period_secs()) as usize)
             .saturating_sub(2);
         readings.extend(
-            (0..before).map(|k| f64::from(record.deployable[k * len + osms_sim::episode::PALM_TOUCH])),
+            (0..before)
+                .map(|k| f64::from(record.deployable[k * len + osms_sim::episode::PALM_TOUCH])),
         );
     }
     let n = readings.len() as f64;

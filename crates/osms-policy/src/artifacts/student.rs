@@ -23,7 +23,8 @@ pub struct StudentArtifact {
 impl Artifact for StudentArtifact {
     const TYPE_TAG: &'static str = "policy.student_artifact";
     /// 3: the params have `arm_target` (issue 54).
-    const SCHEMA_VERSION: u16 = 3;
+    /// 4: the params have `target_labels` (issue 54).
+    const SCHEMA_VERSION: u16 = 4;
 }
 
 impl Summarize for StudentArtifact {

@@ -4,7 +4,7 @@ use osms_make::{Ctx, Numerics, Scale, Slot, Stage, StageError};
 
 use super::in_fold;
 use crate::artifacts::{Dataset, DemoSet, StudentArtifact};
-use crate::student::{Demo, Student, StudentParams};
+use crate::student::{ARM_STEP_RAD, Demo, Student, StudentParams};
 
 /// A flow-matching student trained on a dataset's rollouts. With `folds = F` instance `#f`
 /// trains on the items outside fold f (item index mod F ≠ f): the cross-fitted IL students π̄.
@@ -50,6 +50,14 @@ impl Stage for StudentStage {
             return Err("`size_match` cuts a demonstration set; it needs `demos`, not `data`\nhint: remove `size_match` or train on `demos`".into());
         }
         if slot == "data" {
+            let control = ctx.head::<Dataset>("data")?.task.rollout.control;
+            if ctx.params.target_labels && control.arm_max_delta_rad != ARM_STEP_RAD {
+                return Err(format!(
+                    "params.target_labels assumes an arm step of {ARM_STEP_RAD} rad, but input `data` ran with `control.arm_max_delta_rad` = {}\nhint: train on a dataset of the default control spec or leave `target_labels` off",
+                    control.arm_max_delta_rad
+                )
+                .into());
+            }
             for item in ctx.items::<Dataset>("data")? {
                 let r = item?.rollout;
                 if fold.is_some_and(|f| in_fold(r.item, f)) {
