@@ -617,7 +617,17 @@ fn spawn_maker(
     who: usize,
     events: mpsc::Sender<(usize, Option<String>)>,
 ) -> (Child, std::thread::JoinHandle<Vec<String>>) {
-    let mut child = command(p, &["make", "--jobs", "1", "--json"])
+    spawn_osms(p, who, &["make", "--jobs", "1", "--json"], events)
+}
+
+/// Spawns `osms-test ARGS` as [`spawn_maker`] does.
+fn spawn_osms(
+    p: &Project,
+    who: usize,
+    args: &[&str],
+    events: mpsc::Sender<(usize, Option<String>)>,
+) -> (Child, std::thread::JoinHandle<Vec<String>>) {
+    let mut child = command(p, args)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -765,6 +775,156 @@ fn two_concurrent_makers_serialise_and_agree() {
         "blocked makers: maker {builder} built, the other waited and found everything cached"
     );
     check_store_complete(&p);
+}
+
+/// Waits until process `who` writes a stderr line containing `text`; panics if it ends first.
+fn wait_for_line(rx: &mpsc::Receiver<(usize, Option<String>)>, who: usize, text: &str) {
+    let mut seen = Vec::new();
+    loop {
+        let (from, line) = rx.recv().expect("the stderr readers report");
+        if from != who {
+            continue;
+        }
+        match line {
+            Some(line) if line.contains(text) => return,
+            Some(line) => seen.push(line),
+            None => panic!(
+                "process {who} ended without writing `{text}`:\n{}",
+                seen.join("\n")
+            ),
+        }
+    }
+}
+
+/// Waits for a process of [`spawn_osms`]: its exit code and stderr.
+fn finish(process: (Child, std::thread::JoinHandle<Vec<String>>)) -> (Option<i32>, String) {
+    let (child, reader) = process;
+    let out = child.wait_with_output().expect("wait for osms-test");
+    (
+        out.status.code(),
+        reader.join().expect("stderr reader").join("\n"),
+    )
+}
+
+/// Starts `first`, waits until it builds (it holds the store lock then, for seconds), starts
+/// `second` and waits until it waits for the lock; returns both, still running. The events of
+/// the two stay in `rx` for the caller to drain.
+#[allow(clippy::type_complexity)]
+fn second_waits_for_first(
+    p: &Project,
+    first: &[&str],
+    second: &[&str],
+) -> [(Child, std::thread::JoinHandle<Vec<String>>); 2] {
+    let (tx, rx) = mpsc::channel();
+    let a = spawn_osms(p, 0, first, tx.clone());
+    wait_for_line(&rx, 0, "building");
+    let b = spawn_osms(p, 1, second, tx);
+    wait_for_line(&rx, 1, WAITING);
+    // The readers keep sending; a dropped receiver only makes their sends fail, which they
+    // ignore.
+    drop(rx);
+    [a, b]
+}
+
+/// `gc` decides what to keep after it holds the lock: a `make --seeds 9` that held the lock
+/// when gc started, before any `@9` artifact existed, and finished while gc waited keeps
+/// every `@9` artifact.
+#[test]
+fn a_gc_that_waited_for_a_make_keeps_the_seeds_that_make_built() {
+    // About 2.4 s with one thread: 24 items of 100 ms, so gc starts long before the first
+    // instance is done.
+    let p = Project::new(&sleepy_pipeline(24, 4, 100));
+    run_ok(&p, &["make", "--jobs", "1"]);
+    let [make, gc] = second_waits_for_first(&p, &["make", "--jobs", "1", "--seeds", "9"], &["gc"]);
+    let (make_code, make_err) = finish(make);
+    let (gc_code, gc_err) = finish(gc);
+    assert_eq!(make_code, Some(0), "make:\n{make_err}");
+    assert_eq!(gc_code, Some(0), "gc:\n{gc_err}");
+    assert!(
+        gc_err.contains("[0, 9]"),
+        "gc keeps seeds 0 and 9:\n{gc_err}"
+    );
+    let status = json(&run_ok(&p, &["status", "--seeds", "9", "--json"]));
+    for s in status.as_array().expect("status array") {
+        assert_eq!(s["state"], "cached", "{s}");
+    }
+    run_ok(&p, &["verify"]);
+}
+
+/// `exp run` holds the lock from its make through saving its record: a `gc` that waited for
+/// the make finds the experiment and keeps what it names (instances no profile makes current),
+/// and `verify` checks that.
+#[test]
+fn a_gc_that_waited_for_an_experiment_keeps_what_the_experiment_records() {
+    let p = Project::new(&sleepy_pipeline(24, 4, 100));
+    let run = [
+        "exp",
+        "run",
+        "scaled",
+        "--jobs",
+        "1",
+        "--set",
+        "numbers.scale=3.0",
+        "total",
+    ];
+    let [exp, gc] = second_waits_for_first(&p, &run, &["gc"]);
+    let (exp_code, exp_err) = finish(exp);
+    let (gc_code, gc_err) = finish(gc);
+    assert_eq!(exp_code, Some(0), "exp run:\n{exp_err}");
+    assert_eq!(gc_code, Some(0), "gc:\n{gc_err}");
+    assert!(
+        gc_err.contains("only named experiments hold"),
+        "gc kept the experiment's instances:\n{gc_err}"
+    );
+    run_ok(&p, &["verify"]);
+    // verify fails once an experiment names an object the store lost.
+    let store = p.open_store();
+    let record = osms_make::experiment::load(&store, "scaled")
+        .expect("read the record")
+        .expect("the experiment is recorded");
+    let hash = record.points[0]
+        .instances
+        .iter()
+        .find(|i| i.stage == "total")
+        .expect("a `total` instance")
+        .content_hash;
+    std::fs::remove_file(store.object_path(&hash)).expect("remove the object");
+    let out = run_expect(&p, &["verify"], 1);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("of experiment `scaled` (total"),
+        "{}",
+        shown(&["verify"], &out)
+    );
+}
+
+/// Two `exp run`s of one name at once: one records it, the other (which waited for the lock)
+/// fails and names the other process, unless `--force`.
+#[test]
+fn of_two_experiments_of_one_name_at_once_one_is_recorded_and_the_other_refused() {
+    let p = Project::new(&sleepy_pipeline(24, 4, 100));
+    let run = [
+        "exp",
+        "run",
+        "twice",
+        "--jobs",
+        "1",
+        "--set",
+        "numbers.scale=3.0",
+        "total",
+    ];
+    let [first, second] = second_waits_for_first(&p, &run, &run);
+    let (first_code, first_err) = finish(first);
+    let (second_code, second_err) = finish(second);
+    assert_eq!(first_code, Some(0), "first:\n{first_err}");
+    assert_eq!(second_code, Some(1), "second:\n{second_err}");
+    assert!(
+        second_err.contains("was recorded by another osms process"),
+        "{second_err}"
+    );
+    let forced: Vec<&str> = run.iter().copied().chain(["--force"]).collect();
+    run_ok(&p, &forced);
+    run_ok(&p, &["verify"]);
 }
 
 /// `status` takes no lock, but may save what it learnt about objects; a command taking the lock

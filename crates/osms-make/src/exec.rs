@@ -98,6 +98,7 @@ pub trait Observer: Sync {
 
 pub const OSMS_VERSION: &str = env!("CARGO_PKG_VERSION");
 
+/// Builds `opts.targets`, holding the store's lock for the make (none for a dry run).
 pub fn make(
     plan: &Plan,
     store: &Store,
@@ -109,6 +110,27 @@ pub fn make(
     } else {
         Some(store.lock(|| observer.waiting_for_lock())?)
     };
+    make_locked(plan, store, opts, observer)
+}
+
+/// [`make`] for a caller that already holds the store's lock (`_held`) and keeps it past the
+/// make, to record what the make built before any other process (a `gc`) can touch the store.
+pub fn make_holding(
+    plan: &Plan,
+    store: &Store,
+    _held: &osms_store::StoreLock,
+    opts: &MakeOptions,
+    observer: &dyn Observer,
+) -> Result<MakeReport> {
+    make_locked(plan, store, opts, observer)
+}
+
+fn make_locked(
+    plan: &Plan,
+    store: &Store,
+    opts: &MakeOptions,
+    observer: &dyn Observer,
+) -> Result<MakeReport> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(opts.jobs.max(1))
         .thread_name(|i| format!("osms-worker-{i}"))

@@ -20,7 +20,9 @@ mod status;
 
 pub use error::{Error, Invalid, Location, Result};
 pub use estimate::{Estimate, InstanceEstimate, Measured, estimate, scales};
-pub use exec::{InstanceReport, MakeOptions, MakeReport, Observer, Outcome, StoreObjects, make};
+pub use exec::{
+    InstanceReport, MakeOptions, MakeReport, Observer, Outcome, StoreObjects, make, make_holding,
+};
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
     Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest, Member, NoProgress, Numerics,

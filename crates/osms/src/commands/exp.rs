@@ -134,7 +134,27 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         dry_run: args.dry_run,
     };
     let observer = MakeObserver::of(ctx);
-    let report = osms_make::make(&plan, &store, &opts, &observer)?;
+    // The lock is held from the make through saving the record: a `gc` waiting for it would
+    // otherwise run in between and remove the instances the record is about to name.
+    let lock = if args.dry_run {
+        None
+    } else {
+        let lock = store.lock(|| observer.waiting_for_lock())?;
+        // Checked again under the lock: two runs of one name started together both passed
+        // the check above.
+        if !args.force && experiment::load(&store, &args.name)?.is_some() {
+            bail!(
+                "experiment `{}` was recorded by another osms process while this one waited for the store lock\nhint: `osms exp run {} --force ...` replaces it, or choose another name",
+                args.name,
+                args.name
+            );
+        }
+        Some(lock)
+    };
+    let report = match &lock {
+        Some(held) => osms_make::make_holding(&plan, &store, held, &opts, &observer)?,
+        None => osms_make::make(&plan, &store, &opts, &observer)?,
+    };
     let built = report.count(|o| matches!(o, Outcome::Built { .. }));
     let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
     let would = report.count(|o| matches!(o, Outcome::WouldBuild { .. }));
@@ -187,10 +207,8 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         points: recorded,
         reads_held_out,
     };
-    {
-        let _lock = store.lock(|| observer.waiting_for_lock())?;
-        experiment::save(&store, &exp)?;
-    }
+    experiment::save(&store, &exp)?;
+    drop(lock);
     if args.json {
         print_json(&serde_json::json!({ "experiment": exp, "make": report }))?;
     }

@@ -27,6 +27,10 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
             );
         }
     }
+    // Everything gc decides from the store is read under the lock: a make that finishes while
+    // gc waits (its `@9` heads, say) is then seen and kept.
+    let _lock = store
+        .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
     let seeds: Vec<u64> = match &args.seeds {
         Some(s) => s.clone(),
         None => {
@@ -44,8 +48,6 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
             seeds.into_iter().collect()
         }
     };
-    let _lock = store
-        .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
     if !args.dry_run {
         refuse_while_tasks_run(&store)?;
     }

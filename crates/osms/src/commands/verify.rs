@@ -2,6 +2,7 @@ use std::process::ExitCode;
 
 use anyhow::Result;
 use osms_store::VerifyProblem;
+use serde::Serialize;
 
 use crate::EXIT_FAILURE;
 use crate::commands::{human_bytes, print_json};
@@ -13,8 +14,12 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
     let _lock = store
         .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
     let report = store.verify()?;
+    let experiments = experiment_problems(&store)?;
+    let problems = report.problems.len() + experiments.len();
     if json {
-        print_json(&report)?;
+        let mut value = serde_json::to_value(&report)?;
+        value["experiment_problems"] = serde_json::to_value(&experiments)?;
+        print_json(&value)?;
     } else {
         for p in &report.problems {
             match p {
@@ -42,10 +47,20 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
                 }
             }
         }
-        let verdict = if report.problems.is_empty() {
+        for p in &experiments {
+            println!(
+                "missing  {} {} of experiment `{}` ({}): {}",
+                p.what,
+                p.hash.short(),
+                p.experiment,
+                p.instance,
+                p.why
+            );
+        }
+        let verdict = if problems == 0 {
             "ok".to_string()
         } else {
-            format!("{} problem(s)", report.problems.len())
+            format!("{problems} problem(s)")
         };
         eprintln!(
             "osms verify: {} objects ({}) and {} records checked: {verdict}",
@@ -53,6 +68,11 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
             human_bytes(report.bytes_checked),
             report.records_checked
         );
+        if !experiments.is_empty() {
+            eprintln!(
+                "hint: an experiment names instances the store no longer holds; `osms exp run NAME --force ...` records it again"
+            );
+        }
         if !report.problems.is_empty() {
             eprintln!(
                 "hint: `osms make` rebuilds damaged or missing stage outputs; `osms gc` removes stray \
@@ -60,9 +80,51 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
             );
         }
     }
-    Ok(if report.problems.is_empty() {
+    Ok(if problems == 0 {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(EXIT_FAILURE)
     })
+}
+
+/// An instance a named experiment records whose record or object the store does not hold.
+#[derive(Debug, Serialize)]
+struct ExperimentProblem {
+    experiment: String,
+    instance: String,
+    /// `record` (no index record for the key) or `object` (no object for the content hash).
+    what: &'static str,
+    hash: osms_store::Hash,
+    why: String,
+}
+
+fn experiment_problems(store: &osms_store::Store) -> Result<Vec<ExperimentProblem>> {
+    let mut out = Vec::new();
+    for e in osms_make::experiment::load_all(store)? {
+        for point in &e.points {
+            for i in &point.instances {
+                let problem = |what, hash, why: String| ExperimentProblem {
+                    experiment: e.name.clone(),
+                    instance: i.instance.clone(),
+                    what,
+                    hash,
+                    why,
+                };
+                if store.record(&i.key)?.is_none() {
+                    out.push(problem(
+                        "record",
+                        i.key,
+                        format!("no index record for the key of {}", i.stage),
+                    ));
+                } else if !store.object_path(&i.content_hash).exists() {
+                    out.push(problem(
+                        "object",
+                        i.content_hash,
+                        format!("the output of {} is not in the store", i.stage),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(out)
 }
