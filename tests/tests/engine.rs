@@ -335,6 +335,112 @@ fn building_several_stages_at_once_changes_no_byte_and_no_outcome() {
     }
 }
 
+/// Two stages of one definition have one key: at any number of stages one builds and the
+/// other finds it cached (two builds at once would double the work and could race), and the
+/// report lists instances in plan order however the builds interleave.
+#[test]
+fn instances_that_share_a_key_build_once_at_any_number_of_stages() {
+    let pipeline = format!(
+        "{ENGINE_PIPELINE}\n[stages.total_again]\nkind = \"sum\"\ninputs = {{ values = \"numbers\" }}\n"
+    );
+    for stages in [1, 2, 4] {
+        let p = Project::new(&pipeline);
+        let report = p.make_with_stages(Some("tiny"), &[0], 4, stages);
+        let o = outcomes(&report);
+        // The second finds the first's artifact: "cut off", as any cached instance whose
+        // input this make built.
+        let pair = [o["total@0"], o["total_again@0"]];
+        assert!(
+            pair == ["built", "cut off"] || pair == ["cut off", "built"],
+            "{stages} stages: {pair:?}"
+        );
+        let keys: Vec<_> = ["total@0", "total_again@0"]
+            .iter()
+            .map(|n| {
+                report
+                    .instances
+                    .iter()
+                    .find(|r| r.instance == *n)
+                    .and_then(|r| r.key)
+            })
+            .collect();
+        assert_eq!(keys[0], keys[1], "one definition, one key");
+        let plan = p.plan(Some("tiny")).expect("plan");
+        let planned: Vec<String> = plan
+            .instances(&[], &[0])
+            .expect("instances")
+            .into_iter()
+            .map(|id| plan.display(id))
+            .collect();
+        let reported: Vec<String> = report
+            .instances
+            .iter()
+            .map(|r| r.instance.clone())
+            .collect();
+        assert_eq!(reported, planned, "{stages} stages");
+    }
+}
+
+/// A progress display whose drop panics.
+struct PanickyDrop;
+impl osms_make::Progress for PanickyDrop {
+    fn set_total(&self, _: u64) {}
+    fn inc(&self, _: u64) {}
+}
+impl Drop for PanickyDrop {
+    fn drop(&mut self) {
+        panic!("a progress display panicked on purpose in its drop");
+    }
+}
+
+/// Shows every build on a [`PanickyDrop`].
+struct PanickyObserver;
+impl osms_make::Observer for PanickyObserver {
+    fn started(&self, _: &str, _: &str) -> Box<dyn osms_make::Progress + '_> {
+        Box::new(PanickyDrop)
+    }
+    fn finished(&self, _: &osms_make::InstanceReport) {}
+}
+
+/// A build whose thread panics outside its kind (here in its progress display's drop) is that
+/// instance's failure: the make ends and reports it, at one stage and at several.
+#[test]
+fn a_build_thread_that_panics_fails_its_instance_and_the_make_ends() {
+    for stages in [1, 2] {
+        let p = Project::engine();
+        let plan = p.plan(Some("tiny")).expect("plan");
+        let store = p.open_store();
+        let opts = MakeOptions {
+            targets: vec!["numbers".into()],
+            seeds: vec![0],
+            jobs: 2,
+            stages,
+            dry_run: false,
+        };
+        // A hung make would hang the test: the make runs on a thread of its own, and the test
+        // fails (leaving that thread behind) if no report comes.
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(osms_make::make(&plan, &store, &opts, &PanickyObserver));
+        });
+        let report = rx
+            .recv_timeout(std::time::Duration::from_secs(120))
+            .expect("the make ended")
+            .expect("the make reports");
+        let o = outcomes(&report);
+        assert_eq!(o["numbers@0"], "failed", "{stages} stages: {o:?}");
+        let error = report.instances.iter().find_map(|r| match &r.outcome {
+            osms_make::Outcome::Failed { error } => Some(error.clone()),
+            _ => None,
+        });
+        assert!(
+            error.is_some_and(|e| e.contains("panicked on purpose in its drop")),
+            "{stages} stages: {report:?}"
+        );
+        drop(p);
+    }
+}
+
 #[test]
 fn a_failing_stage_skips_its_dependents_and_the_rest_is_built() {
     for stages in [1, 2] {

@@ -137,6 +137,12 @@ fn make_locked(
         .build()
         .map_err(|e| Error::usage(format!("cannot start {} worker threads: {e}", opts.jobs)))?;
     let instances = plan.instances(&opts.targets, &opts.seeds)?;
+    // The report lists instances in plan order, whatever order concurrent builds end in.
+    let plan_order: BTreeMap<String, usize> = instances
+        .iter()
+        .enumerate()
+        .map(|(k, &id)| (plan.display(id), k))
+        .collect();
     let heads = Heads::load(store)?;
     let mut report = MakeReport::default();
     // Content hash of every instance that is available, and which ones ran in this make.
@@ -160,11 +166,26 @@ fn make_locked(
         loop {
             // The first queued instance whose inputs are all settled (available, or given up on):
             // with one slot that is always the queue's head, the order a sequential make keeps.
+            // An instance whose key is being built waits for that build and then finds it
+            // cached: instances that share a key build once, at any number of stages.
             let ready = if running.len() < slots {
                 queue.iter().position(|&id| {
-                    plan.input_instances(id, &opts.seeds).iter().all(|input| {
+                    let inputs = plan.input_instances(id, &opts.seeds);
+                    let settled = inputs.iter().all(|input| {
                         available.contains_key(&input.id) || unavailable.contains_key(&input.id)
-                    })
+                    });
+                    let key_free = || {
+                        // Without every input available it is skipped, not built: no key.
+                        let hashes: Option<Vec<(String, Hash)>> = inputs
+                            .iter()
+                            .map(|i| available.get(&i.id).map(|h| (i.label.clone(), *h)))
+                            .collect();
+                        hashes.is_none_or(|h| {
+                            let key = plan.key(id, &h);
+                            running.values().all(|r| r.key != key)
+                        })
+                    };
+                    settled && (running.is_empty() || key_free())
                 })
             } else {
                 None
@@ -364,13 +385,23 @@ fn make_locked(
                     continue;
                 }
             };
-            let done_tx = done_tx.clone();
+            let reporter = Reporter {
+                tx: done_tx.clone(),
+                id,
+                started,
+                sharing,
+                result: None,
+            };
             let pool = &pool;
             scope.spawn(move || {
                 // Every build reports, even one that panics outside its kind (which `build`
-                // catches): the make waits for a report from each.
+                // catches), in its progress display's drop say: the make waits for a report
+                // from each, and `Reporter` sends one however this thread ends. (Bound whole
+                // here: a closure that only assigned its field would leave it to drop, and
+                // report, on the main thread at once.)
+                let mut reporter = reporter;
                 let result = panic::catch_unwind(AssertUnwindSafe(|| {
-                    build(
+                    let result = build(
                         plan,
                         store,
                         id,
@@ -379,25 +410,51 @@ fn make_locked(
                         &input_hashes,
                         pool,
                         progress.as_ref(),
-                    )
+                    );
+                    drop(progress);
+                    result
                 }))
                 .unwrap_or_else(|payload| {
                     Err(format!("build panicked: {}", panic_message(payload.as_ref())).into())
                 });
-                drop(progress);
-                // The receiver lives until every build has reported.
-                let _ = done_tx.send(Finished {
-                    id,
-                    result,
-                    wall_time_secs: started.elapsed().as_secs_f64(),
-                    sharing,
-                });
+                reporter.result = Some(result);
             });
         }
         Ok(())
     })?;
+    report
+        .instances
+        .sort_by_key(|r| plan_order.get(&r.instance).copied().unwrap_or(usize::MAX));
     store.save_stat_cache()?;
     Ok(report)
+}
+
+/// What a build gives back: its content hash, size and parts, or why it failed.
+type BuildResult = Result<(Hash, u64, Vec<Hash>), StageError>;
+
+/// Sends a build's [`Finished`] when dropped: its result, or a failure if its thread ended
+/// without one (a panic the build's own guard could not catch).
+struct Reporter {
+    tx: mpsc::Sender<Finished>,
+    id: InstanceId,
+    started: Instant,
+    sharing: f64,
+    result: Option<BuildResult>,
+}
+
+impl Drop for Reporter {
+    fn drop(&mut self) {
+        let result = self.result.take().unwrap_or_else(|| {
+            Err("the build's thread ended without a result (it panicked)".into())
+        });
+        // The receiver lives until every build has reported.
+        let _ = self.tx.send(Finished {
+            id: self.id,
+            result,
+            wall_time_secs: self.started.elapsed().as_secs_f64(),
+            sharing: self.sharing,
+        });
+    }
 }
 
 /// A build in flight: what the report and the record need when it ends.
@@ -411,7 +468,7 @@ struct Running {
 /// A build's end, sent from its thread.
 struct Finished {
     id: InstanceId,
-    result: Result<(Hash, u64, Vec<Hash>), StageError>,
+    result: BuildResult,
     wall_time_secs: f64,
     /// Builds running when it started, itself included.
     sharing: f64,
@@ -654,7 +711,7 @@ pub(crate) fn build(
     input_hashes: &[(String, Hash)],
     pool: &rayon::ThreadPool,
     progress: &dyn Progress,
-) -> Result<(Hash, u64, Vec<Hash>), StageError> {
+) -> BuildResult {
     let stage = &plan.stages[id.stage];
     let out = with_env(
         plan,
