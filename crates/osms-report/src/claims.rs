@@ -620,6 +620,94 @@ mod tests {
     use super::*;
     use crate::tables::testing::{scrambled as policy, stats};
 
+    /// A comparison whose interval is [low, high].
+    fn comparison(low: f64, high: f64) -> Option<Comparison> {
+        Some(Comparison {
+            a: "a".into(),
+            b: "b".into(),
+            metric: SUCCESS.into(),
+            unit: Unit::Percent,
+            difference: osms_core::stats::Difference {
+                estimate: 0.5 * (low + high),
+                low,
+                high,
+                resolvable: 0.5 * (high - low),
+                df: None,
+                seeds: [1, 1],
+                n: [10, 10],
+                method: osms_core::stats::Method::Proportions,
+                parts: None,
+            },
+            paper: None,
+            seeds_for_paper: None,
+        })
+    }
+
+    /// `all_of` needs every interval in favour and is contradicted by any one against;
+    /// `any_of` needs one in favour and is contradicted only when every one is against; a
+    /// missing comparison leaves either unchecked. Mixed verdicts, for a claim that `a` is
+    /// higher.
+    #[test]
+    fn all_of_and_any_of_with_mixed_verdicts() {
+        let holds = || comparison(0.1, 0.3);
+        let against = || comparison(-0.3, -0.1);
+        let open = || comparison(-0.1, 0.1);
+        for (comparisons, all, any) in [
+            (vec![holds(), holds()], Verdict::Holds, Verdict::Holds),
+            (vec![holds(), open()], Verdict::Unresolved, Verdict::Holds),
+            (
+                vec![holds(), against()],
+                Verdict::Contradicted,
+                Verdict::Holds,
+            ),
+            (
+                vec![open(), against()],
+                Verdict::Contradicted,
+                Verdict::Unresolved,
+            ),
+            (
+                vec![against(), against()],
+                Verdict::Contradicted,
+                Verdict::Contradicted,
+            ),
+            (
+                vec![open(), open()],
+                Verdict::Unresolved,
+                Verdict::Unresolved,
+            ),
+            (
+                vec![holds(), None],
+                Verdict::NotChecked,
+                Verdict::NotChecked,
+            ),
+        ] {
+            let shown: Vec<String> = comparisons
+                .iter()
+                .map(|c| {
+                    format!(
+                        "{:?}",
+                        c.as_ref().map(|c| (c.difference.low, c.difference.high))
+                    )
+                })
+                .collect();
+            assert_eq!(
+                all_of("c", comparisons.clone(), true).verdict,
+                all,
+                "all_of {shown:?}"
+            );
+            assert_eq!(
+                any_of("c", comparisons, true).verdict,
+                any,
+                "any_of {shown:?}"
+            );
+        }
+        // In the other direction the roles swap.
+        assert_eq!(
+            all_of("c", vec![against(), against()], false).verdict,
+            Verdict::Holds
+        );
+    }
+
     fn verdict_of(claims: &[Claim], prefix: &str) -> Verdict {
         claims
             .iter()
