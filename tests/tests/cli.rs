@@ -398,6 +398,13 @@ fn bad_overrides_exit_1_naming_the_field_and_leave_the_store_alone() {
     let p = Project::new(EXP_PIPELINE);
     transcript(&p, &["make", "total"]);
     let before = store_files(&p);
+    // Compared below: an empty "before" (a store looked for in the wrong place) would make
+    // that comparison pass whatever the refused commands did.
+    assert!(
+        before.keys().any(|k| k.starts_with("objects")) && before.keys().any(|k| k.starts_with("index")),
+        "the store after a make: {:?}",
+        before.keys().collect::<Vec<_>>()
+    );
     let text = session(
         &p,
         &[
@@ -510,8 +517,8 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
         ));
         for m in ["sum", "count"] {
             assert_eq!(
-                row["metrics"][m][0].as_f64(),
-                shown["summary"][m].as_f64(),
+                row["metrics"][m][0].as_f64().expect("the row's metric"),
+                shown["summary"][m].as_f64().expect("the summary's value"),
                 "point {k}, {m}"
             );
         }

@@ -169,9 +169,30 @@ mod tests {
         assert_eq!(decode::<Numbers>(&bytes).expect("decode"), sample());
     }
 
+    /// Set in the child process of [`encoding_is_deterministic`]: where it writes its bytes.
+    const CHILD_OUT: &str = "OSMS_CODEC_TEST_CHILD_OUT";
+
+    /// Encoding is a function of the value alone: the same bytes twice in one process and in
+    /// another process (its own allocator state, address layout and hash seeds), which this
+    /// test starts by running itself.
     #[test]
     fn encoding_is_deterministic() {
-        assert_eq!(encode(&sample()).ok(), encode(&sample()).ok());
+        let bytes = encode(&sample()).expect("encode");
+        assert_eq!(encode(&sample()).expect("encode"), bytes);
+        if let Some(out) = std::env::var_os(CHILD_OUT) {
+            std::fs::write(out, &bytes).expect("write the child's bytes");
+            return;
+        }
+        let out = std::env::temp_dir().join(format!("osms-codec-{}", std::process::id()));
+        let status = std::process::Command::new(std::env::current_exe().expect("test binary"))
+            .args(["--exact", "codec::tests::encoding_is_deterministic", "--quiet"])
+            .env(CHILD_OUT, &out)
+            .status()
+            .expect("run the child");
+        assert!(status.success(), "the child process failed");
+        let theirs = std::fs::read(&out).expect("the child's bytes");
+        let _ = std::fs::remove_file(&out);
+        assert_eq!(theirs, bytes, "another process encoded other bytes");
     }
 
     #[test]
