@@ -401,7 +401,8 @@ fn bad_overrides_exit_1_naming_the_field_and_leave_the_store_alone() {
     // Compared below: an empty "before" (a store looked for in the wrong place) would make
     // that comparison pass whatever the refused commands did.
     assert!(
-        before.keys().any(|k| k.starts_with("objects")) && before.keys().any(|k| k.starts_with("index")),
+        before.keys().any(|k| k.starts_with("objects"))
+            && before.keys().any(|k| k.starts_with("index")),
         "the store after a make: {:?}",
         before.keys().collect::<Vec<_>>()
     );

@@ -441,6 +441,69 @@ fn a_build_thread_that_panics_fails_its_instance_and_the_make_ends() {
     }
 }
 
+/// Makes the record of `blocked` unwritable (a directory where its file goes) the moment its
+/// build starts: after the make looked for it, before it records it.
+struct BlockRecord {
+    blocked: String,
+    path: std::path::PathBuf,
+}
+impl osms_make::Observer for BlockRecord {
+    fn started(&self, instance: &str, _: &str) -> Box<dyn osms_make::Progress + '_> {
+        if instance == self.blocked {
+            std::fs::create_dir_all(&self.path).expect("block the record's path");
+        }
+        Box::new(osms_make::NoProgress)
+    }
+    fn finished(&self, _: &osms_make::InstanceReport) {}
+}
+
+/// A store error while recording one build ends the make with that error, but only after the
+/// build in flight beside it is recorded: its work is not thrown away.
+#[test]
+fn a_store_error_recording_one_build_still_records_the_build_beside_it() {
+    // `numbers` sleeps (about 1.2 s); `reference` (no inputs, quick) starts beside it and its
+    // record cannot be written.
+    let p = Project::new(&ENGINE_PIPELINE.replace(
+        "params = { n = 12, len = 4, scale = 1.0 }",
+        "params = { n = 12, len = 4, scale = 1.0, sleep_ms = 100 }",
+    ));
+    let plan = p.plan(None).expect("plan");
+    let ids = plan
+        .instances(&["numbers".into(), "reference".into()], &[0])
+        .expect("instances");
+    let key_of = |name: &str| {
+        let id = *ids
+            .iter()
+            .find(|id| plan.display(**id) == name)
+            .expect(name);
+        plan.key(id, &[])
+    };
+    let (numbers, reference) = (key_of("numbers@0"), key_of("reference"));
+    let store = p.open_store();
+    let hex = reference.to_hex();
+    let observer = BlockRecord {
+        blocked: "reference".into(),
+        path: p
+            .store
+            .join("index")
+            .join(&hex[..2])
+            .join(format!("{hex}.json")),
+    };
+    let opts = MakeOptions {
+        targets: vec!["numbers".into(), "reference".into()],
+        seeds: vec![0],
+        jobs: 2,
+        stages: 2,
+        dry_run: false,
+    };
+    let err = osms_make::make(&plan, &store, &opts, &observer).expect_err("a store error");
+    assert!(err.to_string().contains(&hex), "{err}");
+    assert!(
+        store.record(&numbers).expect("read").is_some(),
+        "the build in flight beside the failed record was thrown away"
+    );
+}
+
 #[test]
 fn a_failing_stage_skips_its_dependents_and_the_rest_is_built() {
     for stages in [1, 2] {

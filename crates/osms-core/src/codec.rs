@@ -185,7 +185,11 @@ mod tests {
         }
         let out = std::env::temp_dir().join(format!("osms-codec-{}", std::process::id()));
         let status = std::process::Command::new(std::env::current_exe().expect("test binary"))
-            .args(["--exact", "codec::tests::encoding_is_deterministic", "--quiet"])
+            .args([
+                "--exact",
+                "codec::tests::encoding_is_deterministic",
+                "--quiet",
+            ])
             .env(CHILD_OUT, &out)
             .status()
             .expect("run the child");

@@ -162,13 +162,16 @@ fn make_locked(
     let slots = opts.stages.clamp(1, pool.current_num_threads());
     let mut running: BTreeMap<InstanceId, Running> = BTreeMap::new();
     let (done_tx, done_rx) = mpsc::channel::<Finished>();
+    // A store error while recording a build: no new build starts, the builds in flight are
+    // still recorded (or their failures reported), then the make ends with it.
+    let mut fatal: Option<Error> = None;
     std::thread::scope(|scope| -> Result<()> {
         loop {
             // The first queued instance whose inputs are all settled (available, or given up on):
             // with one slot that is always the queue's head, the order a sequential make keeps.
             // An instance whose key is being built waits for that build and then finds it
             // cached: instances that share a key build once, at any number of stages.
-            let ready = if running.len() < slots {
+            let ready = if fatal.is_none() && running.len() < slots {
                 queue.iter().position(|&id| {
                     let inputs = plan.input_instances(id, &opts.seeds);
                     let settled = inputs.iter().all(|input| {
@@ -192,6 +195,9 @@ fn make_locked(
             };
             let Some(position) = ready else {
                 if running.is_empty() {
+                    if let Some(e) = fatal.take() {
+                        return Err(e);
+                    }
                     if let Some(&id) = queue.front() {
                         return Err(Error::usage(format!(
                             "internal: `{}` waits for inputs that nothing builds",
@@ -208,7 +214,15 @@ fn make_locked(
                 };
                 let id = done.id;
                 let threads = pool.current_num_threads();
-                let r = settle(plan, store, &heads, threads, run, done)?;
+                let name = run.name.clone();
+                let r = match settle(plan, store, &heads, threads, run, done) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        tracing::error!("recording `{name}` failed: {e}");
+                        fatal.get_or_insert(e);
+                        continue;
+                    }
+                };
                 match r.content_hash {
                     Some(content_hash) => {
                         available.insert(id, content_hash);
