@@ -301,14 +301,52 @@ fn status_names_why_each_stage_would_run() {
     );
 }
 
+/// Counts the builds in flight (started, not yet finished) and the most at once.
+#[derive(Default)]
+struct InFlight {
+    started: std::sync::Mutex<std::collections::BTreeSet<String>>,
+    most: std::sync::atomic::AtomicUsize,
+}
+impl osms_make::Observer for InFlight {
+    fn started(&self, instance: &str, _: &str) -> Box<dyn osms_make::Progress + '_> {
+        let mut started = self.started.lock().expect("in flight");
+        started.insert(instance.to_string());
+        self.most
+            .fetch_max(started.len(), std::sync::atomic::Ordering::SeqCst);
+        Box::new(osms_make::NoProgress)
+    }
+    fn finished(&self, report: &osms_make::InstanceReport) {
+        self.started
+            .lock()
+            .expect("in flight")
+            .remove(&report.instance);
+    }
+}
+
 #[test]
 fn building_several_stages_at_once_changes_no_byte_and_no_outcome() {
     let seeds = [0, 1, 2];
     let one = Project::engine();
     let sequential = one.make(Some("tiny"), &seeds, 2);
-    for (jobs, stages) in [(2, 2), (3, 3), (1, 4)] {
+    // Seven instances need no input (numbers, drops at three seeds, reference), so a make of
+    // N ≤ 4 stages starts N of them before the first ends: N builds in flight at once.
+    for (jobs, stages) in [(2, 2), (3, 3), (4, 4)] {
         let p = Project::engine();
-        let report = p.make_with_stages(Some("tiny"), &seeds, jobs, stages);
+        let plan = p.plan(Some("tiny")).expect("plan");
+        let observer = InFlight::default();
+        let opts = MakeOptions {
+            targets: vec![],
+            seeds: seeds.to_vec(),
+            jobs,
+            stages,
+            dry_run: false,
+        };
+        let report = osms_make::make(&plan, &p.open_store(), &opts, &observer).expect("make");
+        assert_eq!(
+            observer.most.load(std::sync::atomic::Ordering::SeqCst),
+            stages,
+            "{jobs} threads, {stages} stages: builds in flight at once"
+        );
         assert_eq!(
             hashes(&report),
             hashes(&sequential),
