@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
 """Reads an osms LeRobot v3.0 export back with pyarrow alone, as an independent check.
 
-Usage: read-lerobot.py EXPORT_DIR
+Usage: read-lerobot.py EXPORT_DIR [--all-frames]
 
 Prints one JSON object on stdout:
   {"info": <meta/info.json>, "frames": N, "columns": [data columns],
    "episodes": [{"episode_index", "from", "to", "length", "task", "first_action",
                  "last_state_first3"}, ...],
    "action_shape": [N, 24], "tasks": {task: task_index}, "stats_keys": [sorted features]}
-Everything but "info" and "stats_keys" comes from the Parquet files. Exits non-zero with a
+With --all-frames each episode also has "actions" and "states": every frame's `action` and
+`observation.state`, in frame order. Everything but "info" and "stats_keys" comes from the
+Parquet files. Exits non-zero with a
 message on stderr when the layout is wrong: a missing file, episode ranges that are not
 contiguous or disagree with the data, an `index` column that is not 0..N-1, ...
 """
@@ -59,7 +61,7 @@ def column(table, name, rel):
     return table.column(name).to_pylist()
 
 
-def summarise(root):
+def summarise(root, all_frames=False):
     info = read_json(root, INFO)
     stats = read_json(root, STATS)
     fail_if(not isinstance(stats, dict), f"{STATS} is not an object")
@@ -126,17 +128,19 @@ def summarise(root):
         fail_if(task not in tasks, f"episode {i}: task {task!r} is not in {TASKS}")
         rows_tasks = {task_of_index.get(k) for k in task_index[a:b]}
         fail_if(rows_tasks != {task}, f"episode {i}: data task_index disagrees with its task {task!r}")
-        out_episodes.append(
-            {
-                "episode_index": i,
-                "from": a,
-                "to": b,
-                "length": n,
-                "task": task,
-                "first_action": actions[a],
-                "last_state_first3": states[b - 1][:3],
-            }
-        )
+        episode = {
+            "episode_index": i,
+            "from": a,
+            "to": b,
+            "length": n,
+            "task": task,
+            "first_action": actions[a],
+            "last_state_first3": states[b - 1][:3],
+        }
+        if all_frames:
+            episode["actions"] = actions[a:b]
+            episode["states"] = states[a:b]
+        out_episodes.append(episode)
         expected_from = b
     fail_if(expected_from != frames, f"episodes cover {expected_from} frames, the data has {frames}")
 
@@ -152,11 +156,12 @@ def summarise(root):
 
 
 def main(argv):
-    if len(argv) != 2:
-        print("usage: read-lerobot.py EXPORT_DIR", file=sys.stderr)
+    all_frames = "--all-frames" in argv[2:]
+    if len(argv) not in (2, 3) or (len(argv) == 3 and not all_frames):
+        print("usage: read-lerobot.py EXPORT_DIR [--all-frames]", file=sys.stderr)
         return 2
     try:
-        summary = summarise(argv[1].rstrip("/"))
+        summary = summarise(argv[1].rstrip("/"), all_frames)
     except LayoutError as e:
         print(f"error: not a valid osms LeRobot v3.0 export: {e}", file=sys.stderr)
         return 1

@@ -1695,7 +1695,8 @@ fn datasets_export_replay_and_render(made: &Made) {
             .map(|x| x.as_f64().expect("number") as f32)
             .collect()
     };
-    let lr = osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&lerobot)]);
+    let lr =
+        osms_tests::python::run_script(&python, "read-lerobot.py", &[&p(&lerobot), "--all-frames"]);
     assert_eq!(lr["frames"], frames);
     // No privileged column under `observation.` unless asked for.
     let observations = |v: &serde_json::Value| -> Vec<String> {
@@ -1729,6 +1730,27 @@ fn datasets_export_replay_and_render(made: &Made) {
         assert_eq!(e["length"], r.steps);
         assert_eq!(e["to"], from + r.steps);
         assert_eq!(f32s(&e["first_action"]), r.executed[..24]);
+        // Every frame's state and action, as the record holds them (f32 both ways).
+        let rows = |key: &str| -> Vec<f32> {
+            e[key]
+                .as_array()
+                .expect("rows")
+                .iter()
+                .flat_map(|row| f32s(row))
+                .collect()
+        };
+        assert_eq!(
+            rows("actions"),
+            r.executed,
+            "episode {}: actions",
+            e["episode_index"]
+        );
+        assert_eq!(
+            rows("states"),
+            r.deployable,
+            "episode {}: states",
+            e["episode_index"]
+        );
         assert_eq!(e["task"], format!("catch the {}", r.condition.variant));
         from += r.steps;
     }
