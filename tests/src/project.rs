@@ -72,6 +72,18 @@ impl Project {
         jobs: usize,
         stages: usize,
     ) -> MakeReport {
+        self.make_observed(profile, seeds, jobs, stages, &Silent)
+    }
+
+    /// [`Project::make_with_stages`] shown to `observer`.
+    pub fn make_observed(
+        &self,
+        profile: Option<&str>,
+        seeds: &[u64],
+        jobs: usize,
+        stages: usize,
+        observer: &dyn Observer,
+    ) -> MakeReport {
         let plan = self.plan(profile).expect("plan");
         let opts = MakeOptions {
             targets: vec![],
@@ -80,7 +92,7 @@ impl Project {
             stages,
             dry_run: false,
         };
-        osms_make::make(&plan, &self.open_store(), &opts, &Silent).expect("make")
+        osms_make::make(&plan, &self.open_store(), &opts, observer).expect("make")
     }
 
     /// Runs an osms binary on this project with progress bars off.

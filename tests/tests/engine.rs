@@ -332,16 +332,8 @@ fn building_several_stages_at_once_changes_no_byte_and_no_outcome() {
     // N ≤ 4 stages starts N of them before the first ends: N builds in flight at once.
     for (jobs, stages) in [(2, 2), (3, 3), (4, 4)] {
         let p = Project::engine();
-        let plan = p.plan(Some("tiny")).expect("plan");
         let observer = InFlight::default();
-        let opts = MakeOptions {
-            targets: vec![],
-            seeds: seeds.to_vec(),
-            jobs,
-            stages,
-            dry_run: false,
-        };
-        let report = osms_make::make(&plan, &p.open_store(), &opts, &observer).expect("make");
+        let report = p.make_observed(Some("tiny"), &seeds, jobs, stages, &observer);
         assert_eq!(
             observer.most.load(std::sync::atomic::Ordering::SeqCst),
             stages,

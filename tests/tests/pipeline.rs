@@ -1736,7 +1736,7 @@ fn datasets_export_replay_and_render(made: &Made) {
                 .as_array()
                 .expect("rows")
                 .iter()
-                .flat_map(|row| f32s(row))
+                .flat_map(&f32s)
                 .collect()
         };
         assert_eq!(

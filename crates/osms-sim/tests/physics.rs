@@ -543,6 +543,26 @@ impl Hooks for Controls {
     }
 }
 
+impl Controls {
+    /// Replays the recorded controls on `data` with plain `mj_forward` and `mj_step`: at each
+    /// control step's start, a full forward pass, then `at_start(k, data)`.
+    fn replay(
+        &self,
+        data: &mut MjData<Box<MjModel>>,
+        mut at_start: impl FnMut(usize, &MjData<Box<MjModel>>),
+    ) {
+        let ends = self.starts.iter().skip(1).copied().chain([self.ctrl.len()]);
+        for (k, (&start, end)) in self.starts.iter().zip(ends).enumerate() {
+            data.forward();
+            at_start(k, data);
+            for ctrl in &self.ctrl[start..end] {
+                data.ctrl_mut().copy_from_slice(ctrl);
+                data.step();
+            }
+        }
+    }
+}
+
 /// The loop splits the control step's first physics step into the observation's `mj_step1` and
 /// a later `mj_step2`, and solves for the observed contact force only where it can be non-zero
 /// and is read. Against a plain replay that calls `mj_forward` at every control step's start
@@ -573,15 +593,8 @@ fn the_observed_contact_force_matches_a_full_forward_pass_and_skipping_it_change
         assert_eq!(bytes(&record), bytes(&blind_record), "condition {i}");
 
         let mut data = osms_sim::episode::initial_data(&w, &cond, &record.dr);
-        let ends = controls
-            .starts
-            .iter()
-            .skip(1)
-            .copied()
-            .chain([controls.ctrl.len()]);
-        for (k, (&start, end)) in controls.starts.iter().zip(ends).enumerate() {
-            data.forward();
-            let scan = osms_sim::metrics::scan(&data, &w.ids.geom_class, true);
+        controls.replay(&mut data, |k, data| {
+            let scan = osms_sim::metrics::scan(data, &w.ids.geom_class, true);
             let (count, force) = reading.seen[k];
             assert_eq!(
                 count, scan.admissible_contacts as f64,
@@ -605,11 +618,7 @@ fn the_observed_contact_force_matches_a_full_forward_pass_and_skipping_it_change
             } else {
                 assert_eq!(blind_force.to_bits(), force.to_bits());
             }
-            for ctrl in &controls.ctrl[start..end] {
-                data.ctrl_mut().copy_from_slice(ctrl);
-                data.step();
-            }
-        }
+        });
         assert_eq!(data.qpos(), final_qpos.as_slice(), "condition {i}");
     }
     assert!(contact_steps > 10, "{contact_steps} steps with contact");
@@ -631,15 +640,8 @@ fn the_touch_reading_is_the_palms_contact_force() {
     let len = osms_sim::episode::DEPLOYABLE_LEN;
     let touch = osms_sim::episode::PALM_TOUCH;
     let mut data = osms_sim::episode::initial_data(&w, &record.condition, &record.dr);
-    let ends = controls
-        .starts
-        .iter()
-        .skip(1)
-        .copied()
-        .chain([controls.ctrl.len()]);
     let mut touched = 0;
-    for (k, (&start, end)) in controls.starts.iter().zip(ends).enumerate() {
-        data.forward();
+    controls.replay(&mut data, |k, data| {
         let mut expected = 0.0;
         for (i, c) in data.contact().iter().enumerate() {
             let (a, b) = geom_names(data.model(), c);
@@ -650,11 +652,7 @@ fn the_touch_reading_is_the_palms_contact_force() {
         let read = record.deployable[k * len + touch];
         assert_eq!(read, expected as f32, "step {k}");
         touched += usize::from(read > 0.0);
-        for ctrl in &controls.ctrl[start..end] {
-            data.ctrl_mut().copy_from_slice(ctrl);
-            data.step();
-        }
-    }
+    });
     assert!(touched > 3, "{touched} steps with the palm touched");
 }
 
