@@ -302,6 +302,19 @@ fn kill_and_wait(child: &mut Child) -> ExitStatus {
 
 #[test]
 fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashes() {
+    kill_storm("1");
+}
+
+/// The storm with two builds in flight at every kill's make and at the resume: records and
+/// hashes as an uninterrupted one-at-a-time make's.
+#[test]
+fn kill_nine_at_two_stages_leaves_a_clean_store_and_resumes_to_the_same_hashes() {
+    kill_storm("2");
+}
+
+/// 24 makes of `--stages stages` killed at seeded random points, then a resume, against an
+/// uninterrupted make at one stage.
+fn kill_storm(stages: &str) {
     const KILLS: u64 = 24;
     // Two attempts per run seed: the second resumes what the first left (and may be killed in
     // turn), and every run seed brings new work, so later kills still land mid-build.
@@ -339,12 +352,15 @@ fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashe
         let delay = osms_core::rng::uniform(&mut rng, 0.0, 1.2);
         let seed = seed_of(i).to_string();
         let records_before = index_len(&p.store);
-        let mut child = command(&p, &["make", "--jobs", "2", "--seed", &seed])
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("spawn osms-test make");
+        let mut child = command(
+            &p,
+            &["make", "--jobs", "2", "--stages", stages, "--seed", &seed],
+        )
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn osms-test make");
         std::thread::sleep(Duration::from_secs_f64(delay));
         let status = kill_and_wait(&mut child);
         // Killed, or finished (successfully) before the kill: nothing else.
@@ -397,7 +413,9 @@ fn kill_nine_at_random_points_leaves_a_clean_store_and_resumes_to_the_same_hashe
         "only {mid_build} of {KILLS} makes were killed after writing records"
     );
 
-    let args = ["make", "--jobs", "2", "--json", "--seeds", &seeds_arg];
+    let args = [
+        "make", "--jobs", "2", "--stages", stages, "--json", "--seeds", &seeds_arg,
+    ];
     let out = run_ok(&p, &args);
     let resumed = report(&out);
     eprintln!("resuming make: {:?}", outcome_counts(&resumed));
