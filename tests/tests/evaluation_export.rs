@@ -136,6 +136,8 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
     let float =
         |cell: &str| -> Option<f64> { (!cell.is_empty()).then(|| cell.parse().expect("a number")) };
     let mut drawn = 0;
+    let mut outcomes = [0usize; 2];
+    let mut kinds = std::collections::BTreeSet::new();
     for (i, ((row, condition), eval)) in rows
         .iter()
         .zip(&conditions.items)
@@ -191,7 +193,52 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
         );
         assert_eq!(row[col("success")], eval.outcome.success().to_string());
         assert_eq!(row[col("steps")], eval.steps.to_string());
+        // The columns not checked above, every one against the stored row.
+        assert_eq!(
+            row[col("dr_actuation_delay_steps")],
+            eval.dr.actuation_delay_steps.to_string(),
+            "row {i}"
+        );
+        assert_eq!(
+            float(row[col("dr_friction_scale")]),
+            Some(eval.dr.friction_scale),
+            "row {i}"
+        );
+        assert_eq!(
+            row[col("completion")],
+            eval.outcome.completion().to_string(),
+            "row {i}"
+        );
+        for f in osms_sim::Failure::ALL {
+            let kind = serde_json::to_value(f).expect("a failure kind");
+            let name = format!("failure_{}", kind.as_str().expect("its snake_case name"));
+            assert_eq!(
+                row[col(&name)],
+                eval.outcome.failures.contains(&f).to_string(),
+                "row {i}, {name}"
+            );
+        }
+        assert_eq!(
+            row[col("event_step")],
+            eval.metrics.event_step.to_string(),
+            "row {i}"
+        );
+        assert_eq!(
+            float(row[col("closest_approach_m")]),
+            Some(eval.metrics.closest_approach_m).filter(|d| d.is_finite()),
+            "row {i}"
+        );
+        outcomes[usize::from(eval.outcome.completion())] += 1;
+        kinds.extend(eval.outcome.failures.iter().copied());
     }
+    // A fixture that can tell the columns apart: some catches complete and some do not, and
+    // the failures are of several kinds. (The tiny scripted evaluation has no success;
+    // `osms_export::rollouts`' unit test covers a table with successes.)
+    assert!(
+        outcomes[0] > 0 && outcomes[1] > 0,
+        "incomplete / completed catches: {outcomes:?}"
+    );
+    assert!(kinds.len() >= 2, "failure kinds: {kinds:?}");
     assert!(
         drawn > 0,
         "the evaluation runs under DR: some gain draw differs from 1"
