@@ -572,8 +572,15 @@ fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
     let p = Project::new(&sleepy_pipeline(4, 2, 0));
 
     // Kill points 0, 0.5, 1, ... 20 ms after the start cover the creation of the store in any
-    // start-up time of the binary; the first make that gets further builds on it.
-    for step in 0..=40u64 {
+    // start-up time of the binary; the first make that gets further builds on it. Where each
+    // kill landed: before the store's directory existed, during its creation (the directory
+    // without the marker or without every subdirectory), or after it.
+    let mut landed = [0usize; 3];
+    // Then 25 to 200 ms: after the creation even on a loaded machine.
+    let delays = (0..=40u64)
+        .map(|step| 500 * step)
+        .chain([25_000, 50_000, 100_000, 200_000]);
+    for (step, micros) in delays.enumerate() {
         let store = p.dir.path().join(format!("killed-{step}"));
         let mut child = command_with_store(&p.pipeline, &store, &["make", "--jobs", "1"])
             .stdin(Stdio::null())
@@ -581,24 +588,45 @@ fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
             .stderr(Stdio::null())
             .spawn()
             .expect("spawn osms-test make");
-        std::thread::sleep(Duration::from_micros(500 * step));
+        std::thread::sleep(Duration::from_micros(micros));
         kill_and_wait(&mut child);
         let left = if store.exists() {
             dir_entries(&store)
         } else {
             vec![]
         };
+        let complete = ["OSMS_STORE", "objects", "index", "state", "tmp"]
+            .iter()
+            .all(|e| store.join(e).exists());
+        landed[if !store.exists() {
+            0
+        } else if complete {
+            2
+        } else {
+            1
+        }] += 1;
         let verify = command_with_store(&p.pipeline, &store, &["verify"])
             .output()
             .expect("run verify");
         assert_eq!(
             verify.status.code(),
             Some(0),
-            "verify of a store whose creation was killed after {} us (it holds {left:?}):\n{}",
-            500 * step,
+            "verify of a store whose creation was killed after {micros} us (it holds {left:?}):\n{}",
             shown(&["verify"], &verify)
         );
     }
+    eprintln!(
+        "store-creation kills: {} before the directory, {} during its creation, {} after",
+        landed[0], landed[1], landed[2]
+    );
+    // The kill points straddle the creation: some kills land before the directory exists and
+    // some after the store is complete (one inside its microseconds is luck, not asserted),
+    // so every state a kill can leave was passed through. Load delays the start and so moves
+    // kills earlier, never later; the last one is 200 ms in.
+    assert!(
+        landed[0] > 0 && landed[2] > 0,
+        "the kills did not straddle the store's creation: {landed:?}"
+    );
 
     // Two processes opening a store that does not exist yet.
     for round in 0..10 {
