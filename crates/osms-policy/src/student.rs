@@ -25,7 +25,7 @@
 use osms_core::rng::{self, StreamRng};
 use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
 use osms_sim::conditions::TaskCondition;
-use osms_sim::control::joint_ranges;
+use osms_sim::control::{ControlSpec, targets};
 use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
 use osms_sim::{
     Action, Episode, N_ACTION, N_ARM, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec,
@@ -243,7 +243,7 @@ impl StudentParams {
 
 /// The arm's largest target step per control step (rad) under the default control spec:
 /// the scale between an arm action and its target increment, for `target_labels`.
-pub const ARM_STEP_RAD: f64 = 0.15;
+pub const ARM_STEP_RAD: f64 = osms_sim::control::ARM_MAX_DELTA_RAD;
 
 /// Values per step of [`Demo::state`].
 pub const DEMO_STATE_LEN: usize = 9 + N_ARM;
@@ -303,13 +303,17 @@ impl Demo {
     /// clamp(target at the step's start + [`ARM_STEP_RAD`] · increment) to the joint's range,
     /// as the controller integrates it (`osms_sim::control::targets`).
     pub fn with_target_labels(&self) -> Demo {
-        let ranges = joint_ranges();
+        let control = ControlSpec::default();
         let mut actions = self.actions.clone();
-        for n in 0..self.steps {
-            let target = &self.state[n * DEMO_STATE_LEN + 9..][..N_ARM];
-            for (i, a) in actions[n * N_ACTION..][..N_ARM].iter_mut().enumerate() {
-                let [lo, hi] = ranges[i];
-                *a = (f64::from(target[i]) + f64::from(*a) * ARM_STEP_RAD).clamp(lo, hi) as f32;
+        for (n, row) in actions.chunks_exact_mut(N_ACTION).enumerate() {
+            let start = &self.state[n * DEMO_STATE_LEN + 9..][..N_ARM];
+            // Only the arm's targets are integrated; the hand channels are left as they are.
+            let previous: [f64; N_ACTION] =
+                std::array::from_fn(|i| start.get(i).map_or(0.0, |t| f64::from(*t)));
+            let action: Action = std::array::from_fn(|i| f64::from(row[i]));
+            let next = targets(&control, &previous, &action);
+            for (a, t) in row[..N_ARM].iter_mut().zip(next) {
+                *a = t as f32;
             }
         }
         Demo {

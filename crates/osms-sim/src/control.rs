@@ -29,10 +29,13 @@ pub struct ControlSpec {
     pub arm_max_delta_rad: f64,
 }
 
+/// The default [`ControlSpec::arm_max_delta_rad`] (rad per control step).
+pub const ARM_MAX_DELTA_RAD: f64 = 0.15;
+
 impl Default for ControlSpec {
     fn default() -> Self {
         ControlSpec {
-            arm_max_delta_rad: 0.15,
+            arm_max_delta_rad: ARM_MAX_DELTA_RAD,
         }
     }
 }

@@ -214,25 +214,29 @@ pub fn scan<M: ModelType>(data: &MjData<M>, classes: &[GeomClass], forces: bool)
     let mut out = ContactScan::default();
     for (i, c) in data.contact().iter().enumerate() {
         let (a, b) = (classes[c.geom[0] as usize], classes[c.geom[1] as usize]);
-        if a == GeomClass::Palm || b == GeomClass::Palm {
-            out.palm_contacts += 1;
-            if forces {
-                out.palm_force_n += data.contact_force(i)[0];
-            }
-        }
+        let palm = a == GeomClass::Palm || b == GeomClass::Palm;
         let other = match (a, b) {
             (GeomClass::Object, o) | (o, GeomClass::Object) => Some(o),
             _ => None,
         };
+        let admissible = other.is_some_and(GeomClass::is_admissible);
+        // The first component of the contact-frame force is the normal force; one solve of
+        // it serves both sums (a palm–object contact is in each).
+        let normal = if forces && (palm || admissible) {
+            data.contact_force(i)[0]
+        } else {
+            0.0
+        };
+        if palm {
+            out.palm_contacts += 1;
+            out.palm_force_n += normal;
+        }
         match other {
             Some(o) => {
                 out.object_touches |= 1 << o as u8;
-                if o.is_admissible() {
+                if admissible {
                     out.admissible_contacts += 1;
-                    if forces {
-                        // The first component of the contact-frame force is the normal force.
-                        out.admissible_force_n += data.contact_force(i)[0];
-                    }
+                    out.admissible_force_n += normal;
                 }
             }
             None => {
