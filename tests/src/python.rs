@@ -17,16 +17,7 @@ pub fn interpreter(check: &str) -> Option<PathBuf> {
             );
             let line = format!("{check}: OSMS_TEST_PYTHON is not set (run scripts/test)");
             eprintln!("skipped: {line}");
-            if let Some(log) = mode.skip_log {
-                use std::io::Write;
-                if let Ok(mut f) = std::fs::OpenOptions::new()
-                    .append(true)
-                    .create(true)
-                    .open(log)
-                {
-                    let _ = writeln!(f, "{line}");
-                }
-            }
+            mode.log_skip(&line);
             None
         }
     }

@@ -684,7 +684,7 @@ fn unknown_stage_kind_names_the_stage_and_the_known_kinds() {
     let err = plan_error("[stages.gen]\nkind = \"numbres\"\nparams = { n = 3 }\n");
     assert_eq!(
         err,
-        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `fold_rows`, `gather_totals`, `numbers`, `offset`, `panicky`, `shift`, `signs`, `sum`, `sum_of_a`"
+        "pipeline.toml:2:1: stage `gen` has unknown kind `numbres`\nhint: known kinds are `combine`, `drop`, `fold_rows`, `gather_totals`, `numbers`, `offset`, `panicky`, `shift`, `signs`, `spin`, `sum`, `sum_of_a`"
     );
 }
 
@@ -848,7 +848,8 @@ fn registry_with(numbers: impl ItemStage) -> Registry {
         .register_itemised(osms_tests::stages::PanicKind)
         .register(osms_tests::stages::FoldRowsKind)
         .register(osms_tests::stages::GatherKind)
-        .register(osms_tests::stages::SumOfAKind);
+        .register(osms_tests::stages::SumOfAKind)
+        .register(osms_tests::stages::SpinKind);
     assert_eq!(r.names(), registry().names());
     r
 }
@@ -883,4 +884,30 @@ fn batched_items_are_the_items_one_by_one() {
         }),
         "{err:?}"
     );
+}
+
+/// A record's core-seconds are the CPU time of the build's own threads: a build that uses
+/// 0.3 s of CPU on one of two threads records ≈ 0.3 s alone and beside another build, not its
+/// wall time times the threads over the builds in flight (0.6 s alone, under the old rule).
+#[test]
+fn core_seconds_are_the_builds_cpu_time_at_any_number_of_stages() {
+    let pipeline = "[stages.spin_a]\nkind = \"spin\"\nparams = { cpu_ms = 300 }\n\
+                    [stages.spin_b]\nkind = \"spin\"\nparams = { cpu_ms = 301 }\n";
+    for stages in [1, 2] {
+        let p = Project::new(pipeline);
+        let report = p.make_with_stages(None, &[0], 2, stages);
+        let store = p.open_store();
+        for r in &report.instances {
+            let key = r.key.expect("built");
+            let rec = store.record(&key).expect("read").expect("a record");
+            let cpu = rec.cpu_secs.expect("cpu_secs");
+            let used = if r.instance == "spin_a" { 0.300 } else { 0.301 };
+            assert!(
+                (used..used + 0.15).contains(&cpu),
+                "{stages} stages: `{}` used {used} s of CPU and records {cpu} s (wall {} s)",
+                r.instance,
+                rec.wall_time_secs
+            );
+        }
+    }
 }

@@ -270,7 +270,13 @@ fn the_class_follows_the_libm_variant() {
     // `glibc.cpu.hwcaps` exists since glibc 2.26; without FMA and AVX2 there is nothing to mask.
     let fma_variants = report.cpu_fma == Some(true) && report.cpu_avx2 == Some(true);
     if !fma_variants || glibc.is_none_or(|v| v < (2, 26)) || report.glibc_tunables.is_some() {
-        eprintln!("not applicable here: {report:?}");
+        let line = format!(
+            "golden the_class_follows_the_libm_variant: not applicable here (FMA {:?}, AVX2 {:?}, \
+             glibc {:?}, GLIBC_TUNABLES {:?}); the class's libm axis not checked",
+            report.cpu_fma, report.cpu_avx2, report.glibc_version, report.glibc_tunables
+        );
+        eprintln!("skipped: {line}");
+        Mode::from_env().log_skip(&line);
         return;
     }
     let class_with = |tunables: Option<&str>| {
@@ -297,4 +303,66 @@ fn the_class_follows_the_libm_variant() {
         plain,
         "masking AVX and AVX-512 as well changes nothing further"
     );
+}
+
+/// Where the libm axis cannot be checked (here: `GLIBC_TUNABLES` already set), the test says so
+/// in the skip log that `scripts/test` lists and counts, instead of passing silently.
+#[test]
+fn the_libm_check_logs_its_skip() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let log = dir.path().join("skips");
+    let out = std::process::Command::new(std::env::current_exe().expect("this test binary"))
+        .args([
+            "the_class_follows_the_libm_variant",
+            "--exact",
+            "--nocapture",
+        ])
+        .env("GLIBC_TUNABLES", "glibc.malloc.check=0")
+        .env("OSMS_SKIP_LOG", &log)
+        .output()
+        .expect("run the libm test in a child");
+    assert!(out.status.success(), "{out:?}");
+    let text = std::fs::read_to_string(&log).unwrap_or_default();
+    assert_eq!(text.lines().count(), 1, "one skip line: {text:?}");
+    assert!(
+        text.contains("the_class_follows_the_libm_variant") && text.contains("GLIBC_TUNABLES"),
+        "{text}"
+    );
+}
+
+/// `.ci/run` runs the test command with `CI` set (so every "fails under CI" holds on any
+/// runner), and keeps a value the runner chose.
+#[test]
+fn ci_run_sets_ci() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("the workspace root")
+        .to_path_buf();
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::create_dir_all(dir.path().join(".ci")).expect("mkdir");
+    std::fs::create_dir_all(dir.path().join("scripts")).expect("mkdir");
+    std::fs::copy(root.join(".ci/run"), dir.path().join(".ci/run")).expect("copy .ci/run");
+    let fake = dir.path().join("scripts/test");
+    std::fs::write(
+        &fake,
+        "#!/usr/bin/env bash\nprintf 'CI=%s' \"${CI-unset}\"\n",
+    )
+    .expect("write");
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    }
+    let run = |ci: Option<&str>| {
+        let mut cmd = std::process::Command::new("bash");
+        cmd.arg(dir.path().join(".ci/run")).env_remove("CI");
+        if let Some(v) = ci {
+            cmd.env("CI", v);
+        }
+        let out = cmd.output().expect("run .ci/run");
+        assert!(out.status.success(), "{out:?}");
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    assert_eq!(run(None), "CI=true");
+    assert_eq!(run(Some("")), "CI=true");
+    assert_eq!(run(Some("1")), "CI=1");
 }

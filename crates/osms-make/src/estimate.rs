@@ -1,8 +1,8 @@
 //! The cost model behind `osms make --dry-run`: each instance's core-hours, scaled from the
 //! measured core-seconds of the same stage built under another (smaller) profile.
 //!
-//! A build's core-seconds are in its record (`cpu_secs`: wall time times threads, summed over
-//! the jobs of a cluster build). Every kind says how large a build is ([`Scale`]): a dataset
+//! A build's core-seconds are in its record (`cpu_secs`: the CPU time its threads used, summed
+//! over the jobs of a cluster build). Every kind says how large a build is ([`Scale`]): a dataset
 //! its rollouts, a teacher its PPO episodes, a student its steps times batch, most others as
 //! large as their largest input. Sizes flow down the graph, so a validation of a 20,000-rollout
 //! D_R is 20 times one of 1,000. The estimate of an instance is a measured build's core-seconds

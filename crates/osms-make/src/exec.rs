@@ -5,13 +5,14 @@ use std::any::Any;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::ops::Range;
 use std::panic::{self, AssertUnwindSafe};
-use std::sync::{Arc, mpsc};
+use std::sync::{Arc, Mutex, PoisonError, mpsc};
 use std::time::Instant;
 
 use osms_core::read_header;
 use osms_store::{Hash, ObjectState, Record, ShardOf, Store};
 use serde::Serialize;
 
+use crate::cpu::{self, MeteredPool};
 use crate::error::{Error, Result};
 use crate::heads::{Heads, Reason};
 use crate::kind::{InputBytes, Objects, Progress, RunEnv, ShardIo, StageError};
@@ -24,7 +25,8 @@ pub struct MakeOptions {
     pub targets: Vec<String>,
     pub seeds: Vec<u64>,
     pub jobs: usize,
-    /// Instances built at the same time, sharing the `jobs` threads (at most `jobs`).
+    /// Instances built at the same time (at most `jobs`), each on `jobs` threads of its own:
+    /// builds in flight share the cores.
     pub stages: usize,
     pub dry_run: bool,
 }
@@ -131,11 +133,7 @@ fn make_locked(
     opts: &MakeOptions,
     observer: &dyn Observer,
 ) -> Result<MakeReport> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(opts.jobs.max(1))
-        .thread_name(|i| format!("osms-worker-{i}"))
-        .build()
-        .map_err(|e| Error::usage(format!("cannot start {} worker threads: {e}", opts.jobs)))?;
+    let jobs = opts.jobs.max(1);
     let instances = plan.instances(&opts.targets, &opts.seeds)?;
     // The report lists instances in plan order, whatever order concurrent builds end in.
     let plan_order: BTreeMap<String, usize> = instances
@@ -156,10 +154,11 @@ fn make_locked(
     let mut requeued: BTreeSet<InstanceId> = BTreeSet::new();
     // Instances whose cached artifact no longer decodes: built again whatever their record says.
     let mut stale: BTreeMap<InstanceId, String> = BTreeMap::new();
-    // Builds run on threads of their own, sharing the pool; everything else (lookups, records,
-    // heads, the report) stays on this thread. More than one build at a time pays off where a
-    // stage leaves cores idle (a student's training uses ≈ 1.4 of 2).
-    let slots = opts.stages.clamp(1, pool.current_num_threads());
+    // Builds run on threads of their own, each with a worker pool of its own whose CPU time is
+    // its cost; everything else (lookups, records, heads, the report) stays on this thread.
+    // More than one build at a time pays off where a stage leaves cores idle (a student's
+    // training uses ≈ 1.4 of 2).
+    let slots = opts.stages.clamp(1, jobs);
     let mut running: BTreeMap<InstanceId, Running> = BTreeMap::new();
     let (done_tx, done_rx) = mpsc::channel::<Finished>();
     // A store error while recording a build: no new build starts, the builds in flight are
@@ -213,9 +212,8 @@ fn make_locked(
                     continue;
                 };
                 let id = done.id;
-                let threads = pool.current_num_threads();
                 let name = run.name.clone();
-                let r = match settle(plan, store, &heads, threads, run, done) {
+                let r = match settle(plan, store, &heads, run, done) {
                     Ok(r) => r,
                     Err(e) => {
                         tracing::error!("recording `{name}` failed: {e}");
@@ -281,17 +279,29 @@ fn make_locked(
             }
 
             let key = plan.key(id, &input_hashes);
+            // A store error here, as one while recording, ends the make only after the builds
+            // in flight are settled.
             let found = match stale.get(&id) {
                 Some(reason) => Found::Build(reason.clone()),
-                None => find(plan, store, &heads, id, &name, &key, &input_hashes)?,
+                None => match find(plan, store, &heads, id, &name, &key, &input_hashes) {
+                    Ok(found) => found,
+                    Err(e) => {
+                        fatal.get_or_insert(e);
+                        continue;
+                    }
+                },
             };
             let reason = match found {
                 Found::Present(rec) => {
                     let cut_off = inputs.iter().any(|i| built.contains(&i.id));
                     available.insert(id, rec.content_hash);
                     // A dry run holds no lock, so it writes nothing but the stat cache.
-                    if !opts.dry_run && plan.record_heads {
-                        heads.update(&name, &rec)?;
+                    if !opts.dry_run
+                        && plan.record_heads
+                        && let Err(e) = heads.update(&name, &rec)
+                    {
+                        fatal.get_or_insert(e);
+                        continue;
                     }
                     let r = cached_report(name, key, &rec, cut_off);
                     observer.finished(&r);
@@ -382,9 +392,6 @@ fn make_locked(
                     input_hashes: input_hashes.clone(),
                 },
             );
-            // A record's core-seconds count this build's share of the threads: all of them alone,
-            // half with another build beside it from start to end.
-            let sharing = running.len() as f64;
             let loaded = match loaded {
                 Ok(loaded) => loaded,
                 // Settled with the builds, as a build that failed at once.
@@ -394,7 +401,7 @@ fn make_locked(
                         id,
                         result: Err(e),
                         wall_time_secs: started.elapsed().as_secs_f64(),
-                        sharing,
+                        cpu_secs: 0.0,
                     });
                     continue;
                 }
@@ -403,10 +410,9 @@ fn make_locked(
                 tx: done_tx.clone(),
                 id,
                 started,
-                sharing,
+                cpu_secs: 0.0,
                 result: None,
             };
-            let pool = &pool;
             scope.spawn(move || {
                 // Every build reports, even one that panics outside its kind (which `build`
                 // catches), in its progress display's drop say: the make waits for a report
@@ -414,23 +420,32 @@ fn make_locked(
                 // here: a closure that only assigned its field would leave it to drop, and
                 // report, on the main thread at once.)
                 let mut reporter = reporter;
+                let own_cpu = cpu::thread_secs();
                 let result = panic::catch_unwind(AssertUnwindSafe(|| {
-                    let result = build(
-                        plan,
-                        store,
-                        id,
-                        key,
-                        loaded,
-                        &input_hashes,
-                        pool,
-                        progress.as_ref(),
-                    );
+                    let result = match cpu::MeteredPool::new(jobs, "osms-worker") {
+                        Ok(pool) => {
+                            let result = build(
+                                plan,
+                                store,
+                                id,
+                                key,
+                                loaded,
+                                &input_hashes,
+                                &pool,
+                                progress.as_ref(),
+                            );
+                            reporter.cpu_secs = pool.secs();
+                            result
+                        }
+                        Err(e) => Err(format!("cannot start {jobs} worker threads: {e}").into()),
+                    };
                     drop(progress);
                     result
                 }))
                 .unwrap_or_else(|payload| {
                     Err(format!("build panicked: {}", panic_message(payload.as_ref())).into())
                 });
+                reporter.cpu_secs += cpu::thread_secs() - own_cpu;
                 reporter.result = Some(result);
             });
         }
@@ -452,7 +467,8 @@ struct Reporter {
     tx: mpsc::Sender<Finished>,
     id: InstanceId,
     started: Instant,
-    sharing: f64,
+    /// CPU seconds of the build's pool and thread, once it ended.
+    cpu_secs: f64,
     result: Option<BuildResult>,
 }
 
@@ -466,7 +482,7 @@ impl Drop for Reporter {
             id: self.id,
             result,
             wall_time_secs: self.started.elapsed().as_secs_f64(),
-            sharing: self.sharing,
+            cpu_secs: self.cpu_secs,
         });
     }
 }
@@ -484,8 +500,8 @@ struct Finished {
     id: InstanceId,
     result: BuildResult,
     wall_time_secs: f64,
-    /// Builds running when it started, itself included.
-    sharing: f64,
+    /// CPU seconds its threads used (its worker pool's and its own).
+    cpu_secs: f64,
 }
 
 /// Stores a finished build's record (and head) if it succeeded, and reports it: a report with
@@ -494,7 +510,6 @@ fn settle(
     plan: &Plan,
     store: &Store,
     heads: &Heads,
-    threads: usize,
     run: Running,
     done: Finished,
 ) -> Result<InstanceReport> {
@@ -515,7 +530,7 @@ fn settle(
                 &input_hashes,
                 size_bytes,
                 wall_time_secs,
-                wall_time_secs * threads as f64 / done.sharing,
+                done.cpu_secs,
             );
             rec.parts = parts;
             store.put_record(&rec)?;
@@ -680,7 +695,7 @@ pub(crate) fn with_env<R>(
     key: Hash,
     inputs: &BTreeMap<String, Vec<InputBytes>>,
     input_hashes: &[(String, Hash)],
-    pool: &rayon::ThreadPool,
+    pool: &MeteredPool,
     progress: &dyn Progress,
     f: impl FnOnce(&dyn crate::kind::DynKind, &RunEnv<'_>) -> Result<R, StageError> + Send,
 ) -> Result<R, StageError>
@@ -696,7 +711,8 @@ where
         stage_key: key,
         input_hashes,
         shards: stage.shards,
-        threads: pool.current_num_threads(),
+        pool,
+        cpu_at_last_save: Mutex::new(pool.secs()),
     };
     let env = RunEnv {
         stage: &stream_name,
@@ -709,7 +725,7 @@ where
         shards: &shards,
     };
     panic::catch_unwind(AssertUnwindSafe(|| {
-        pool.install(|| f(stage.kind.as_ref(), &env))
+        pool.pool.install(|| f(stage.kind.as_ref(), &env))
     }))
     .map_err(|payload| format!("stage panicked: {}", panic_message(payload.as_ref())))?
 }
@@ -723,7 +739,7 @@ pub(crate) fn build(
     key: Hash,
     inputs: BTreeMap<String, Vec<InputBytes>>,
     input_hashes: &[(String, Hash)],
-    pool: &rayon::ThreadPool,
+    pool: &MeteredPool,
     progress: &dyn Progress,
 ) -> BuildResult {
     let stage = &plan.stages[id.stage];
@@ -816,7 +832,10 @@ struct StoreShards<'a> {
     stage_key: Hash,
     input_hashes: &'a [(String, Hash)],
     shards: u32,
-    threads: usize,
+    pool: &'a MeteredPool,
+    /// The pool's CPU seconds when the previous shard was saved (or the build began): shards
+    /// are computed one after another, so the difference is the shard's cost.
+    cpu_at_last_save: Mutex<f64>,
 }
 
 impl ShardIo for StoreShards<'_> {
@@ -839,6 +858,16 @@ impl ShardIo for StoreShards<'_> {
         wall_secs: f64,
     ) -> Result<(), StageError> {
         let (start, end) = (range.start as u64, range.end as u64);
+        let cpu_secs = {
+            let now = self.pool.secs();
+            let mut last = self
+                .cpu_at_last_save
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner);
+            let used = now - *last;
+            *last = now;
+            used
+        };
         let content_hash = self.store.put(&bytes)?;
         let mut rec = record(
             self.plan,
@@ -848,7 +877,7 @@ impl ShardIo for StoreShards<'_> {
             self.input_hashes,
             bytes.len() as u64,
             wall_secs,
-            wall_secs * self.threads as f64,
+            cpu_secs,
         );
         rec.shard = Some(ShardOf {
             stage_key: self.stage_key,

@@ -9,6 +9,7 @@ mod offset;
 mod panic;
 mod shift;
 mod signs;
+mod spin;
 mod sum;
 mod sum_of_a;
 
@@ -21,6 +22,7 @@ pub use offset::OffsetKind;
 pub use panic::{PanicKind, PanicParams};
 pub use shift::{ShiftKind, ShiftParams};
 pub use signs::SignsKind;
+pub use spin::{SpinKind, SpinParams, thread_cpu_secs};
 pub use sum::SumKind;
 pub use sum_of_a::SumOfAKind;
 
@@ -39,6 +41,7 @@ pub fn registry() -> Registry {
         .register_itemised(PanicKind)
         .register(FoldRowsKind)
         .register(GatherKind)
-        .register(SumOfAKind);
+        .register(SumOfAKind)
+        .register(SpinKind);
     r
 }

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use osms_store::{Hash, ObjectState, Store};
 
+use crate::cpu::{self, MeteredPool};
 use crate::error::{Error, Result};
 use crate::exec::{BadInput, build, load_inputs, record, record_state, with_env};
 use crate::kind::{Progress, ShardRun};
@@ -97,10 +98,7 @@ pub fn run_task(
             )));
         }
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(spec.threads.max(1) as usize)
-        .thread_name(|i| format!("osms-task-{i}"))
-        .build()
+    let pool = MeteredPool::new(spec.threads.max(1) as usize, "osms-task")
         .map_err(|e| Error::usage(format!("cannot start {} threads: {e}", spec.threads)))?;
     let failed =
         |e: crate::kind::StageError| Error::usage(format!("`{}` failed: {e}", spec.instance));
@@ -123,6 +121,7 @@ pub fn run_task(
             // merge computes itself are inside its own wall time.
             let before = shard_cpu_secs(store, &key)?;
             let started = Instant::now();
+            let own_cpu = cpu::thread_secs();
             let (content_hash, size_bytes, parts) = build(
                 plan,
                 store,
@@ -143,7 +142,7 @@ pub fn run_task(
                 &spec.input_hashes,
                 size_bytes,
                 wall_secs,
-                before.0 + wall_secs * pool.current_num_threads() as f64,
+                before.0 + pool.secs() + cpu::thread_secs() - own_cpu,
             );
             rec.parts = parts;
             store.put_record(&rec)?;
