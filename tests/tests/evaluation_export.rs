@@ -54,6 +54,13 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
         &pipeline,
     )
     .expect("copy pipeline.toml");
+    // Impact limits no catch of the scripted prior misses, so that the completed catches
+    // succeed and the fixture has successes as well as failures of several kinds.
+    let mut text = std::fs::read_to_string(&pipeline).expect("read");
+    text.push_str(
+        "\n[profiles.tiny.eval_scripted]\nparams = { rollout = { dr = \"paper\", success = { min_follow_through_m = 0.0, max_force_n = 100000.0, max_contact_speed_mps = 100.0 } } }\n",
+    );
+    std::fs::write(&pipeline, text).expect("write");
     let plan = Plan::new(
         &Pipeline::load(&pipeline, Some("tiny")).expect("load"),
         &osms::registry(),
@@ -137,6 +144,7 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
         |cell: &str| -> Option<f64> { (!cell.is_empty()).then(|| cell.parse().expect("a number")) };
     let mut drawn = 0;
     let mut outcomes = [0usize; 2];
+    let mut successes = 0usize;
     let mut kinds = std::collections::BTreeSet::new();
     for (i, ((row, condition), eval)) in rows
         .iter()
@@ -229,14 +237,18 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
             "row {i}"
         );
         outcomes[usize::from(eval.outcome.completion())] += 1;
+        successes += usize::from(eval.outcome.success());
         kinds.extend(eval.outcome.failures.iter().copied());
     }
-    // A fixture that can tell the columns apart: some catches complete and some do not, and
-    // the failures are of several kinds. (The tiny scripted evaluation has no success;
-    // `osms_export::rollouts`' unit test covers a table with successes.)
+    // A fixture that can tell the columns apart: some catches succeed and some do not, some
+    // complete and some do not, and the failures are of several kinds.
     assert!(
         outcomes[0] > 0 && outcomes[1] > 0,
         "incomplete / completed catches: {outcomes:?}"
+    );
+    assert!(
+        successes > 0 && successes < n,
+        "{successes} of {n} rollouts succeed"
     );
     assert!(kinds.len() >= 2, "failure kinds: {kinds:?}");
     assert!(

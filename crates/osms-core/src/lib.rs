@@ -6,6 +6,7 @@
 //! draws its initial weights from [`rng`] and stores networks as [`Artifact`]s without
 //! pulling in the store or the engine.
 
+pub mod check;
 mod codec;
 mod error;
 mod params;

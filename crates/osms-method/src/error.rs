@@ -97,3 +97,9 @@ pub enum Error {
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl From<osms_core::check::Invalid> for Error {
+    fn from(e: osms_core::check::Invalid) -> Self {
+        Error::Params(format!("params.{}: {}", e.path.join("."), e.message))
+    }
+}

@@ -61,24 +61,7 @@ impl Default for IosParams {
 
 impl IosParams {
     pub fn check(&self) -> Result<()> {
-        if self.stride == 0 || self.window == 0 || self.draws == 0 {
-            return Err(Error::Params(
-                "params.stride, params.window and params.draws must be at least 1".into(),
-            ));
-        }
-        if self.first_offset > self.last_offset {
-            return Err(Error::Params(format!(
-                "params.first_offset = {} is after params.last_offset = {}",
-                self.first_offset, self.last_offset
-            )));
-        }
-        if !(self.size > 0.0 && self.size.is_finite()) {
-            return Err(Error::Params(format!(
-                "params.size = {} must be positive",
-                self.size
-            )));
-        }
-        Ok(())
+        <Self as osms_core::check::Check>::check(self).map_err(Error::from)
     }
 
     pub fn offsets(&self) -> Vec<i64> {

@@ -12,6 +12,7 @@
 
 pub mod artifacts;
 pub mod candidates;
+mod checks;
 pub mod construct;
 pub mod cvae;
 mod error;

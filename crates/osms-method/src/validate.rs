@@ -96,26 +96,7 @@ impl Default for ValidateParams {
 
 impl ValidateParams {
     pub fn check(&self) -> Result<()> {
-        if self.q == 0 || self.q > 1024 {
-            return Err(Error::Params(format!(
-                "params.q = {} must be between 1 and 1024",
-                self.q
-            )));
-        }
-        if !(0.0..=1.0).contains(&self.delta_sr) {
-            return Err(Error::Params(format!(
-                "params.delta_sr = {} must be within [0, 1]",
-                self.delta_sr
-            )));
-        }
-        for (name, v) in [("lambda_f", self.lambda_f), ("lambda_d", self.lambda_d)] {
-            if !(v >= 0.0 && v.is_finite()) {
-                return Err(Error::Params(format!(
-                    "params.{name} = {v} must be finite and non-negative"
-                )));
-            }
-        }
-        Ok(())
+        <Self as osms_core::check::Check>::check(self).map_err(Error::from)
     }
 
     /// J_org of Eq. 9 for an original (it deviates by nothing); `None` for a failure.

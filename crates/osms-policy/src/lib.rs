@@ -11,6 +11,7 @@
 
 pub mod artifacts;
 pub mod catch;
+mod checks;
 mod error;
 pub mod flow;
 pub mod norm;

@@ -150,66 +150,10 @@ impl Default for StudentParams {
 }
 
 impl StudentParams {
-    /// Refuses params no student can be trained with.
+    /// Refuses params no student can be trained with (the ranges `osms_core::check::Check`
+    /// gives the planner, for callers that build params in code).
     pub fn check(&self) -> Result<()> {
-        for (v, name) in [
-            (self.history, "history"),
-            (self.chunk, "chunk"),
-            (self.euler_steps, "euler_steps"),
-            (self.batch, "batch"),
-            (self.steps as usize, "steps"),
-            (self.log_every as usize, "log_every"),
-        ] {
-            if v == 0 {
-                return Err(Error::Params(format!("params.{name} must be at least 1")));
-            }
-        }
-        if self.time_embedding == 0 || !self.time_embedding.is_multiple_of(2) {
-            return Err(Error::Params(format!(
-                "params.time_embedding must be even and positive, got {}",
-                self.time_embedding
-            )));
-        }
-        if self.hidden.contains(&0) {
-            return Err(Error::Params(
-                "params.hidden: every layer needs at least one unit".into(),
-            ));
-        }
-        if !(self.noise_scale >= 0.0 && self.noise_scale.is_finite()) {
-            return Err(Error::Params(format!(
-                "params.noise_scale must be finite and non-negative, got {}",
-                self.noise_scale
-            )));
-        }
-        if !self
-            .phase_weights
-            .iter()
-            .all(|w| *w >= 0.0 && w.is_finite())
-            || !self.phase_weights.iter().any(|w| *w > 0.0)
-        {
-            return Err(Error::Params(format!(
-                "params.phase_weights must be finite, non-negative and not all 0, got {:?}",
-                self.phase_weights
-            )));
-        }
-        if !(0.0..1.0).contains(&self.ema_decay) {
-            return Err(Error::Params(format!(
-                "params.ema_decay must be in [0, 1) (0: no moving average), got {}",
-                self.ema_decay
-            )));
-        }
-        if self.target_labels && !self.arm_target {
-            return Err(Error::Params(
-                "params.target_labels needs params.arm_target = true: an absolute arm target is executed as the increment from the controller's current target, which the student must then read".into(),
-            ));
-        }
-        if !(self.lr > 0.0 && self.min_lr >= 0.0 && self.min_lr <= self.lr) {
-            return Err(Error::Params(format!(
-                "params: need 0 <= min_lr <= lr and lr > 0, got lr {} and min_lr {}",
-                self.lr, self.min_lr
-            )));
-        }
-        Ok(())
+        <Self as osms_core::check::Check>::check(self).map_err(Error::from)
     }
 
     /// Width of an observation: `history` frames, then the current step's features.

@@ -9,6 +9,7 @@
 
 pub mod artifacts;
 pub mod catcher;
+mod checks;
 pub mod conditions;
 pub mod control;
 pub mod episode;

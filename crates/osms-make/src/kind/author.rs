@@ -171,6 +171,12 @@ pub trait Stage: Send + Sync + 'static {
     fn scale(_params: &Self::Params, inputs: &[(&str, f64)]) -> Scale {
         Scale::follow(inputs)
     }
+
+    /// Refuses params that make no sense at plan time, naming the field and its valid range
+    /// (`osms_core::check`). Non-finite numbers are refused for every kind before this runs.
+    fn check_params(_params: &Self::Params) -> osms_core::check::Checked {
+        Ok(())
+    }
 }
 
 /// How large one build is, in units its kind chooses, for scaling a measured build's
@@ -280,6 +286,11 @@ pub trait ItemStage: Send + Sync + 'static {
     /// As [`Stage::scale`].
     fn scale(_params: &Self::Params, inputs: &[(&str, f64)]) -> Scale {
         Scale::follow(inputs)
+    }
+
+    /// As [`Stage::check_params`].
+    fn check_params(_params: &Self::Params) -> osms_core::check::Checked {
+        Ok(())
     }
 }
 

@@ -144,9 +144,44 @@ pub struct ParamError {
     pub message: String,
 }
 
+/// The first non-finite number in `value` (a `nan` or `inf` given in TOML or by `--set`):
+/// no param of any kind takes one.
+fn non_finite(value: &toml::Value, path: &mut Vec<String>) -> Option<ParamError> {
+    match value {
+        toml::Value::Float(x) if !x.is_finite() => Some(ParamError {
+            path: path.clone(),
+            message: format!(
+                "{} is not valid here: every param is a finite number",
+                if x.is_nan() {
+                    "nan".to_string()
+                } else {
+                    x.to_string()
+                }
+            ),
+        }),
+        toml::Value::Table(t) => t.iter().find_map(|(k, v)| {
+            path.push(k.clone());
+            let e = non_finite(v, path);
+            path.pop();
+            e
+        }),
+        toml::Value::Array(a) => a.iter().enumerate().find_map(|(i, v)| {
+            path.push(i.to_string());
+            let e = non_finite(v, path);
+            path.pop();
+            e
+        }),
+        _ => None,
+    }
+}
+
 fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
     value: toml::Value,
+    check: fn(&P) -> osms_core::check::Checked,
 ) -> Result<ParsedParams, ParamError> {
+    if let Some(e) = non_finite(&value, &mut Vec::new()) {
+        return Err(e);
+    }
     let typed: P = serde_path_to_error::deserialize(value).map_err(|e| {
         let path = e
             .path()
@@ -161,6 +196,10 @@ fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
             path,
             message: e.into_inner().message().trim_end().to_string(),
         }
+    })?;
+    check(&typed).map_err(|e| ParamError {
+        path: e.path,
+        message: e.message,
     })?;
     let canonical = postcard::to_stdvec(&typed).map_err(|e| ParamError {
         path: vec![],
@@ -221,7 +260,7 @@ macro_rules! shared_kind_methods {
             }
         }
         fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
-            parse_typed::<S::Params>(value)
+            parse_typed::<S::Params>(value, S::check_params)
         }
         fn draws_randomness(&self, params: &ParsedParams) -> bool {
             S::USES_RNG && S::draws_randomness(params.typed::<S::Params>())

@@ -30,6 +30,10 @@ impl ItemStage for CandidatesStage {
     type Item = CandidateItem;
     type Output = CandidateSets;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::nn_numerics()
     }

@@ -23,6 +23,10 @@ impl Stage for ErrorModelStage {
     type Params = ErrorFitParams;
     type Output = ErrorModelArtifact;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn run(&self, ctx: &Ctx<'_, ErrorFitParams>) -> Result<ErrorModelArtifact, StageError> {
         let gathered = ctx.gathered_sharded::<ErrorPairs>("pairs")?;
         let mut folds = Vec::with_capacity(gathered.len());

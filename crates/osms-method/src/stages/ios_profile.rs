@@ -29,6 +29,10 @@ impl ItemStage for IosProfileStage {
     type Item = IosItem;
     type Output = IosProfile;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     /// `rollouts` D_R rollouts profiled, each `draws` times.
     fn scale(params: &IosParams, inputs: &[(&str, f64)]) -> Scale {
         let n = Scale::input(inputs, "data").min(params.rollouts as f64);

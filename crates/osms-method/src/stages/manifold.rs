@@ -17,6 +17,10 @@ impl Stage for ManifoldStage {
     type Params = ManifoldParams;
     type Output = Cvae;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::nn_numerics()
     }

@@ -72,18 +72,7 @@ impl BaselineParams {
         if self.extend && !has_target {
             return Err(crate::Error::Params("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into()));
         }
-        if self.max_attempts == 0 {
-            return Err(crate::Error::Params(
-                "params.max_attempts must be at least 1".into(),
-            ));
-        }
-        if !(self.margin >= 1.0 && self.margin <= 10.0) {
-            return Err(crate::Error::Params(format!(
-                "params.margin = {} must be within [1, 10]",
-                self.margin
-            )));
-        }
-        Ok(())
+        <Self as osms_core::check::Check>::check(self).map_err(crate::Error::from)
     }
 }
 

@@ -52,6 +52,10 @@ impl ItemStage for NormalStage {
     type Item = DemoGroup;
     type Output = DemoSet;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }

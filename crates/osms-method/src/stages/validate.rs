@@ -31,6 +31,10 @@ impl ItemStage for ValidateStage {
     type Item = ValidationItem;
     type Output = Validation;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }

@@ -98,6 +98,10 @@ impl ItemStage for CollectStage {
     type Item = DatasetItem;
     type Output = Dataset;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

@@ -49,6 +49,10 @@ impl ItemStage for DaggerStage {
     type Item = DemoGroup;
     type Output = DemoSet;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

@@ -69,6 +69,10 @@ impl ItemStage for ErrorPairsStage {
     type Item = PairRollout;
     type Output = ErrorPairs;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

@@ -36,6 +36,10 @@ impl ItemStage for EvalStudentStage {
     type Item = EvalRow;
     type Output = Evaluation;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

@@ -38,6 +38,10 @@ impl ItemStage for EvalTeacherStage {
     type Item = EvalRow;
     type Output = Evaluation;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

@@ -59,6 +59,10 @@ impl ItemStage for EvaluateStage {
     type Item = EvalRow;
     type Output = Evaluation;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

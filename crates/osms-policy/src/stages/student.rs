@@ -22,6 +22,10 @@ impl Stage for StudentStage {
     type Params = StudentParams;
     type Output = StudentArtifact;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

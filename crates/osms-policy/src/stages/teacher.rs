@@ -31,6 +31,10 @@ impl Stage for TeacherStage {
     type Params = TeacherParams;
     type Output = Teacher;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }

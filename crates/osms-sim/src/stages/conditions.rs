@@ -29,6 +29,10 @@ impl ItemStage for ConditionsStage {
     type Item = TaskCondition;
     type Output = Conditions;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         vec![Numerics {
             name: "osms-sim",

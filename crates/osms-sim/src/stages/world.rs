@@ -18,6 +18,10 @@ impl Stage for WorldStage {
     type Params = WorldSpec;
     type Output = WorldArtifact;
 
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
