@@ -2,7 +2,7 @@
 //! losses, reverse-mode gradients and Adam, bit-exact across threads and CPUs.
 //!
 //! Entry points: [`kernels`] (matrix products, reductions), [`Mlp`] (forward, backward),
-//! [`mse`]/[`weighted_mse`], [`Adam`].
+//! [`UNet1d`] (a temporal convolutional U-Net with FiLM), [`mse`]/[`weighted_mse`], [`Adam`].
 
 mod error;
 mod extra;
@@ -12,6 +12,7 @@ mod level;
 pub mod math;
 mod matrix;
 mod optim;
+mod unet;
 
 pub use error::{Error, Result};
 pub use extra::{
@@ -22,6 +23,7 @@ pub use layers::Jet;
 pub use layers::{Activation, Linear, LinearGrad, Mlp, MlpCache, flatten_grads, mse, weighted_mse};
 pub use matrix::Matrix;
 pub use optim::{Adam, AdamConfig, Schedule, global_norm};
+pub use unet::{Conv1d, ResBlock, ResCache, UNet1d, UNetCache};
 
 /// The numerics version of osms-nn: bump it whenever a kernel, layer, loss or optimiser change
 /// may change the bits of a trained network. Kinds that train or run networks put it in their
