@@ -14,7 +14,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use osms_core::rng;
-use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
+use osms_nn::{Adam, AdamConfig, Matrix, Schedule};
 use osms_policy::catch::{CatchTask, CatchTaskSpec, rollout};
 use osms_policy::flow::{FlowBatch, normals};
 use osms_policy::student::{self, Demo, Student, StudentParams};
@@ -107,7 +107,7 @@ fn main() {
                 t: &t,
                 mask: Some(&mask),
             });
-            opt.update(&mut net.mlp.params_mut(), &flatten_grads(&grads));
+            opt.update(&mut net.params_mut(), &grads.slices());
         };
         step();
         // The osms and PyTorch measurements alternate, and each side keeps its best round: on

@@ -6,13 +6,14 @@ use osms_core::check::{
 };
 
 use crate::catch::{CatchTaskSpec, RewardSpec};
+use crate::flow::UNetSpec;
 use crate::osw::OswSpec;
 use crate::ppo::PpoConfig;
 use crate::stages::{
     CollectParams, ErrorPairsParams, EvalStudentParams, EvalTeacherParams, EvaluateParams,
     TeacherParams,
 };
-use crate::student::StudentParams;
+use crate::student::{StudentNetwork, StudentParams};
 
 /// Layer widths and other network sizes.
 const WIDTH: u64 = 16_384;
@@ -130,7 +131,38 @@ impl Check for StudentParams {
                 "all 0 is not valid here: at least one phase needs a positive weight",
             ));
         }
+        nested("unet", &self.unet)?;
+        if self.network == StudentNetwork::Unet {
+            let halvings = self.unet.widths.len().saturating_sub(1) as u32;
+            if !self.chunk.is_multiple_of(1 << halvings) {
+                return Err(Invalid::new(
+                    "unet.widths",
+                    format!(
+                        "{} levels are not valid here: the chunk's {} steps must halve {halvings} times (one level per halving, plus one)",
+                        self.unet.widths.len(),
+                        self.chunk
+                    ),
+                ));
+            }
+        }
         Ok(())
+    }
+}
+
+impl Check for UNetSpec {
+    fn check(&self) -> Checked {
+        widths("widths", &self.widths, WIDTH)?;
+        count("kernel", self.kernel, 1, 15)?;
+        if self.kernel.is_multiple_of(2) {
+            return Err(Invalid::new(
+                "kernel",
+                format!(
+                    "{} is not valid here: expected an odd number in [1, 15] (a centred window)",
+                    self.kernel
+                ),
+            ));
+        }
+        count("cond", self.cond, 1, WIDTH)
     }
 }
 

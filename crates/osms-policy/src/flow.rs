@@ -3,12 +3,14 @@
 //! network v(x_t, t, c) regresses that velocity (the CFM loss); sampling integrates
 //! dx/dt = v(x, t, c) from noise at t = 0 to t = 1 with explicit Euler steps.
 //!
-//! The network is an MLP over [c, emb(t), x_t]: the condition first, then a sinusoidal
-//! embedding of t, then the noisy sample. Nothing here knows about robots; the students of
-//! [`crate::student`] put an observation history in c and an action chunk in x.
+//! The network is either an MLP over [c, emb(t), x_t] (the condition first, then a sinusoidal
+//! embedding of t, then the noisy sample), or a temporal U-Net over x_t's steps whose residual
+//! blocks are modulated (FiLM) by an encoding of [c, emb(t)] (Diffusion Policy's
+//! low-dimensional design, [`osms_nn::UNet1d`]). Nothing here knows about robots; the students
+//! of [`crate::student`] put an observation history in c and an action chunk in x.
 
 use osms_core::rng::{self, StreamRng};
-use osms_nn::{Activation, LinearGrad, Matrix, Mlp, sinusoidal_embedding};
+use osms_nn::{Activation, Matrix, Mlp, UNet1d, flatten_grads, sinusoidal_embedding};
 use serde::{Deserialize, Serialize};
 
 /// t is scaled by this before its sinusoidal embedding, so the embedding's periods (from
@@ -16,10 +18,43 @@ use serde::{Deserialize, Serialize};
 const TIME_SCALE: f32 = 100.0;
 const MAX_PERIOD: f32 = 1000.0;
 
+/// The shape of the U-Net backbone (see [`Backbone::UNet`]). Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct UNetSpec {
+    /// Channels per level; the chunk's steps halve from one level to the next.
+    pub widths: Vec<usize>,
+    /// Convolution kernel along time (odd).
+    pub kernel: usize,
+    /// Width of the condition encoding that drives every block's FiLM.
+    pub cond: usize,
+}
+
+impl Default for UNetSpec {
+    fn default() -> Self {
+        UNetSpec {
+            widths: vec![64, 128, 256],
+            kernel: 3,
+            cond: 256,
+        }
+    }
+}
+
+/// What computes the velocity.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Backbone {
+    /// An MLP over [c, emb(t), x].
+    Mlp(Mlp),
+    /// `encoder` maps [c, emb(t)] to the FiLM condition (SiLU after every layer, so each
+    /// block's FiLM is Diffusion Policy's activation-then-linear); `unet` runs over x as
+    /// `steps` rows of `x_len / steps` channels.
+    UNet { encoder: Mlp, unet: Box<UNet1d> },
+}
+
 /// A velocity network v(x, t, c).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FlowNet {
-    pub mlp: Mlp,
+    pub backbone: Backbone,
     /// Width of the sample x (and of the velocity).
     pub x_len: usize,
     /// Width of the condition c.
@@ -52,15 +87,64 @@ impl FlowNet {
         sizes.extend_from_slice(hidden);
         sizes.push(x_len);
         Ok(FlowNet {
-            mlp: Mlp::new(&sizes, Activation::Silu, Activation::Identity, seed, name)?,
+            backbone: Backbone::Mlp(Mlp::new(
+                &sizes,
+                Activation::Silu,
+                Activation::Identity,
+                seed,
+                name,
+            )?),
             x_len,
             cond_len,
             time_embedding,
         })
     }
 
-    /// The network's input rows [c, emb(t), x].
-    fn input(&self, x: &Matrix, t: &[f32], cond: &Matrix) -> Matrix {
+    /// A U-Net backbone over `steps` steps of `x_len / steps` channels; the encoder draws from
+    /// streams (`name/encoder`, layer), the U-Net from (`name/unet`, 0).
+    pub fn new_unet(
+        x_len: usize,
+        cond_len: usize,
+        steps: usize,
+        spec: &UNetSpec,
+        time_embedding: usize,
+        seed: u64,
+        name: &str,
+    ) -> osms_nn::Result<Self> {
+        let channels = if steps > 0 && x_len.is_multiple_of(steps) {
+            x_len / steps
+        } else {
+            0
+        };
+        let unet = UNet1d::new(
+            channels,
+            spec.cond,
+            &spec.widths,
+            steps,
+            spec.kernel,
+            seed,
+            &format!("{name}/unet"),
+        )?;
+        let encoder = Mlp::new(
+            &[cond_len + time_embedding, spec.cond, spec.cond],
+            Activation::Silu,
+            Activation::Silu,
+            seed,
+            &format!("{name}/encoder"),
+        )?;
+        Ok(FlowNet {
+            backbone: Backbone::UNet {
+                encoder,
+                unet: Box::new(unet),
+            },
+            x_len,
+            cond_len,
+            time_embedding,
+        })
+    }
+
+    /// Rows [c, emb(t)], then x if `with_x`.
+    fn input(&self, x: &Matrix, t: &[f32], cond: &Matrix, with_x: bool) -> Matrix {
         assert_eq!(x.cols, self.x_len, "flow: sample width");
         assert_eq!(cond.cols, self.cond_len, "flow: condition width");
         assert!(
@@ -69,24 +153,53 @@ impl FlowNet {
         );
         let scaled: Vec<f32> = t.iter().map(|t| t * TIME_SCALE).collect();
         let emb = sinusoidal_embedding(&scaled, self.time_embedding, MAX_PERIOD);
-        let width = self.cond_len + self.time_embedding + self.x_len;
+        let width = self.cond_len + self.time_embedding + if with_x { self.x_len } else { 0 };
         let mut data = Vec::with_capacity(x.rows * width);
         for i in 0..x.rows {
             data.extend_from_slice(cond.row(i));
             data.extend_from_slice(emb.row(i));
-            data.extend_from_slice(x.row(i));
+            if with_x {
+                data.extend_from_slice(x.row(i));
+            }
         }
         Matrix::from_vec(x.rows, width, data)
     }
 
     /// v(x, t, c) for every row.
     pub fn velocity(&self, x: &Matrix, t: &[f32], cond: &Matrix) -> Matrix {
-        self.mlp.forward(&self.input(x, t, cond))
+        match &self.backbone {
+            Backbone::Mlp(mlp) => mlp.forward(&self.input(x, t, cond, true)),
+            Backbone::UNet { encoder, unet } => {
+                let film = encoder.forward(&self.input(x, t, cond, false));
+                let steps = unet.steps;
+                let (v, _) = unet.forward(&as_steps(x, steps), &film);
+                Matrix::from_vec(x.rows, x.cols, v.data)
+            }
+        }
+    }
+
+    /// Every parameter slice, in the order of [`FlowGrads`].
+    pub fn params_mut(&mut self) -> Vec<&mut [f32]> {
+        match &mut self.backbone {
+            Backbone::Mlp(mlp) => mlp.params_mut(),
+            Backbone::UNet { encoder, unet } => {
+                let mut out = encoder.params_mut();
+                out.extend(unet.params_mut());
+                out
+            }
+        }
+    }
+
+    pub fn parameter_count(&self) -> usize {
+        match &self.backbone {
+            Backbone::Mlp(mlp) => mlp.parameter_count(),
+            Backbone::UNet { encoder, unet } => encoder.parameter_count() + unet.parameter_count(),
+        }
     }
 
     /// The conditional flow-matching loss of a batch and its parameter gradients:
     /// mean over unmasked elements of (v(x_t, t, c) − (x₁ − x₀))².
-    pub fn loss_and_gradients(&self, b: &FlowBatch<'_>) -> (f32, Vec<LinearGrad>) {
+    pub fn loss_and_gradients(&self, b: &FlowBatch<'_>) -> (f32, FlowGrads) {
         let (rows, cols) = (b.x1.rows, b.x1.cols);
         assert_eq!((b.x0.rows, b.x0.cols), (rows, cols), "flow: noise shape");
         let mut xt = Matrix::zeros(rows, cols);
@@ -99,9 +212,33 @@ impl FlowNet {
                 target.set(i, j, x1 - x0);
             }
         }
-        let (pred, cache) = self.mlp.forward_cached(&self.input(&xt, b.t, b.cond));
-        let (loss, grad) = masked_mse(&pred, &target, b.mask);
-        (loss, self.mlp.param_gradients(&cache, &grad))
+        match &self.backbone {
+            Backbone::Mlp(mlp) => {
+                let (pred, cache) = mlp.forward_cached(&self.input(&xt, b.t, b.cond, true));
+                let (loss, grad) = masked_mse(&pred, &target, b.mask);
+                let grads = mlp.param_gradients(&cache, &grad);
+                (
+                    loss,
+                    FlowGrads(grads.into_iter().flat_map(|g| [g.w.data, g.b]).collect()),
+                )
+            }
+            Backbone::UNet { encoder, unet } => {
+                let (film, encoder_cache) =
+                    encoder.forward_cached(&self.input(&xt, b.t, b.cond, false));
+                let (pred, cache) = unet.forward(&as_steps(&xt, unet.steps), &film);
+                let pred = Matrix::from_vec(rows, cols, pred.data);
+                let (loss, grad) = masked_mse(&pred, &target, b.mask);
+                let (_, dfilm, unet_grads) =
+                    unet.backward(&cache, &as_steps(&grad, unet.steps), &film);
+                let encoder_grads = encoder.param_gradients(&encoder_cache, &dfilm);
+                let mut grads: Vec<Vec<f32>> = flatten_grads(&encoder_grads)
+                    .into_iter()
+                    .map(<[f32]>::to_vec)
+                    .collect();
+                grads.extend(unet_grads);
+                (loss, FlowGrads(grads))
+            }
+        }
     }
 
     /// A sample for condition `cond` (one row), integrating from `noise` (x at t = 0) with
@@ -127,6 +264,20 @@ impl FlowNet {
         });
         Matrix::from_vec(rows, cols, x)
     }
+}
+
+/// Gradients of every parameter slice, in the order of [`FlowNet::params_mut`].
+pub struct FlowGrads(pub Vec<Vec<f32>>);
+
+impl FlowGrads {
+    pub fn slices(&self) -> Vec<&[f32]> {
+        self.0.iter().map(Vec::as_slice).collect()
+    }
+}
+
+/// `B × (steps·channels)` rows (step-major) as `B·steps × channels`: the same values.
+fn as_steps(x: &Matrix, steps: usize) -> Matrix {
+    Matrix::from_vec(x.rows * steps, x.cols / steps, x.data.clone())
 }
 
 /// Explicit Euler integration of dx/dt = v(x, t) from t = 0 to t = 1 in `steps` equal steps:
@@ -176,16 +327,30 @@ fn masked_mse(pred: &Matrix, target: &Matrix, mask: Option<&Matrix>) -> (f32, Ma
 #[cfg(test)]
 mod tests {
     use super::*;
-    use osms_nn::{Adam, AdamConfig, Schedule, flatten_grads};
+    use osms_nn::{Adam, AdamConfig, Schedule};
 
     #[test]
     fn a_batch_samples_each_row_as_one_row_alone() {
-        let net = FlowNet::new(5, 7, &[16, 16], 8, 3, "batch").expect("net");
+        let spec = UNetSpec {
+            widths: vec![16, 16],
+            kernel: 3,
+            cond: 16,
+        };
+        let unet = FlowNet::new_unet(6, 7, 2, &spec, 8, 3, "batch").expect("net");
+        for net in [
+            FlowNet::new(6, 7, &[16, 16], 8, 3, "batch").expect("net"),
+            unet,
+        ] {
+            a_batch_samples_each_row_as_one_row_alone_with(&net);
+        }
+    }
+
+    fn a_batch_samples_each_row_as_one_row_alone_with(net: &FlowNet) {
         let mut r = rng::stream(0, "test", "batch", 0);
         // 1 row (the row-by-row kernel path) and 37 (tiled, with a ragged last block).
         for rows in [1, 37] {
             let cond = Matrix::from_vec(rows, 7, normals(&mut r, rows * 7));
-            let noise = Matrix::from_vec(rows, 5, normals(&mut r, rows * 5));
+            let noise = Matrix::from_vec(rows, 6, normals(&mut r, rows * 6));
             let batch = net.sample_batch(&cond, noise.clone(), 4);
             for i in 0..rows {
                 let alone = net.sample(cond.row(i), noise.row(i).to_vec(), 4);
@@ -242,10 +407,10 @@ mod tests {
         }
     }
 
-    /// Adds `delta` to parameter `idx` in the order of `Mlp::params_mut`.
+    /// Adds `delta` to parameter `idx` in the order of [`FlowNet::params_mut`].
     fn bump(net: &mut FlowNet, idx: usize, delta: f32) {
         let mut k = idx;
-        for slice in net.mlp.params_mut() {
+        for slice in net.params_mut() {
             if k < slice.len() {
                 slice[k] += delta;
                 return;
@@ -254,15 +419,29 @@ mod tests {
         }
     }
 
+    /// Both backbones: the MLP, and a U-Net over 4 steps of 2 channels.
     #[test]
     fn the_loss_gradient_matches_finite_differences() {
-        let net = FlowNet::new(3, 2, &[8], 4, 7, "fd").expect("a valid network");
+        let spec = UNetSpec {
+            widths: vec![4, 6],
+            kernel: 3,
+            cond: 5,
+        };
+        for net in [
+            FlowNet::new(8, 2, &[8], 4, 7, "fd").expect("a valid network"),
+            FlowNet::new_unet(8, 2, 4, &spec, 4, 7, "fd").expect("a valid network"),
+        ] {
+            loss_gradient_matches_finite_differences(&net);
+        }
+    }
+
+    fn loss_gradient_matches_finite_differences(net: &FlowNet) {
         let mut r = rng::stream(0, "test", "fd", 0);
-        let x1 = Matrix::from_vec(4, 3, normals(&mut r, 12));
-        let x0 = Matrix::from_vec(4, 3, normals(&mut r, 12));
+        let x1 = Matrix::from_vec(4, 8, normals(&mut r, 32));
+        let x0 = Matrix::from_vec(4, 8, normals(&mut r, 32));
         let cond = Matrix::from_vec(4, 2, normals(&mut r, 8));
         let t = [0.1, 0.4, 0.6, 0.9];
-        let mask = Matrix::from_fn(4, 3, |i, j| if i == 3 && j > 0 { 0.0 } else { 1.0 });
+        let mask = Matrix::from_fn(4, 8, |i, j| if i == 3 && j > 0 { 0.0 } else { 1.0 });
         let batch = FlowBatch {
             x1: &x1,
             cond: &cond,
@@ -271,10 +450,10 @@ mod tests {
             mask: Some(&mask),
         };
         let (_, grads) = net.loss_and_gradients(&batch);
-        let analytic: Vec<f32> = flatten_grads(&grads).concat();
+        let analytic: Vec<f32> = grads.slices().concat();
         let mut probe = net.clone();
         let n = analytic.len();
-        for idx in [0, 5, n / 3, n / 2, n - 4, n - 1] {
+        for idx in (0..n).step_by((n / 24).max(1)).chain([n - 1]) {
             let eps = 1e-2f32;
             bump(&mut probe, idx, eps);
             let (up, _) = probe.loss_and_gradients(&batch);
@@ -339,7 +518,7 @@ mod tests {
                 t: &t,
                 mask: None,
             });
-            opt.update(&mut net.mlp.params_mut(), &flatten_grads(&grads));
+            opt.update(&mut net.params_mut(), &grads.slices());
         }
         for c in [-1.0f32, 1.0] {
             let mut r = rng::stream(0, "test", "mixture-sample", c as i64 as u64);

@@ -23,7 +23,7 @@
 //! demonstrations, frozen into the artifact.
 
 use osms_core::rng::{self, StreamRng};
-use osms_nn::{Adam, AdamConfig, Matrix, Schedule, flatten_grads};
+use osms_nn::{Adam, AdamConfig, Matrix, Schedule};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::{ControlSpec, targets};
 use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
@@ -34,7 +34,7 @@ use osms_sim::{
 use serde::{Deserialize, Serialize};
 
 use crate::catch::{CatchTaskSpec, TeacherQuery};
-use crate::flow::{FlowBatch, FlowNet, normals};
+use crate::flow::{FlowBatch, FlowNet, UNetSpec, normals};
 use crate::ppo::Agent;
 use crate::{Error, Result, RunningNorm};
 
@@ -51,7 +51,7 @@ pub struct StudentParams {
     /// Scale of the initial noise when acting (1: sample the learned distribution; 0: integrate
     /// from its centre, a deterministic policy). Training always uses N(0, I).
     pub noise_scale: f32,
-    /// Hidden widths of the velocity network (SiLU).
+    /// Hidden widths of the MLP velocity network (SiLU); unused by the U-Net.
     pub hidden: Vec<usize>,
     /// Width of the flow time's sinusoidal embedding (even).
     pub time_embedding: usize,
@@ -111,6 +111,20 @@ pub struct StudentParams {
     /// velocity matching, contact, follow-through, grasping): oversamples the rare decisive
     /// steps around contact. All equal: uniform sampling.
     pub phase_weights: [f32; 5],
+    /// The velocity network: an MLP over the flattened chunk (`hidden`), or a temporal U-Net
+    /// over the chunk's steps with FiLM from an encoding of the observation and the flow time
+    /// (`unet`; issue 54, item 4).
+    pub network: StudentNetwork,
+    /// The U-Net's shape, when `network = "unet"`.
+    pub unet: UNetSpec,
+}
+
+/// Which velocity network a student trains.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StudentNetwork {
+    Mlp,
+    Unet,
 }
 
 impl Default for StudentParams {
@@ -145,6 +159,8 @@ impl Default for StudentParams {
             target_labels: false,
             ema_decay: 0.0,
             phase_weights: [1.0; 5],
+            network: StudentNetwork::Mlp,
+            unet: UNetSpec::default(),
         }
     }
 }
@@ -498,14 +514,25 @@ impl Student {
             params: p.clone(),
             obs_norm,
             act_norm: ActionNorm::fit(&train),
-            net: FlowNet::new(
-                p.chunk_len(),
-                p.obs_len(),
-                &p.hidden,
-                p.time_embedding,
-                seed,
-                &format!("{stage}/velocity"),
-            )?,
+            net: match p.network {
+                StudentNetwork::Mlp => FlowNet::new(
+                    p.chunk_len(),
+                    p.obs_len(),
+                    &p.hidden,
+                    p.time_embedding,
+                    seed,
+                    &format!("{stage}/velocity"),
+                )?,
+                StudentNetwork::Unet => FlowNet::new_unet(
+                    p.chunk_len(),
+                    p.obs_len(),
+                    p.chunk,
+                    &p.unet,
+                    p.time_embedding,
+                    seed,
+                    &format!("{stage}/velocity"),
+                )?,
+            },
             curve: Vec::new(),
             train_rollouts: train.len(),
             train_samples: samples.len(),
@@ -525,7 +552,7 @@ impl Student {
             Schedule::Constant { lr: p.lr },
         );
         let (mut loss_sum, mut loss_count) = (0.0f64, 0u32);
-        let mut ema = (p.ema_decay > 0.0).then(|| student.net.mlp.clone());
+        let mut ema = (p.ema_decay > 0.0).then(|| student.net.clone());
         for s in 0..p.steps {
             let lr = student.learning_rate(s);
             opt.schedule = Schedule::Constant { lr };
@@ -550,16 +577,12 @@ impl Student {
                 t: &t,
                 mask: Some(&mask),
             });
-            opt.update(&mut student.net.mlp.params_mut(), &flatten_grads(&grads));
+            opt.update(&mut student.net.params_mut(), &grads.slices());
             if let Some(ema) = &mut ema {
                 // The moving average forgets its initial weights early (the decay ramps up
                 // as (1 + s) / (10 + s)), so short runs are not pulled towards them.
                 let d = p.ema_decay.min((1 + s) as f32 / (10 + s) as f32);
-                for (e, w) in ema
-                    .params_mut()
-                    .into_iter()
-                    .zip(student.net.mlp.params_mut())
-                {
+                for (e, w) in ema.params_mut().into_iter().zip(student.net.params_mut()) {
                     for (e, &w) in e.iter_mut().zip(w.iter()) {
                         *e = d * *e + (1.0 - d) * w;
                     }
@@ -570,7 +593,7 @@ impl Student {
             if (s + 1) % p.log_every == 0 || s + 1 == p.steps {
                 // The curve scores the network training would stop with: the average, if any.
                 if let Some(ema) = &mut ema {
-                    std::mem::swap(&mut student.net.mlp, ema);
+                    std::mem::swap(&mut student.net, ema);
                 }
                 let validation_loss = validation.as_ref().map(|v| {
                     student
@@ -585,7 +608,7 @@ impl Student {
                         .0
                 });
                 if let Some(ema) = &mut ema {
-                    std::mem::swap(&mut student.net.mlp, ema);
+                    std::mem::swap(&mut student.net, ema);
                 }
                 student.curve.push(StudentCurvePoint {
                     step: s + 1,
@@ -598,7 +621,7 @@ impl Student {
             progress();
         }
         if let Some(ema) = ema {
-            student.net.mlp = ema;
+            student.net = ema;
         }
         Ok(student)
     }
@@ -1097,7 +1120,7 @@ mod tests {
     /// labels' spread), and training is a function of its seed.
     #[test]
     fn students_learn_a_deterministic_policy_reproducibly() {
-        learns_a_deterministic_policy(0.0, false);
+        learns_a_deterministic_policy(0.0, false, StudentNetwork::Mlp);
     }
 
     /// With absolute-target labels the student predicts where the arm's target goes and
@@ -1105,7 +1128,7 @@ mod tests {
     /// demonstrator's increments, whatever target each step starts from.
     #[test]
     fn students_with_target_labels_execute_the_demonstrated_increments() {
-        learns_a_deterministic_policy(0.0, true);
+        learns_a_deterministic_policy(0.0, true, StudentNetwork::Mlp);
     }
 
     /// The arm step the target labels assume is the default control spec's.
@@ -1149,12 +1172,18 @@ mod tests {
     }
 
     /// The moving average of the weights is the trained network, and it learns as well.
+    /// The U-Net backbone (one level over a one-step chunk) learns the same policy.
     #[test]
-    fn students_with_a_moving_average_of_weights_learn_too() {
-        learns_a_deterministic_policy(0.99, false);
+    fn unet_students_learn_a_deterministic_policy_reproducibly() {
+        learns_a_deterministic_policy(0.0, false, StudentNetwork::Unet);
     }
 
-    fn learns_a_deterministic_policy(ema_decay: f32, target_labels: bool) {
+    #[test]
+    fn students_with_a_moving_average_of_weights_learn_too() {
+        learns_a_deterministic_policy(0.99, false, StudentNetwork::Mlp);
+    }
+
+    fn learns_a_deterministic_policy(ema_decay: f32, target_labels: bool, network: StudentNetwork) {
         let demos: Vec<Demo> = (0..12)
             .map(|r| {
                 let steps = 10;
@@ -1209,6 +1238,12 @@ mod tests {
             ema_decay,
             arm_target: target_labels,
             target_labels,
+            network,
+            unet: UNetSpec {
+                widths: vec![32],
+                kernel: 3,
+                cond: 64,
+            },
             ..StudentParams::default()
         };
         let student = Student::train(&demos, &params, (1, "s"), &|| {}).expect("train");

@@ -24,7 +24,9 @@ impl Artifact for StudentArtifact {
     const TYPE_TAG: &'static str = "policy.student_artifact";
     /// 3: the params have `arm_target` (issue 54).
     /// 4: the params have `target_labels` (issue 54).
-    const SCHEMA_VERSION: u16 = 4;
+    /// 5: the params choose the `network` (and carry the `unet`'s shape); the flow network
+    /// holds a backbone, an MLP or a U-Net (issue 54, item 4).
+    const SCHEMA_VERSION: u16 = 5;
 }
 
 impl Summarize for StudentArtifact {
@@ -37,7 +39,7 @@ impl Summarize for StudentArtifact {
             "train_rollouts": s.train_rollouts,
             "train_samples": s.train_samples,
             "heldout_rollouts": s.heldout_rollouts,
-            "parameters": s.net.mlp.parameter_count(),
+            "parameters": s.net.parameter_count(),
             "history": s.params.history,
             "chunk": s.params.chunk,
             "euler_steps": s.params.euler_steps,
@@ -57,7 +59,7 @@ impl Summarize for StudentArtifact {
             s.params.chunk,
             s.params.euler_steps,
             s.params.hidden,
-            s.net.mlp.parameter_count()
+            s.net.parameter_count()
         );
         let _ = writeln!(
             out,
