@@ -620,13 +620,53 @@ fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
         landed[0], landed[1], landed[2]
     );
     // The kill points straddle the creation: some kills land before the directory exists and
-    // some after the store is complete (one inside its microseconds is luck, not asserted),
-    // so every state a kill can leave was passed through. Load delays the start and so moves
-    // kills earlier, never later; the last one is 200 ms in.
+    // some after the store is complete; the states in between are made below. Load slows the
+    // child, so moves kills earlier in its work, never later; the last one is 200 ms in.
     assert!(
         landed[0] > 0 && landed[2] > 0,
         "the kills did not straddle the store's creation: {landed:?}"
     );
+
+    // A kill inside the creation's microseconds is luck, so every state it can leave is made
+    // here, in the order the creation passes through them: the directory alone, the marker's
+    // dot-file half written, the marker without the subdirectories, the marker with some of
+    // them. Each is taken for a store being created, never for a foreign directory: `verify`
+    // passes and a make builds in it.
+    let subdirs = ["objects", "index", "state", "tmp"];
+    for k in 0..=subdirs.len() + 2 {
+        let store = p.dir.path().join(format!("during-{k}"));
+        std::fs::create_dir_all(&store).expect("mkdir");
+        match k {
+            0 => {}
+            1 => std::fs::write(store.join(".OSMS_STORE.tmp-1-0"), b"osms st").expect("write"),
+            _ => {
+                // The marker's text, as `Store::open` writes it.
+                std::fs::write(store.join("OSMS_STORE"), "osms store, layout 1\n").expect("write");
+                for d in &subdirs[..k - 2] {
+                    std::fs::create_dir(store.join(d)).expect("mkdir");
+                }
+            }
+        }
+        let verify = command_with_store(&p.pipeline, &store, &["verify"])
+            .output()
+            .expect("run verify");
+        assert_eq!(
+            verify.status.code(),
+            Some(0),
+            "verify of a creation stopped at state {k} ({:?}):\n{}",
+            dir_entries(&store),
+            shown(&["verify"], &verify)
+        );
+        let make = command_with_store(&p.pipeline, &store, &["make", "--jobs", "1"])
+            .output()
+            .expect("run make");
+        assert_eq!(
+            make.status.code(),
+            Some(0),
+            "make in a creation stopped at state {k}:\n{}",
+            shown(&["make"], &make)
+        );
+    }
 
     // Two processes opening a store that does not exist yet.
     for round in 0..10 {
