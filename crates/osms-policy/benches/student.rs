@@ -107,7 +107,7 @@ fn main() {
             let cond = Matrix::from_vec(b, c_len, normals(&mut r, b * c_len));
             let mask = Matrix::from_fn(b, x_len, |_, _| 1.0);
             let t: Vec<f32> = (0..b).map(|_| rng::uniform01(&mut r) as f32).collect();
-            let mut step = || {
+            let train = |net: &mut FlowNet, opt: &mut Adam| {
                 let (_, grads) = net.loss_and_gradients(&FlowBatch {
                     x1: &x1,
                     cond: &cond,
@@ -117,6 +117,7 @@ fn main() {
                 });
                 opt.update(&mut net.params_mut(), &grads.slices());
             };
+            let mut step = || train(&mut net, &mut opt);
             step();
             // The osms and PyTorch measurements alternate, and each side keeps its best round: on
             // a shared machine the speed drifts between minutes, and alternating puts both sides
@@ -143,16 +144,7 @@ fn main() {
             )
             .expect("a valid U-Net");
             let mut unet_opt = Adam::new(AdamConfig::default(), Schedule::Constant { lr: 1e-4 });
-            let mut unet_step = || {
-                let (_, grads) = unet.loss_and_gradients(&FlowBatch {
-                    x1: &x1,
-                    cond: &cond,
-                    x0: &x0,
-                    t: &t,
-                    mask: Some(&mask),
-                });
-                unet_opt.update(&mut unet.params_mut(), &grads.slices());
-            };
+            let mut unet_step = || train(&mut unet, &mut unet_opt);
             unet_step();
             let t_unet = best(5, &mut unet_step);
             let obs = normals(&mut r, c_len);
