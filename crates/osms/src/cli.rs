@@ -143,8 +143,9 @@ pub struct ExpShowArgs {
     /// Experiments to show [default: all]
     pub names: Vec<String>,
     /// Metrics: keys of the targets' summaries (`osms show`), with the short names `success`,
-    /// `completion`, `f_max`, and `train_secs` (the build time of the networks a target reads,
-    /// from the build records); the total build time is always shown
+    /// `completion`, `f_max`, `train_secs` (the build time of the networks a target reads, from
+    /// the build records) and `train_core_secs` (their CPU time: the same at any `--stages`);
+    /// the total build time is always shown
     #[arg(long, value_delimiter = ',', default_value = DEFAULT_METRICS)]
     pub metrics: Vec<String>,
     /// Print JSON on stdout

@@ -24,6 +24,11 @@ use crate::progress::MakeObserver;
 /// artifacts of these kinds it reads directly.
 const TRAINING_KINDS: [&str; 3] = ["teacher", "student", "manifold"];
 
+/// The metrics read from build records rather than summaries: `train_secs`, the training's
+/// wall time, and `train_core_secs`, the CPU time of its threads (the same at any `--stages`
+/// and whatever else ran beside it).
+const TRAINING_TIMES: [&str; 2] = ["train_secs", "train_core_secs"];
+
 pub fn run(ctx: &Context, command: ExpCommand) -> Result<ExitCode> {
     match command {
         ExpCommand::Run(args) => exp_run(ctx, &args),
@@ -357,7 +362,7 @@ fn point_row(
     let point = &exp.points[k];
     let wanted: Vec<&String> = metrics
         .iter()
-        .filter(|m| m.as_str() != "train_secs")
+        .filter(|m| !TRAINING_TIMES.contains(&m.as_str()))
         .collect();
     let target_stages: BTreeSet<&str> = point
         .instances
@@ -376,7 +381,8 @@ fn point_row(
     let mut wall_secs = 0.0;
     // Build time of every trained artifact of the point, by content hash: `train_secs` of a
     // target is that of the networks it reads directly (the student it evaluates).
-    let mut trained: BTreeMap<osms_store::Hash, f64> = BTreeMap::new();
+    // (wall seconds, core-seconds) of each.
+    let mut trained: BTreeMap<osms_store::Hash, (f64, f64)> = BTreeMap::new();
     let mut records = Vec::with_capacity(point.instances.len());
     let mut unreadable = Vec::new();
     let mut counts: BTreeMap<String, (u64, u64)> = BTreeMap::new();
@@ -385,7 +391,8 @@ fn point_row(
         let secs = record.as_ref().map_or(0.0, |r| r.wall_time_secs);
         wall_secs += secs;
         if TRAINING_KINDS.contains(&i.kind.as_str()) {
-            trained.insert(i.content_hash, secs);
+            let core = record.as_ref().and_then(|r| r.cpu_secs).unwrap_or(f64::NAN);
+            trained.insert(i.content_hash, (secs, core));
         }
         records.push(record);
     }
@@ -393,15 +400,22 @@ fn point_row(
         if !i.target {
             continue;
         }
-        if metrics.iter().any(|m| m == "train_secs") {
+        for (metric, pick) in [
+            ("train_secs", (|t: (f64, f64)| t.0) as fn((f64, f64)) -> f64),
+            ("train_core_secs", |t| t.1),
+        ] {
+            if !metrics.iter().any(|m| m == metric) {
+                continue;
+            }
             let secs: Vec<f64> = record
                 .iter()
                 .flat_map(|r| r.inputs.iter())
-                .filter_map(|(_, h)| trained.get(h).copied())
+                .filter_map(|(_, h)| trained.get(h).copied().map(pick))
                 .collect();
-            if !secs.is_empty() {
+            // A record from before core-seconds were measured has none to show.
+            if !secs.is_empty() && secs.iter().all(|s| s.is_finite()) {
                 values
-                    .entry(column("train_secs", &i.stage))
+                    .entry(column(metric, &i.stage))
                     .or_default()
                     .push(secs.iter().sum());
             }
