@@ -123,11 +123,12 @@ pub struct ExpRunArgs {
     /// Show what would be built, build and record nothing
     #[arg(long, short = 'n')]
     pub dry_run: bool,
-    /// Worker threads [default: all cores]
+    /// Worker threads of each build [default: all cores]
     #[arg(long, short = 'j')]
     pub jobs: Option<usize>,
-    /// Stage instances built at the same time, sharing the worker threads (at most --jobs);
-    /// 2 on 2 cores keeps both busy while a student trains [default: 1]
+    /// Stage instances built at the same time (at most --jobs), each with --jobs worker threads
+    /// of its own, sharing the cores; 2 on 2 cores keeps both busy while a student trains
+    /// [default: 1]
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub stages: Option<u32>,
     /// Print the experiment's record as JSON on stdout
@@ -214,11 +215,12 @@ pub struct MakeArgs {
     /// Show what would be built, build nothing
     #[arg(long, short = 'n')]
     pub dry_run: bool,
-    /// Worker threads [default: all cores]
+    /// Worker threads of each build [default: all cores]
     #[arg(long, short = 'j')]
     pub jobs: Option<usize>,
-    /// Stage instances built at the same time, sharing the worker threads (at most --jobs);
-    /// 2 on 2 cores keeps both busy while a student trains [default: 1]
+    /// Stage instances built at the same time (at most --jobs), each with --jobs worker threads
+    /// of its own, sharing the cores; 2 on 2 cores keeps both busy while a student trains
+    /// [default: 1]
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub stages: Option<u32>,
     /// Where stages run: `local`, or `slurm` (a job array per sharded stage; see "Running on a
