@@ -570,6 +570,19 @@ fn gc_after_a_kill_mid_stage_keeps_the_finished_shards_for_the_resume() {
 #[test]
 fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
     let p = Project::new(&sleepy_pipeline(4, 2, 0));
+    // `args` on `store` exit 0; `state` says what the store held, for the message.
+    let succeeds = |store: &Path, args: &[&str], state: &str| {
+        let out = command_with_store(&p.pipeline, store, args)
+            .output()
+            .expect("run osms-test");
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "{} of {state}:\n{}",
+            args[0],
+            shown(args, &out)
+        );
+    };
 
     // Kill points 0, 0.5, 1, ... 20 ms after the start cover the creation of the store in any
     // start-up time of the binary; the first make that gets further builds on it. Where each
@@ -605,14 +618,10 @@ fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
         } else {
             1
         }] += 1;
-        let verify = command_with_store(&p.pipeline, &store, &["verify"])
-            .output()
-            .expect("run verify");
-        assert_eq!(
-            verify.status.code(),
-            Some(0),
-            "verify of a store whose creation was killed after {micros} us (it holds {left:?}):\n{}",
-            shown(&["verify"], &verify)
+        succeeds(
+            &store,
+            &["verify"],
+            &format!("a store whose creation was killed after {micros} us (it holds {left:?})"),
         );
     }
     eprintln!(
@@ -647,25 +656,12 @@ fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
                 }
             }
         }
-        let verify = command_with_store(&p.pipeline, &store, &["verify"])
-            .output()
-            .expect("run verify");
-        assert_eq!(
-            verify.status.code(),
-            Some(0),
-            "verify of a creation stopped at state {k} ({:?}):\n{}",
-            dir_entries(&store),
-            shown(&["verify"], &verify)
+        let state = format!(
+            "a creation stopped at state {k} ({:?})",
+            dir_entries(&store)
         );
-        let make = command_with_store(&p.pipeline, &store, &["make", "--jobs", "1"])
-            .output()
-            .expect("run make");
-        assert_eq!(
-            make.status.code(),
-            Some(0),
-            "make in a creation stopped at state {k}:\n{}",
-            shown(&["make"], &make)
-        );
+        succeeds(&store, &["verify"], &state);
+        succeeds(&store, &["make", "--jobs", "1"], &state);
     }
 
     // Two processes opening a store that does not exist yet.

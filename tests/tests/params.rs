@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use osms_make::overrides::Override;
-use osms_make::{MakeOptions, Pipeline, Plan};
+use osms_make::{MakeOptions, Pipeline, Plan, Registry};
 use osms_store::Store;
 use osms_tests::project::Silent;
 
@@ -75,11 +75,12 @@ fn setting(stage: &str, leaf: &Leaf, value: &str) -> String {
     }
 }
 
-fn plan_with(setting: &str) -> Result<Plan, String> {
-    let mut pipeline = Pipeline::load(&shipped(), Some("tiny")).expect("load");
+/// The plan of `pipeline` with `setting` applied, or the error the CLI would print.
+fn plan_with(pipeline: &Pipeline, registry: &Registry, setting: &str) -> Result<Plan, String> {
+    let mut pipeline = pipeline.clone();
     let o: Override = setting.parse().map_err(|e| format!("{e}"))?;
     pipeline.apply(&[o]).map_err(|e| format!("{e}"))?;
-    Plan::new(&pipeline, &osms::registry()).map_err(|e| format!("{e}"))
+    Plan::new(&pipeline, registry).map_err(|e| format!("{e}"))
 }
 
 /// One accepted setting per kind, param and value: the build half of the test.
@@ -101,11 +102,9 @@ fn sweep() -> Vec<Accepted> {
 /// Sweeps every numeric param of every stage; returns the settings the planner accepted, one
 /// per kind, param and value.
 fn sweep_once() -> Vec<Accepted> {
-    let base = Plan::new(
-        &Pipeline::load(&shipped(), Some("tiny")).expect("load"),
-        &osms::registry(),
-    )
-    .expect("the shipped pipeline plans");
+    let pipeline = Pipeline::load(&shipped(), Some("tiny")).expect("load");
+    let registry = osms::registry();
+    let base = Plan::new(&pipeline, &registry).expect("the shipped pipeline plans");
     let mut accepted: BTreeMap<(String, String, &str), Accepted> = BTreeMap::new();
     let mut refused = 0;
     let mut tried = 0;
@@ -118,7 +117,7 @@ fn sweep_once() -> Vec<Accepted> {
                 let key = (stage.info.name.to_string(), param.clone(), value);
                 let s = setting(&stage.name, leaf, value);
                 tried += 1;
-                match plan_with(&s) {
+                match plan_with(&pipeline, &registry, &s) {
                     Err(e) => {
                         refused += 1;
                         // The error says where and what: the setting (which names the stage

@@ -43,7 +43,8 @@ pub fn nested(field: &str, value: &impl Check) -> Checked {
     value.check().map_err(|e| e.within(field))
 }
 
-fn shown(v: f64) -> String {
+/// A number as param errors show it (`nan`, `inf`, `-inf` as TOML spells them).
+pub fn shown(v: f64) -> String {
     if v.is_nan() {
         "nan".into()
     } else {

@@ -7,8 +7,9 @@
 
 use std::sync::{Arc, Mutex, PoisonError};
 
-/// CPU seconds the calling thread has used since it started (`CLOCK_THREAD_CPUTIME_ID`).
-pub(crate) fn thread_secs() -> f64 {
+/// CPU seconds the calling thread has used since it started (`CLOCK_THREAD_CPUTIME_ID`), the
+/// clock a build's own thread is metered by.
+pub fn thread_secs() -> f64 {
     clock_secs(libc::CLOCK_THREAD_CPUTIME_ID).unwrap_or(0.0)
 }
 

@@ -10,7 +10,7 @@
 //! of [`crate::student`] put an observation history in c and an action chunk in x.
 
 use osms_core::rng::{self, StreamRng};
-use osms_nn::{Activation, Matrix, Mlp, UNet1d, flatten_grads, sinusoidal_embedding};
+use osms_nn::{Activation, LinearGrad, Matrix, Mlp, UNet1d, sinusoidal_embedding};
 use serde::{Deserialize, Serialize};
 
 /// t is scaled by this before its sinusoidal embedding, so the embedding's periods (from
@@ -216,11 +216,7 @@ impl FlowNet {
             Backbone::Mlp(mlp) => {
                 let (pred, cache) = mlp.forward_cached(&self.input(&xt, b.t, b.cond, true));
                 let (loss, grad) = masked_mse(&pred, &target, b.mask);
-                let grads = mlp.param_gradients(&cache, &grad);
-                (
-                    loss,
-                    FlowGrads(grads.into_iter().flat_map(|g| [g.w.data, g.b]).collect()),
-                )
+                (loss, FlowGrads(slices(mlp.param_gradients(&cache, &grad))))
             }
             Backbone::UNet { encoder, unet } => {
                 let (film, encoder_cache) =
@@ -230,11 +226,7 @@ impl FlowNet {
                 let (loss, grad) = masked_mse(&pred, &target, b.mask);
                 let (_, dfilm, unet_grads) =
                     unet.backward(&cache, &as_steps(&grad, unet.steps), &film);
-                let encoder_grads = encoder.param_gradients(&encoder_cache, &dfilm);
-                let mut grads: Vec<Vec<f32>> = flatten_grads(&encoder_grads)
-                    .into_iter()
-                    .map(<[f32]>::to_vec)
-                    .collect();
+                let mut grads = slices(encoder.param_gradients(&encoder_cache, &dfilm));
                 grads.extend(unet_grads);
                 (loss, FlowGrads(grads))
             }
@@ -273,6 +265,11 @@ impl FlowGrads {
     pub fn slices(&self) -> Vec<&[f32]> {
         self.0.iter().map(Vec::as_slice).collect()
     }
+}
+
+/// An MLP's layer gradients as slices in the order of `Mlp::params_mut` (moved, not copied).
+fn slices(grads: Vec<LinearGrad>) -> Vec<Vec<f32>> {
+    grads.into_iter().flat_map(|g| [g.w.data, g.b]).collect()
 }
 
 /// `B × (steps·channels)` rows (step-major) as `B·steps × channels`: the same values.

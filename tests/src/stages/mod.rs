@@ -22,7 +22,7 @@ pub use offset::OffsetKind;
 pub use panic::{PanicKind, PanicParams};
 pub use shift::{ShiftKind, ShiftParams};
 pub use signs::SignsKind;
-pub use spin::{SpinKind, SpinParams, thread_cpu_secs};
+pub use spin::{SpinKind, SpinParams};
 pub use sum::SumKind;
 pub use sum_of_a::SumOfAKind;
 

@@ -1,7 +1,7 @@
 //! `spin` (test kind): uses a given amount of CPU time on one thread, to check that a record's
 //! core-seconds are the CPU time its build used, whatever ran beside it.
 
-use osms_make::{Ctx, Stage, StageError};
+use osms_make::{Ctx, Stage, StageError, thread_cpu_secs};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::Total;
@@ -12,19 +12,6 @@ pub struct SpinParams {
     /// CPU milliseconds to use (by the thread's own CPU clock, not the wall clock: a loaded
     /// machine stretches the wall time, not the work).
     pub cpu_ms: u64,
-}
-
-/// CPU seconds the calling thread has used.
-#[allow(unsafe_code)]
-pub fn thread_cpu_secs() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: a valid, writable timespec and a clock every Linux has.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    assert_eq!(rc, 0, "clock_gettime(CLOCK_THREAD_CPUTIME_ID)");
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
 }
 
 /// Uses `cpu_ms` of CPU on one thread; its output says how much.

@@ -152,11 +152,7 @@ fn non_finite(value: &toml::Value, path: &mut Vec<String>) -> Option<ParamError>
             path: path.clone(),
             message: format!(
                 "{} is not valid here: every param is a finite number",
-                if x.is_nan() {
-                    "nan".to_string()
-                } else {
-                    x.to_string()
-                }
+                osms_core::check::shown(*x)
             ),
         }),
         toml::Value::Table(t) => t.iter().find_map(|(k, v)| {

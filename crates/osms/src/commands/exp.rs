@@ -400,17 +400,15 @@ fn point_row(
         if !i.target {
             continue;
         }
-        for (metric, pick) in [
-            ("train_secs", (|t: (f64, f64)| t.0) as fn((f64, f64)) -> f64),
-            ("train_core_secs", |t| t.1),
-        ] {
+        for (metric, core) in [("train_secs", false), ("train_core_secs", true)] {
             if !metrics.iter().any(|m| m == metric) {
                 continue;
             }
             let secs: Vec<f64> = record
                 .iter()
                 .flat_map(|r| r.inputs.iter())
-                .filter_map(|(_, h)| trained.get(h).copied().map(pick))
+                .filter_map(|(_, h)| trained.get(h))
+                .map(|&(wall, cpu)| if core { cpu } else { wall })
                 .collect();
             // A record from before core-seconds were measured has none to show.
             if !secs.is_empty() && secs.iter().all(|s| s.is_finite()) {
