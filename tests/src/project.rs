@@ -104,6 +104,10 @@ impl Project {
             .arg(&self.store)
             .args(args)
             .env("OSMS_NO_PROGRESS", "1")
+            // One build at a time unless a test asks for more: the snapshots record the log
+            // lines in the order one-at-a-time builds print them (the engine tests cover
+            // builds side by side).
+            .env("OSMS_STAGES", "1")
             .env_remove("OSMS_LOG")
             .current_dir(self.dir.path())
             .output()

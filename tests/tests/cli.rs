@@ -76,11 +76,29 @@ fn transcript(p: &Project, args: &[&str]) -> (String, Output) {
     (shown(p, args, &out), out)
 }
 
-/// The transcript of `out`, the output of `osms ARGS`, with the project's path and timings
-/// filtered.
+/// `make`'s line on how busy the cores were, whose numbers are the machine's.
+fn filter_cost(text: &str) -> String {
+    const COST: &str = "osms make: the builds used ";
+    text.split_inclusive('\n')
+        .map(|l| {
+            if l.starts_with(COST) {
+                format!("{COST}[COST]\n")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect()
+}
+
+/// The transcript of `out`, the output of `osms ARGS`, with the project's path, timings and
+/// the cost line's numbers filtered.
 fn shown(p: &Project, args: &[&str], out: &Output) -> String {
     let dir = p.dir.path().display().to_string();
-    let clean = |b: &[u8]| filter_timings(&String::from_utf8_lossy(b).replace(&dir, "[PROJECT]"));
+    let clean = |b: &[u8]| {
+        filter_cost(&filter_timings(
+            &String::from_utf8_lossy(b).replace(&dir, "[PROJECT]"),
+        ))
+    };
     format!(
         "$ osms {}\nexit: {}\n--- stdout\n{}--- stderr\n{}",
         clean(args.join(" ").as_bytes()),

@@ -859,7 +859,7 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     }
     impl osms_sim::Policy for Watch<'_> {
         fn act(&mut self, view: &osms_sim::PolicyView<'_>) -> osms_sim::Action {
-            self.seen.push(self.inner.student.observation(view));
+            self.seen.push(self.inner.student().observation(view));
             self.inner.act(view)
         }
     }
@@ -935,10 +935,7 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     }
 
     let mut watch = Watch {
-        inner: StudentPolicy {
-            student: &student,
-            rng: policy(0),
-        },
+        inner: StudentPolicy::new(&student, policy(0)),
         seen: Vec::new(),
     };
     let record = osms_sim::Episode::new(&world, &spec, condition, dr())
@@ -976,10 +973,7 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     let again = osms_sim::Episode::new(&world, &spec, record.condition.clone(), dr()).run(
         &mut Views {
             student: &variant,
-            inner: StudentPolicy {
-                student: &student,
-                rng: policy(0),
-            },
+            inner: StudentPolicy::new(&student, policy(0)),
             seen: &mut views,
         },
         &mut osms_sim::NoHooks,

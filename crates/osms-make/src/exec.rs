@@ -65,6 +65,8 @@ pub struct InstanceReport {
     #[serde(flatten)]
     pub outcome: Outcome,
     pub wall_time_secs: f64,
+    /// CPU seconds of the build's threads (0 for an instance this make did not build).
+    pub cpu_secs: f64,
 }
 
 #[derive(Debug, Clone, Default, Serialize)]
@@ -272,6 +274,7 @@ fn make_locked(
                     content_hash: None,
                     outcome,
                     wall_time_secs: 0.0,
+                    cpu_secs: 0.0,
                 };
                 observer.finished(&r);
                 report.instances.push(r);
@@ -319,6 +322,7 @@ fn make_locked(
                     content_hash: None,
                     outcome: Outcome::WouldBuild { reason },
                     wall_time_secs: 0.0,
+                    cpu_secs: 0.0,
                 };
                 observer.finished(&r);
                 report.instances.push(r);
@@ -543,6 +547,7 @@ fn settle(
                 content_hash: Some(content_hash),
                 outcome: Outcome::Built { reason },
                 wall_time_secs,
+                cpu_secs: done.cpu_secs,
             }
         }
         Err(e) => InstanceReport {
@@ -553,6 +558,7 @@ fn settle(
                 error: e.to_string(),
             },
             wall_time_secs,
+            cpu_secs: done.cpu_secs,
         },
     })
 }
@@ -601,6 +607,7 @@ pub(crate) fn cached_report(
             Outcome::Cached
         },
         wall_time_secs: 0.0,
+        cpu_secs: 0.0,
     }
 }
 

@@ -116,12 +116,28 @@ fn store<const H: usize, const NR: usize>(
     }
 }
 
+/// The first `rows` rows of C at column `j0` into `acc`, for a product that continues C's sums;
+/// columns past the edge stay 0 (they are never stored).
+#[inline(always)]
+fn load<const H: usize, const NR: usize>(
+    acc: &mut [[f32; NR]; H],
+    c: &[f32],
+    n: usize,
+    rows: usize,
+    j0: usize,
+) {
+    let width = NR.min(n - j0);
+    for (r, acc_row) in acc.iter_mut().enumerate().take(rows) {
+        acc_row[..width].copy_from_slice(&c[r * n + j0..r * n + j0 + width]);
+    }
+}
+
 /// One 2H × NR block of C from two H-row panels of A (`k × H` each, interleaved by k) and one
 /// panel of B (`k × NR`), all walked by value with no indexing. The block is two separate H × NR
 /// arrays because LLVM keeps an array of up to 128 floats in registers but spills a larger one
 /// on every k step. Rows and columns past the matrix edge were zero-padded and are not stored.
 #[inline(always)]
-fn micro<const H: usize, const NR: usize>(
+fn micro<const H: usize, const NR: usize, const ACC: bool>(
     a_lo: &[f32],
     a_hi: &[f32],
     b_panel: &[f32],
@@ -135,6 +151,12 @@ fn micro<const H: usize, const NR: usize>(
     let (b_ks, _) = b_panel.as_chunks::<NR>();
     let mut lo = [[0.0f32; NR]; H];
     let mut hi = [[0.0f32; NR]; H];
+    if ACC {
+        load(&mut lo, c, n, rows.min(H), j0);
+        if rows > H {
+            load(&mut hi, &c[H * n..], n, rows - H, j0);
+        }
+    }
     if rows > H {
         for ((a_lo, a_hi), b) in lo_ks.iter().zip(hi_ks).zip(b_ks) {
             step(&mut lo, a_lo, b);
@@ -152,7 +174,7 @@ fn micro<const H: usize, const NR: usize>(
 
 /// The rows of C starting at row `i0` (as many as `c` holds), every panel of B, 2H at a time.
 #[inline(always)]
-fn block<const H: usize, const NR: usize>(
+fn block<const H: usize, const NR: usize, const ACC: bool>(
     a: Operand<'_>,
     i0: usize,
     packed: &[f32],
@@ -168,7 +190,7 @@ fn block<const H: usize, const NR: usize>(
         pack_a(a, i0 + g0, group.min(H), H, &mut a_lo);
         pack_a(a, i0 + g0 + H, group.saturating_sub(H), H, &mut a_hi);
         for (p, b_panel) in packed.chunks_exact(k * NR).enumerate() {
-            micro::<H, NR>(&a_lo, &a_hi, b_panel, &mut c[g0 * n..], n, group, p * NR);
+            micro::<H, NR, ACC>(&a_lo, &a_hi, b_panel, &mut c[g0 * n..], n, group, p * NR);
         }
     }
 }
@@ -189,7 +211,11 @@ fn rows_axpy(a: &[f32], b: &[f32], c: &mut [f32], n: usize) {
 
 per_level!(block_baseline, block_avx2, block_avx512, [LEVEL]
     (a: Operand<'_>, i0: usize, packed: &[f32], c: &mut [f32], n: usize)
-    => block::<{ LEVEL.mr() / 2 }, { LEVEL.nr() }>(a, i0, packed, c, n));
+    => block::<{ LEVEL.mr() / 2 }, { LEVEL.nr() }, false>(a, i0, packed, c, n));
+
+per_level!(block_acc_baseline, block_acc_avx2, block_acc_avx512, [LEVEL]
+    (a: Operand<'_>, i0: usize, packed: &[f32], c: &mut [f32], n: usize)
+    => block::<{ LEVEL.mr() / 2 }, { LEVEL.nr() }, true>(a, i0, packed, c, n));
 
 per_level!(axpy_baseline, axpy_avx2, axpy_avx512,
     (a: &[f32], b: &[f32], c: &mut [f32], n: usize) => rows_axpy(a, b, c, n));
@@ -221,29 +247,105 @@ fn product(level: Level, a: Operand<'_>, b: Operand<'_>, what: &str) -> Matrix {
         );
         return c;
     }
-    let packed = pack_b(b, level.nr());
+    blocks(level, a, &pack_b(b, level.nr()), &mut c, false);
+    c
+}
+
+/// C (`m × n`) from A and B's packed panels, in whole MR-row groups, on rayon's threads when
+/// the product is large enough; `acc` continues each element's sum from C's value.
+fn blocks(level: Level, a: Operand<'_>, packed: &[f32], c: &mut Matrix, acc: bool) {
+    let n = c.cols;
+    let run = |i0: usize, rows: &mut [f32]| {
+        if acc {
+            dispatch!(
+                level,
+                block_acc_baseline,
+                block_acc_avx2,
+                block_acc_avx512(a, i0, packed, rows, n)
+            )
+        } else {
+            dispatch!(
+                level,
+                block_baseline,
+                block_avx2,
+                block_avx512(a, i0, packed, rows, n)
+            )
+        }
+    };
     let mr = level.mr();
-    if m * k * n >= PARALLEL_MIN_WORK {
+    if c.rows * a.cols() * n >= PARALLEL_MIN_WORK {
         c.data
             .par_chunks_mut(mr * n)
             .enumerate()
-            .for_each(|(g, rows)| {
-                dispatch!(
-                    level,
-                    block_baseline,
-                    block_avx2,
-                    block_avx512(a, g * mr, &packed, rows, n)
-                )
-            });
+            .for_each(|(g, rows)| run(g * mr, rows));
     } else {
-        dispatch!(
-            level,
-            block_baseline,
-            block_avx2,
-            block_avx512(a, 0, &packed, &mut c.data, n)
-        );
+        run(0, &mut c.data);
     }
-    c
+}
+
+/// A right-hand operand B packed once for many products with different A (a layer's weights
+/// when a network only runs forward): [`matmul`] packs B on every call, which at a few rows
+/// costs about as much as the product.
+#[derive(Debug, Clone)]
+pub struct PackedB {
+    level: Level,
+    plain: Matrix,
+    panels: Vec<f32>,
+}
+
+impl PackedB {
+    /// B packed for the CPU's widest level.
+    pub fn new(b: Matrix) -> Self {
+        Self::at(Level::detected(), b)
+    }
+
+    /// B packed for `level` (a level the CPU lacks runs the baseline, as [`matmul_at`]).
+    pub fn at(level: Level, b: Matrix) -> Self {
+        let panels = if b.data.is_empty() {
+            Vec::new()
+        } else {
+            pack_b(plain(&b), level.nr())
+        };
+        PackedB {
+            level,
+            plain: b,
+            panels,
+        }
+    }
+
+    /// B as given.
+    pub fn matrix(&self) -> &Matrix {
+        &self.plain
+    }
+}
+
+/// C += A · B, B packed: each element of C continues its sum from C's value in increasing k.
+/// From C = 0 that is [`matmul`] bit for bit; and since a product sums k in order, splitting A's
+/// columns and B's rows at any k, `C = A₁·B₁` then `C += A₂·B₂` has the bits of `[A₁ A₂]·[B₁; B₂]`
+/// (a first layer whose leading inputs stay fixed over many calls multiplies them once).
+pub fn matmul_acc_packed(a: &Matrix, b: &PackedB, c: &mut Matrix) {
+    let (m, k, n) = (a.rows, a.cols, b.plain.cols);
+    assert!(
+        k == b.plain.rows && c.rows == m && c.cols == n,
+        "A·B into C: {m}x{k} times {}x{} into {}x{}",
+        b.plain.rows,
+        n,
+        c.rows,
+        c.cols
+    );
+    if m == 0 || n == 0 || k == 0 {
+        return;
+    }
+    if m <= AXPY_MAX_ROWS {
+        dispatch!(
+            b.level,
+            axpy_baseline,
+            axpy_avx2,
+            axpy_avx512(&a.data, &b.plain.data, &mut c.data, n)
+        );
+        return;
+    }
+    blocks(b.level, plain(a), &b.panels, c, true);
 }
 
 fn plain(m: &Matrix) -> Operand<'_> {
@@ -392,6 +494,57 @@ mod tests {
                     bits(&reference),
                     "nt {level:?} {m}x{k}x{n}"
                 );
+            }
+        }
+    }
+
+    /// The triple loop, each element's sum continued from `c`'s value.
+    fn reference_from(c: &Matrix, a: &Matrix, b: &Matrix) -> Matrix {
+        Matrix::from_fn(a.rows, b.cols, |i, j| {
+            (0..a.cols).fold(c.get(i, j), |s, k| a.get(i, k).mul_add(b.get(k, j), s))
+        })
+    }
+
+    #[test]
+    fn products_continued_from_c_with_packed_b_match_the_reference_and_any_split_of_k() {
+        // (80, 300, 40) crosses the threshold above which rows go to threads.
+        for (m, k, n) in [
+            (1, 9, 5),
+            (2, 40, 17),
+            (3, 5, 7),
+            (16, 70, 33),
+            (31, 64, 47),
+            (80, 300, 40),
+        ] {
+            let (a, b) = (random(m, k, 5), random(k, n, 6));
+            let c0 = random(m, n, 7);
+            for level in Level::available() {
+                let mut c = c0.clone();
+                matmul_acc_packed(&a, &PackedB::at(level, b.clone()), &mut c);
+                assert_eq!(
+                    bits(&c),
+                    bits(&reference_from(&c0, &a, &b)),
+                    "{level:?} {m}x{k}x{n}"
+                );
+                for split in [0, 1, k / 3, k - 1, k] {
+                    let part = |x: &Matrix, r: std::ops::Range<usize>, by_cols: bool| {
+                        if by_cols {
+                            Matrix::from_fn(x.rows, r.len(), |i, j| x.get(i, r.start + j))
+                        } else {
+                            Matrix::from_fn(r.len(), x.cols, |i, j| x.get(r.start + i, j))
+                        }
+                    };
+                    let mut c = Matrix::zeros(m, n);
+                    for r in [0..split, split..k] {
+                        let b_rows = PackedB::at(level, part(&b, r.clone(), false));
+                        matmul_acc_packed(&part(&a, r, true), &b_rows, &mut c);
+                    }
+                    assert_eq!(
+                        bits(&c),
+                        bits(&matmul_reference(&a, &b)),
+                        "{level:?} {m}x{k}x{n} split at {split}"
+                    );
+                }
             }
         }
     }

@@ -3,7 +3,7 @@
 use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
-use crate::kernels::{Level, matmul, matmul_nt, matmul_tn};
+use crate::kernels::{Level, PackedB, matmul, matmul_acc_packed, matmul_nt, matmul_tn};
 use crate::{Error, Matrix, Result};
 
 /// Element-wise activations. SiLU uses [`crate::math::exp`], which runs in SIMD lanes; the
@@ -406,6 +406,79 @@ impl Mlp {
     }
 }
 
+/// An [`Mlp`] prepared to run forward many times: every layer's weights packed once
+/// ([`PackedB`]; [`Mlp::forward`] packs them on every call), and the first layer's weight rows
+/// split after the first `fixed` inputs, so that inputs which stay the same over many calls (a
+/// flow's condition over its Euler steps) are multiplied once ([`MlpInference::prefix`]).
+/// [`MlpInference::forward`] has the bits of [`Mlp::forward`] on the joined input: a product
+/// sums k in order, so continuing the fixed inputs' sums over the others is the whole sum.
+#[derive(Debug, Clone)]
+pub struct MlpInference {
+    fixed: PackedB,
+    varying: PackedB,
+    rest: Vec<PackedB>,
+    biases: Vec<Vec<f32>>,
+    activations: Vec<Activation>,
+}
+
+impl MlpInference {
+    /// `mlp` with its first `fixed` inputs multiplied apart (at most its input width).
+    pub fn new(mlp: &Mlp, fixed: usize) -> Self {
+        let first = &mlp.layers[0].w;
+        let fixed = fixed.min(first.rows);
+        let rows = |r: std::ops::Range<usize>| {
+            PackedB::new(Matrix::from_vec(
+                r.len(),
+                first.cols,
+                first.data[r.start * first.cols..r.end * first.cols].to_vec(),
+            ))
+        };
+        MlpInference {
+            fixed: rows(0..fixed),
+            varying: rows(fixed..first.rows),
+            rest: mlp.layers[1..]
+                .iter()
+                .map(|l| PackedB::new(l.w.clone()))
+                .collect(),
+            biases: mlp.layers.iter().map(|l| l.b.clone()).collect(),
+            activations: (0..mlp.layers.len()).map(|l| mlp.activation(l)).collect(),
+        }
+    }
+
+    /// The first layer's sums over the fixed inputs, one row per row of `fixed` (no bias).
+    pub fn prefix(&self, fixed: &Matrix) -> Matrix {
+        let mut c = Matrix::zeros(fixed.rows, self.fixed.matrix().cols);
+        matmul_acc_packed(fixed, &self.fixed, &mut c);
+        c
+    }
+
+    /// The output on rows [fixed, varying], from `prefix` = [`MlpInference::prefix`] of the
+    /// fixed part: [`Mlp::forward`]'s bits.
+    pub fn forward(&self, prefix: &Matrix, varying: &Matrix) -> Matrix {
+        let mut a = prefix.clone();
+        matmul_acc_packed(varying, &self.varying, &mut a);
+        self.finish(0, &mut a);
+        for (l, w) in self.rest.iter().enumerate() {
+            let mut y = Matrix::zeros(a.rows, w.matrix().cols);
+            matmul_acc_packed(&a, w, &mut y);
+            self.finish(l + 1, &mut y);
+            a = y;
+        }
+        a
+    }
+
+    /// Layer `l`'s bias and activation, as [`Linear::forward`] and [`Mlp::forward`] apply them.
+    fn finish(&self, l: usize, y: &mut Matrix) {
+        let b = &self.biases[l];
+        for row in y.data.chunks_exact_mut(b.len().max(1)) {
+            for (v, b) in row.iter_mut().zip(b) {
+                *v += b;
+            }
+        }
+        self.activations[l].apply_slice(&mut y.data);
+    }
+}
+
 /// Flattens layer gradients in the order of [`Mlp::params_mut`].
 pub fn flatten_grads(grads: &[LinearGrad]) -> Vec<&[f32]> {
     grads
@@ -460,6 +533,41 @@ mod tests {
 
     fn bits(v: &[f32]) -> Vec<u32> {
         v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    #[test]
+    fn prepared_inference_has_the_bits_of_forward_for_any_split_and_batch() {
+        // Wide enough for the tiled path and the threads; one layer alone as well.
+        let deep = Mlp::new(
+            &[70, 64, 48, 20],
+            Activation::Silu,
+            Activation::Tanh,
+            3,
+            "t",
+        )
+        .expect("a valid MLP");
+        let single =
+            Mlp::new(&[9, 4], Activation::Silu, Activation::Elu, 4, "t").expect("a valid MLP");
+        for mlp in [deep, single] {
+            let inputs = mlp.layers[0].w.rows;
+            for rows in [1, 2, 3, 16, 150] {
+                let x = random(rows, inputs, 11);
+                let want = bits(&mlp.forward(&x).data);
+                for fixed in [0, 1, inputs / 2, inputs - 1, inputs] {
+                    let prepared = MlpInference::new(&mlp, fixed);
+                    let cols = |r: std::ops::Range<usize>| {
+                        Matrix::from_fn(rows, r.len(), |i, j| x.get(i, r.start + j))
+                    };
+                    let prefix = prepared.prefix(&cols(0..fixed));
+                    let got = prepared.forward(&prefix, &cols(fixed..inputs));
+                    assert_eq!(
+                        bits(&got.data),
+                        want,
+                        "{inputs} inputs, {rows} rows, fixed {fixed}"
+                    );
+                }
+            }
+        }
     }
 
     fn act_f64(act: Activation, x: f64) -> f64 {

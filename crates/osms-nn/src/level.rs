@@ -45,7 +45,8 @@ impl Level {
     /// Register-block rows (even: the block is two halves).
     pub(crate) const fn mr(self) -> usize {
         match self {
-            Level::Baseline | Level::Avx2 => 4,
+            Level::Baseline => 4,
+            Level::Avx2 => 6,
             Level::Avx512 => 8,
         }
     }

@@ -20,7 +20,9 @@ pub use extra::{
     sinusoidal_embedding_backward, softmax_cross_entropy,
 };
 pub use layers::Jet;
-pub use layers::{Activation, Linear, LinearGrad, Mlp, MlpCache, flatten_grads, mse, weighted_mse};
+pub use layers::{
+    Activation, Linear, LinearGrad, Mlp, MlpCache, MlpInference, flatten_grads, mse, weighted_mse,
+};
 pub use matrix::Matrix;
 pub use optim::{Adam, AdamConfig, Schedule, global_norm};
 pub use unet::{Conv1d, ResBlock, ResCache, UNet1d, UNetCache};

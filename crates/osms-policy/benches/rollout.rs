@@ -16,6 +16,12 @@
 //! loop costs"). A third side replays the controls and also pays for those solves; the osms
 //! time against it is the share of osms's own work.
 //!
+//! - **student**: an evaluation's pattern: a flow-matching student (the default network, briefly
+//!   trained on teacher rollouts: its cost per step does not depend on how well it acts) steps
+//!   [`ROLLOUT_BATCH`] rollouts in lockstep, one batched action per control step, as
+//!   `eval_student` does. The bare side replays each of the batch's rollouts from its start. Its
+//!   ratio is an evaluation's share of its MuJoCo floor (students read no contact force).
+//!
 //! Every rollout is timed on all sides back to back, in rotating order, `rounds` times; a
 //! rollout's time is its fastest round (interruptions only ever add time), and a pattern's ratio
 //! is the sum of bare times over the sum of osms times. The whole measurement repeats `runs`
@@ -23,7 +29,8 @@
 //! time.
 //!
 //! Settings (environment): `OSMS_BENCH_CONDITIONS` (default 48), `OSMS_BENCH_ROUNDS` (3),
-//! `OSMS_BENCH_RUNS` (3), `OSMS_BENCH_PATTERNS` (comma-separated subset of `teacher,branch`),
+//! `OSMS_BENCH_RUNS` (3), `OSMS_BENCH_PATTERNS` (comma-separated subset of `teacher,branch,student`; a student's
+//! conditions are counted in batches),
 //! `OSMS_BENCH_ONLY=<pattern>:<osms|bare>` (run only that side, for `perf record`).
 
 #[path = "../../osms-sim/benches/common/bare.rs"]
@@ -34,10 +41,11 @@ use std::time::Instant;
 use bare::{Bare, Controls, STATE, conditions, dr, measure, replay, report, setting, time};
 use mujoco_rs::prelude::*;
 use osms_policy::catch::{CatchEpisode, CatchSnapshot, CatchTaskSpec, OBS_LEN};
+use osms_policy::student::{Demo, ROLLOUT_BATCH, Student, StudentParams, StudentPolicy, rollouts};
 use osms_policy::{Agent, PpoConfig, TaskEpisode};
 use osms_sim::control::DrSpec;
 use osms_sim::episode::{Hooks, initial_data};
-use osms_sim::{Action, N_ARM, TaskCondition, World, WorldSpec};
+use osms_sim::{Action, Episode, N_ARM, RolloutSpec, TaskCondition, World, WorldSpec};
 
 /// Branches per condition, as validation's Q perturbed rollouts.
 const BRANCHES: usize = 4;
@@ -75,14 +83,16 @@ impl Hooks for Perturb {
 enum Pattern {
     Teacher,
     Branch,
+    Student,
 }
 
 impl Pattern {
-    const ALL: [Pattern; 2] = [Pattern::Teacher, Pattern::Branch];
+    const ALL: [Pattern; 3] = [Pattern::Teacher, Pattern::Branch, Pattern::Student];
     fn name(self) -> &'static str {
         match self {
             Pattern::Teacher => "teacher",
             Pattern::Branch => "branch",
+            Pattern::Student => "student",
         }
     }
 }
@@ -92,6 +102,13 @@ struct Bench<'a> {
     spec: CatchTaskSpec,
     agent: Agent,
     conditions: Vec<TaskCondition>,
+    student: Student,
+    student_spec: RolloutSpec,
+}
+
+/// A student's policy stream for rollout `i`.
+fn policy_rng(i: usize) -> osms_core::rng::StreamRng {
+    osms_core::rng::stream(0, "bench", "policy", i as u64)
 }
 
 impl Bench<'_> {
@@ -166,8 +183,48 @@ impl Bench<'_> {
             .collect()
     }
 
+    /// Batch `b` of student rollouts, in lockstep.
+    fn students(&self, b: usize) -> usize {
+        let items = (b * ROLLOUT_BATCH..(b + 1) * ROLLOUT_BATCH)
+            .map(|i| (self.conditions[i].clone(), dr(i), policy_rng(i)))
+            .collect();
+        let records = rollouts(self.world, &self.student_spec, &self.student, items);
+        std::hint::black_box(records.iter().map(|r| r.steps).sum())
+    }
+
+    /// Student rollout `i` alone (the lockstep rollout's bits), recording its controls.
+    fn student_bare(&self, i: usize) -> Bare {
+        let mut controls = Controls::default();
+        let mut policy = StudentPolicy::new(&self.student, policy_rng(i));
+        let episode = Episode::new(
+            self.world,
+            &self.student_spec,
+            self.conditions[i].clone(),
+            dr(i),
+        );
+        let record = episode.run(&mut policy, &mut controls);
+        let data = initial_data(self.world, &self.conditions[i], &record.dr);
+        Bare {
+            model: data.model().clone(),
+            start: data.state(STATE),
+            branches: vec![controls],
+        }
+    }
+
+    /// What the bare side replays for item `i`: one rollout's controls, a condition's
+    /// branches, or a student batch's rollouts, each from its own start.
+    fn bares(&self, pattern: Pattern, i: usize) -> Vec<Bare> {
+        match pattern {
+            Pattern::Student => (i * ROLLOUT_BATCH..(i + 1) * ROLLOUT_BATCH)
+                .map(|k| self.student_bare(k))
+                .collect(),
+            _ => vec![self.bare(pattern, i)],
+        }
+    }
+
     fn bare(&self, pattern: Pattern, i: usize) -> Bare {
         match pattern {
+            Pattern::Student => unreachable!("a student batch replays through `bares`"),
             Pattern::Teacher => {
                 let mut controls = Controls::default();
                 let dr = self.episode(i).episode().record().dr.clone();
@@ -232,11 +289,21 @@ fn main() {
     {
         *b = 0.3;
     }
+    // One core for every side: the bare replay is single-threaded, and so must be the
+    // student's batched products.
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build_global()
+        .expect("a one-thread pool");
+    let student = bench_student(&world, &spec, &agent);
+    let student_spec = student.rollout_spec(&spec.rollout);
     let bench = Bench {
         world: &world,
         spec,
         agent,
-        conditions: conditions(&world, n),
+        conditions: conditions(&world, n.max(ROLLOUT_BATCH)),
+        student,
+        student_spec,
     };
 
     if let Ok(only) = std::env::var("OSMS_BENCH_ONLY") {
@@ -246,7 +313,7 @@ fn main() {
         let pattern = Pattern::ALL
             .into_iter()
             .find(|p| p.name() == pattern)
-            .expect("a pattern: teacher or branch");
+            .expect("a pattern: teacher, branch or student");
         profile(&bench, pattern, side == "bare", runs * rounds);
         return;
     }
@@ -260,39 +327,92 @@ fn main() {
     );
     let classes = world.ids.geom_class.as_slice();
     for pattern in patterns {
-        let bare: Vec<Bare> = (0..n).map(|i| bench.bare(pattern, i)).collect();
-        let physics_steps = bare.iter().map(Bare::physics_steps).sum();
+        // A student's item is a lockstep batch of rollouts.
+        let items = match pattern {
+            Pattern::Student => bench.conditions.len() / ROLLOUT_BATCH,
+            _ => n,
+        };
+        let bare: Vec<Vec<Bare>> = (0..items).map(|i| bench.bares(pattern, i)).collect();
+        let physics_steps = bare.iter().flatten().map(Bare::physics_steps).sum();
         let mut prefixes = match pattern {
             Pattern::Branch => bench.prefixes(),
-            Pattern::Teacher => Vec::new(),
+            Pattern::Teacher | Pattern::Student => Vec::new(),
         };
-        let fresh = pattern == Pattern::Teacher;
-        let figures = measure(n, 3, rounds, runs, |i, side| {
-            let b = &bare[i];
-            let mut data = MjData::new(Box::new(b.model.clone()));
+        let fresh = pattern != Pattern::Branch;
+        let figures = measure(items, 3, rounds, runs, |i, side| {
+            let mut data = MjData::new(Box::new(bare[i][0].model.clone()));
             Some(match side {
-                0 => time(|| match pattern {
-                    Pattern::Teacher => {
-                        std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
-                    }
-                    Pattern::Branch => {
-                        let (ep, s) = &mut prefixes[i];
-                        bench.branches(ep, s, false);
-                    }
+                0 => time(|| osms_side(&bench, pattern, &mut prefixes, i)),
+                1 => time(|| {
+                    bare[i]
+                        .iter()
+                        .for_each(|b| replay(b, &mut data, fresh, None))
                 }),
-                1 => time(|| replay(b, &mut data, fresh, None)),
-                _ => time(|| replay(b, &mut data, fresh, Some(classes))),
+                // Students read no contact force: their floor is the plain replay.
+                _ if pattern == Pattern::Student => return None,
+                _ => time(|| {
+                    bare[i]
+                        .iter()
+                        .for_each(|b| replay(b, &mut data, fresh, Some(classes)))
+                }),
             })
         });
         report(pattern.name(), physics_steps, &figures);
     }
 }
 
+/// The osms side of item `i` of a pattern.
+fn osms_side(
+    bench: &Bench<'_>,
+    pattern: Pattern,
+    prefixes: &mut [(CatchEpisode<'_>, CatchSnapshot)],
+    i: usize,
+) {
+    match pattern {
+        Pattern::Teacher => {
+            std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
+        }
+        Pattern::Branch => {
+            let (ep, s) = &mut prefixes[i];
+            bench.branches(ep, s, false);
+        }
+        Pattern::Student => {
+            std::hint::black_box(bench.students(i));
+        }
+    }
+}
+
+/// A student of the default shape, trained for a few steps on teacher rollouts (its cost per
+/// step does not depend on how well it acts).
+fn bench_student(world: &World, spec: &CatchTaskSpec, agent: &Agent) -> Student {
+    let demos: Vec<Demo> = (0..8)
+        .map(|i| {
+            let condition = conditions(world, 8)[i].clone();
+            Demo::from_record(&osms_policy::catch::rollout(
+                world,
+                spec,
+                agent,
+                condition,
+                dr(1000 + i),
+            ))
+        })
+        .collect();
+    let params = StudentParams {
+        steps: 5,
+        holdout_every: 0,
+        ..StudentParams::default()
+    };
+    Student::train(&demos, &params, (0, "bench"), &|| {}).expect("a student")
+}
+
 /// Runs one side of one pattern `times` over, for a profiler.
 fn profile(bench: &Bench<'_>, pattern: Pattern, bare_side: bool, times: usize) {
-    let n = bench.conditions.len();
-    let bare: Vec<Bare> = if bare_side {
-        (0..n).map(|i| bench.bare(pattern, i)).collect()
+    let items = match pattern {
+        Pattern::Student => bench.conditions.len() / ROLLOUT_BATCH,
+        _ => bench.conditions.len(),
+    };
+    let bare: Vec<Vec<Bare>> = if bare_side {
+        (0..items).map(|i| bench.bares(pattern, i)).collect()
     } else {
         Vec::new()
     };
@@ -302,7 +422,7 @@ fn profile(bench: &Bench<'_>, pattern: Pattern, bare_side: bool, times: usize) {
         Vec::new()
     };
     let t = Instant::now();
-    profiled_loop(bench, pattern, &bare, &mut prefixes, times);
+    profiled_loop(bench, pattern, &bare, &mut prefixes, items, times);
     println!(
         "{}:{} ran {times} times in {:.1} s",
         pattern.name(),
@@ -317,26 +437,19 @@ fn profile(bench: &Bench<'_>, pattern: Pattern, bare_side: bool, times: usize) {
 fn profiled_loop(
     bench: &Bench<'_>,
     pattern: Pattern,
-    bare: &[Bare],
+    bare: &[Vec<Bare>],
     prefixes: &mut [(CatchEpisode<'_>, CatchSnapshot)],
+    items: usize,
     times: usize,
 ) {
-    let n = bench.conditions.len();
     for _ in 0..times {
-        for i in 0..n {
-            if !bare.is_empty() {
-                let b = &bare[i];
-                let mut data = MjData::new(Box::new(b.model.clone()));
-                replay(b, &mut data, pattern == Pattern::Teacher, None);
+        for i in 0..items {
+            if bare.is_empty() {
+                osms_side(bench, pattern, prefixes, i);
             } else {
-                match pattern {
-                    Pattern::Teacher => {
-                        std::hint::black_box(bench.teacher(i, &mut osms_sim::NoHooks));
-                    }
-                    Pattern::Branch => {
-                        let (ep, s) = &mut prefixes[i];
-                        bench.branches(ep, s, false);
-                    }
+                for b in &bare[i] {
+                    let mut data = MjData::new(Box::new(b.model.clone()));
+                    replay(b, &mut data, pattern != Pattern::Branch, None);
                 }
             }
         }

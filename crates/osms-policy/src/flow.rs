@@ -10,7 +10,7 @@
 //! of [`crate::student`] put an observation history in c and an action chunk in x.
 
 use osms_core::rng::{self, StreamRng};
-use osms_nn::{Activation, LinearGrad, Matrix, Mlp, UNet1d, sinusoidal_embedding};
+use osms_nn::{Activation, LinearGrad, Matrix, Mlp, MlpInference, UNet1d, sinusoidal_embedding};
 use serde::{Deserialize, Serialize};
 
 /// t is scaled by this before its sinusoidal embedding, so the embedding's periods (from
@@ -145,24 +145,39 @@ impl FlowNet {
 
     /// Rows [c, emb(t)], then x if `with_x`.
     fn input(&self, x: &Matrix, t: &[f32], cond: &Matrix, with_x: bool) -> Matrix {
+        assert!(x.rows == cond.rows, "flow: batch sizes");
         assert_eq!(x.cols, self.x_len, "flow: sample width");
-        assert_eq!(cond.cols, self.cond_len, "flow: condition width");
-        assert!(
-            x.rows == cond.rows && x.rows == t.len(),
-            "flow: batch sizes"
-        );
+        self.joined(Some(cond), t, with_x.then_some(x), x.rows)
+    }
+
+    /// `rows` rows [c (if given), emb(t), x (if given)].
+    fn joined(&self, cond: Option<&Matrix>, t: &[f32], x: Option<&Matrix>, rows: usize) -> Matrix {
+        assert!(rows == t.len(), "flow: batch sizes");
         let scaled: Vec<f32> = t.iter().map(|t| t * TIME_SCALE).collect();
         let emb = sinusoidal_embedding(&scaled, self.time_embedding, MAX_PERIOD);
-        let width = self.cond_len + self.time_embedding + if with_x { self.x_len } else { 0 };
-        let mut data = Vec::with_capacity(x.rows * width);
-        for i in 0..x.rows {
-            data.extend_from_slice(cond.row(i));
+        let width = cond.map_or(0, |c| c.cols) + self.time_embedding + x.map_or(0, |x| x.cols);
+        let mut data = Vec::with_capacity(rows * width);
+        for i in 0..rows {
+            if let Some(c) = cond {
+                data.extend_from_slice(c.row(i));
+            }
             data.extend_from_slice(emb.row(i));
-            if with_x {
+            if let Some(x) = x {
                 data.extend_from_slice(x.row(i));
             }
         }
-        Matrix::from_vec(x.rows, width, data)
+        Matrix::from_vec(rows, width, data)
+    }
+
+    /// The network prepared for sampling ([`FlowSampler`]).
+    pub fn sampler(&self) -> FlowSampler<'_> {
+        FlowSampler {
+            net: self,
+            mlp: match &self.backbone {
+                Backbone::Mlp(mlp) => Some(MlpInference::new(mlp, self.cond_len)),
+                Backbone::UNet { .. } => None,
+            },
+        }
     }
 
     /// v(x, t, c) for every row.
@@ -197,9 +212,8 @@ impl FlowNet {
         }
     }
 
-    /// The conditional flow-matching loss of a batch and its parameter gradients:
-    /// mean over unmasked elements of (v(x_t, t, c) − (x₁ − x₀))².
-    pub fn loss_and_gradients(&self, b: &FlowBatch<'_>) -> (f32, FlowGrads) {
+    /// x_t and the regression target x₁ − x₀ of a batch.
+    fn interpolate(b: &FlowBatch<'_>) -> (Matrix, Matrix) {
         let (rows, cols) = (b.x1.rows, b.x1.cols);
         assert_eq!((b.x0.rows, b.x0.cols), (rows, cols), "flow: noise shape");
         let mut xt = Matrix::zeros(rows, cols);
@@ -212,6 +226,21 @@ impl FlowNet {
                 target.set(i, j, x1 - x0);
             }
         }
+        (xt, target)
+    }
+
+    /// The loss of [`FlowNet::loss_and_gradients`] alone, with its bits, for a fraction of the
+    /// work (a validation loss needs no backward pass).
+    pub fn loss(&self, b: &FlowBatch<'_>) -> f32 {
+        let (xt, target) = Self::interpolate(b);
+        masked_mse(&self.velocity(&xt, b.t, b.cond), &target, b.mask).0
+    }
+
+    /// The conditional flow-matching loss of a batch and its parameter gradients:
+    /// mean over unmasked elements of (v(x_t, t, c) − (x₁ − x₀))².
+    pub fn loss_and_gradients(&self, b: &FlowBatch<'_>) -> (f32, FlowGrads) {
+        let (rows, cols) = (b.x1.rows, b.x1.cols);
+        let (xt, target) = Self::interpolate(b);
         match &self.backbone {
             Backbone::Mlp(mlp) => {
                 let (pred, cache) = mlp.forward_cached(&self.input(&xt, b.t, b.cond, true));
@@ -245,15 +274,45 @@ impl FlowNet {
     /// bit the one-row [`FlowNet::sample`]: every kernel sums each output element in the same
     /// order whatever the number of rows, and Euler's update is element-wise.
     pub fn sample_batch(&self, cond: &Matrix, noise: Matrix, steps: usize) -> Matrix {
+        self.sampler().sample_batch(cond, noise, steps)
+    }
+}
+
+/// A [`FlowNet`] prepared to sample many times (a policy's every action): an MLP backbone's
+/// weights packed once, and the condition's share of its first layer computed once per sample
+/// rather than at every Euler step ([`MlpInference`]). Its samples have the bits of integrating
+/// [`FlowNet::velocity`]: the condition leads the MLP's input, and a product sums its inputs in
+/// order. A U-Net backbone samples through [`FlowNet::velocity`].
+pub struct FlowSampler<'n> {
+    net: &'n FlowNet,
+    mlp: Option<MlpInference>,
+}
+
+impl FlowSampler<'_> {
+    /// [`FlowNet::sample_batch`].
+    pub fn sample_batch(&self, cond: &Matrix, noise: Matrix, steps: usize) -> Matrix {
         let (rows, cols) = (noise.rows, noise.cols);
-        let x = euler(noise.data, steps, |x, t| {
-            self.velocity(
-                &Matrix::from_vec(rows, cols, x.to_vec()),
-                &vec![t; rows],
-                cond,
-            )
-            .data
-        });
+        assert_eq!(cond.rows, rows, "flow: batch sizes");
+        let x = match &self.mlp {
+            Some(mlp) => {
+                assert_eq!(cols, self.net.x_len, "flow: sample width");
+                let prefix = mlp.prefix(cond);
+                euler(noise.data, steps, |x, t| {
+                    let x = Matrix::from_vec(rows, cols, x.to_vec());
+                    let varying = self.net.joined(None, &vec![t; rows], Some(&x), rows);
+                    mlp.forward(&prefix, &varying).data
+                })
+            }
+            None => euler(noise.data, steps, |x, t| {
+                self.net
+                    .velocity(
+                        &Matrix::from_vec(rows, cols, x.to_vec()),
+                        &vec![t; rows],
+                        cond,
+                    )
+                    .data
+            }),
+        };
         Matrix::from_vec(rows, cols, x)
     }
 }
@@ -357,6 +416,58 @@ mod tests {
                 );
                 assert_eq!(a, b, "row {i} of {rows}");
             }
+        }
+    }
+
+    #[test]
+    fn the_prepared_sampler_integrates_the_velocity_network_bit_for_bit() {
+        // Wide enough that the first layer's products take the tiled kernels at 16 rows.
+        let net = FlowNet::new(24, 90, &[64, 64], 8, 5, "sampler").expect("net");
+        let mut r = rng::stream(0, "test", "sampler", 0);
+        for rows in [1, 2, 3, 16] {
+            let cond = Matrix::from_vec(rows, 90, normals(&mut r, rows * 90));
+            let noise = Matrix::from_vec(rows, 24, normals(&mut r, rows * 24));
+            let direct = euler(noise.data.clone(), 10, |x, t| {
+                net.velocity(
+                    &Matrix::from_vec(rows, 24, x.to_vec()),
+                    &vec![t; rows],
+                    &cond,
+                )
+                .data
+            });
+            let sampled = net.sampler().sample_batch(&cond, noise, 10);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&sampled.data), bits(&direct), "{rows} rows");
+        }
+    }
+
+    #[test]
+    fn the_loss_alone_has_the_bits_of_the_loss_with_gradients() {
+        let spec = UNetSpec {
+            widths: vec![8, 8],
+            kernel: 3,
+            cond: 8,
+        };
+        let mut r = rng::stream(0, "test", "loss", 0);
+        let rows = 21;
+        let x1 = Matrix::from_vec(rows, 6, normals(&mut r, rows * 6));
+        let x0 = Matrix::from_vec(rows, 6, normals(&mut r, rows * 6));
+        let cond = Matrix::from_vec(rows, 7, normals(&mut r, rows * 7));
+        let mask = Matrix::from_fn(rows, 6, |i, j| f32::from(u8::from((i + j) % 4 != 0)));
+        let t: Vec<f32> = (0..rows).map(|_| rng::uniform01(&mut r) as f32).collect();
+        for net in [
+            FlowNet::new(6, 7, &[16, 16], 8, 3, "loss").expect("net"),
+            FlowNet::new_unet(6, 7, 2, &spec, 8, 3, "loss").expect("net"),
+        ] {
+            let batch = FlowBatch {
+                x1: &x1,
+                cond: &cond,
+                x0: &x0,
+                t: &t,
+                mask: Some(&mask),
+            };
+            let (with, _) = net.loss_and_gradients(&batch);
+            assert_eq!(net.loss(&batch).to_bits(), with.to_bits());
         }
     }
 

@@ -34,7 +34,7 @@ use osms_sim::{
 use serde::{Deserialize, Serialize};
 
 use crate::catch::{CatchTaskSpec, TeacherQuery};
-use crate::flow::{FlowBatch, FlowNet, UNetSpec, normals};
+use crate::flow::{FlowBatch, FlowNet, FlowSampler, UNetSpec, normals};
 use crate::ppo::Agent;
 use crate::{Error, Result, RunningNorm};
 
@@ -596,16 +596,13 @@ impl Student {
                     std::mem::swap(&mut student.net, ema);
                 }
                 let validation_loss = validation.as_ref().map(|v| {
-                    student
-                        .net
-                        .loss_and_gradients(&FlowBatch {
-                            x1: &v.x1,
-                            cond: &v.obs,
-                            x0: &v.x0,
-                            t: &v.t,
-                            mask: Some(&v.mask),
-                        })
-                        .0
+                    student.net.loss(&FlowBatch {
+                        x1: &v.x1,
+                        cond: &v.obs,
+                        x0: &v.x0,
+                        t: &v.t,
+                        mask: Some(&v.mask),
+                    })
                 });
                 if let Some(ema) = &mut ema {
                     std::mem::swap(&mut student.net, ema);
@@ -710,6 +707,17 @@ impl Student {
         obs: &[O],
         rngs: impl IntoIterator<Item = &'r mut StreamRng>,
     ) -> Vec<Action> {
+        self.act_batch_with(&self.net.sampler(), obs, rngs)
+    }
+
+    /// [`Student::act_batch`] through a sampler of this student's network prepared once
+    /// ([`FlowNet::sampler`]) for many actions, with the same bits.
+    pub fn act_batch_with<'r, O: AsRef<[f32]>>(
+        &self,
+        sampler: &FlowSampler<'_>,
+        obs: &[O],
+        rngs: impl IntoIterator<Item = &'r mut StreamRng>,
+    ) -> Vec<Action> {
         let (c_len, x_len) = (self.params.obs_len(), self.params.chunk_len());
         let mut cond = Vec::with_capacity(obs.len() * c_len);
         let mut noise = Vec::with_capacity(obs.len() * x_len);
@@ -727,7 +735,7 @@ impl Student {
             "student: one stream per observation"
         );
         let rows = obs.len();
-        let x = self.net.sample_batch(
+        let x = sampler.sample_batch(
             &Matrix::from_vec(rows, c_len, cond),
             Matrix::from_vec(rows, x_len, noise),
             self.params.euler_steps,
@@ -825,16 +833,36 @@ fn push_features(p: &StudentParams, frames: usize, now: &Current<'_>, out: &mut 
 }
 
 /// A student as the simulator's policy: noise for each step's sample from `rng` (the policy's
-/// own stream, apart from the rollout's DR stream).
+/// own stream, apart from the rollout's DR stream), its network prepared once for the episode.
 pub struct StudentPolicy<'s> {
-    pub student: &'s Student,
-    pub rng: StreamRng,
+    student: &'s Student,
+    sampler: FlowSampler<'s>,
+    rng: StreamRng,
+}
+
+impl<'s> StudentPolicy<'s> {
+    pub fn new(student: &'s Student, rng: StreamRng) -> Self {
+        StudentPolicy {
+            student,
+            sampler: student.net.sampler(),
+            rng,
+        }
+    }
+
+    pub fn student(&self) -> &'s Student {
+        self.student
+    }
 }
 
 impl Policy for StudentPolicy<'_> {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let obs = self.student.observation(view);
-        self.student.act(&obs, &mut self.rng)
+        let [action] = self
+            .student
+            .act_batch_with(&self.sampler, &[obs], [&mut self.rng])
+            .try_into()
+            .unwrap_or_else(|_| unreachable!("one observation, one action"));
+        action
     }
 
     /// A deployable policy: it reads no privileged quantity at all.
@@ -863,10 +891,7 @@ pub fn rollout(
     dr: StreamRng,
     policy: StreamRng,
 ) -> RolloutRecord {
-    let mut policy = StudentPolicy {
-        student,
-        rng: policy,
-    };
+    let mut policy = StudentPolicy::new(student, policy);
     Episode::new(world, spec, condition, dr).run(&mut policy, &mut NoHooks)
 }
 
@@ -890,6 +915,7 @@ pub fn rollouts(
         .into_iter()
         .map(|(condition, dr, policy)| (Episode::new(world, spec, condition, dr), policy))
         .collect();
+    let sampler = student.net.sampler();
     loop {
         let (mut observed, mut obs, mut rngs) = (Vec::new(), Vec::new(), Vec::new());
         for (i, (episode, rng)) in episodes.iter_mut().enumerate() {
@@ -903,7 +929,7 @@ pub fn rollouts(
         if observed.is_empty() {
             break;
         }
-        let actions = student.act_batch(&obs, rngs);
+        let actions = student.act_batch_with(&sampler, &obs, rngs);
         for ((i, o), action) in observed.into_iter().zip(actions) {
             episodes[i].0.act_step(o, action, &mut NoHooks);
         }
@@ -948,10 +974,7 @@ pub fn paired_rollout(
         }
     }
     let mut paired = Paired {
-        student: StudentPolicy {
-            student,
-            rng: policy,
-        },
+        student: StudentPolicy::new(student, policy),
         teacher: TeacherQuery::new(teacher.0, teacher.1),
         actions: Vec::new(),
         phases: Vec::new(),

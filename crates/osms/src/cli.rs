@@ -127,10 +127,10 @@ pub struct ExpRunArgs {
     #[arg(long, short = 'j')]
     pub jobs: Option<usize>,
     /// Stage instances built at the same time (at most --jobs), each with --jobs worker threads
-    /// of its own, sharing the cores; 2 on 2 cores keeps both busy while a student trains
-    /// [default: 1]
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub stages: Option<u32>,
+    /// of its own, sharing the cores: a number from 1 to 64, or `auto` (2 when there are at
+    /// least 2 jobs: a student's training leaves part of 2 cores idle) [default: auto]
+    #[arg(long, value_name = "N|auto", env = "OSMS_STAGES")]
+    pub stages: Option<Stages>,
     /// Print the experiment's record as JSON on stdout
     #[arg(long)]
     pub json: bool,
@@ -219,10 +219,10 @@ pub struct MakeArgs {
     #[arg(long, short = 'j')]
     pub jobs: Option<usize>,
     /// Stage instances built at the same time (at most --jobs), each with --jobs worker threads
-    /// of its own, sharing the cores; 2 on 2 cores keeps both busy while a student trains
-    /// [default: 1]
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub stages: Option<u32>,
+    /// of its own, sharing the cores: a number from 1 to 64, or `auto` (2 when there are at
+    /// least 2 jobs: a student's training leaves part of 2 cores idle) [default: auto]
+    #[arg(long, value_name = "N|auto", env = "OSMS_STAGES")]
+    pub stages: Option<Stages>,
     /// Where stages run: `local`, or `slurm` (a job array per sharded stage; see "Running on a
     /// cluster" in README.md) [default: `[executor] kind`, else local]
     #[arg(long, value_name = "local|slurm")]
@@ -379,4 +379,58 @@ pub struct GcArgs {
     pub dry_run: bool,
     #[arg(long)]
     pub json: bool,
+}
+
+/// How many stage instances a make builds at once (`--stages`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stages {
+    Auto,
+    Count(u32),
+}
+
+impl Stages {
+    /// Instances at once for a make of `jobs` worker threads per build. `auto` is 2 from 2
+    /// jobs up: measured on 2 cores (docs/make.md, "Where the time goes"), where a student's
+    /// training keeps ≈ 1.4 cores busy and two builds side by side fill both.
+    pub fn resolve(stages: Option<Stages>, jobs: usize) -> usize {
+        match stages.unwrap_or(Stages::Auto) {
+            Stages::Auto => jobs.clamp(1, 2),
+            Stages::Count(n) => n as usize,
+        }
+    }
+}
+
+impl std::str::FromStr for Stages {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "auto" {
+            return Ok(Stages::Auto);
+        }
+        match s.parse::<u32>() {
+            Ok(n) if (1..=64).contains(&n) => Ok(Stages::Count(n)),
+            _ => Err(format!(
+                "`{s}` is not a number of stages: expected 1 to 64, or `auto`"
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stages_parse_a_count_or_auto_and_auto_is_two_from_two_jobs() {
+        assert_eq!("auto".parse::<Stages>(), Ok(Stages::Auto));
+        assert_eq!("3".parse::<Stages>(), Ok(Stages::Count(3)));
+        for bad in ["0", "65", "-1", "two", ""] {
+            let e = bad.parse::<Stages>().expect_err(bad);
+            assert!(e.contains("expected 1 to 64, or `auto`"), "{bad}: {e}");
+        }
+        assert_eq!(Stages::resolve(None, 1), 1);
+        assert_eq!(Stages::resolve(None, 2), 2);
+        assert_eq!(Stages::resolve(Some(Stages::Auto), 16), 2);
+        assert_eq!(Stages::resolve(Some(Stages::Count(3)), 2), 3);
+    }
 }

@@ -126,6 +126,7 @@ pub fn make_slurm(
                         failed_input: up.clone(),
                     },
                     wall_time_secs: 0.0,
+                    cpu_secs: 0.0,
                 };
                 observer.finished(&r);
                 report.instances.push(r);
@@ -184,6 +185,7 @@ pub fn make_slurm(
                                 error: format!("cannot submit: {e}"),
                             },
                             wall_time_secs: 0.0,
+                            cpu_secs: 0.0,
                         };
                         observer.finished(&r);
                         report.instances.push(r);
@@ -240,6 +242,7 @@ pub fn make_slurm(
                         reason: reason.clone(),
                     },
                     wall_time_secs: since.elapsed().as_secs_f64(),
+                    cpu_secs: rec.cpu_secs.unwrap_or(0.0),
                 };
                 observer.finished(&r);
                 report.instances.push(r);
@@ -304,6 +307,7 @@ pub fn make_slurm(
                     content_hash: None,
                     outcome: Outcome::Failed { error: why },
                     wall_time_secs: since.elapsed().as_secs_f64(),
+                    cpu_secs: 0.0,
                 };
                 observer.finished(&r);
                 report.instances.push(r);

@@ -135,7 +135,7 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         targets: all_targets,
         seeds: seeds.clone(),
         jobs,
-        stages: args.stages.map_or(1, |s| s as usize),
+        stages: crate::cli::Stages::resolve(args.stages, jobs),
         dry_run: args.dry_run,
     };
     let observer = MakeObserver::of(ctx);

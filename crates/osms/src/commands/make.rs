@@ -31,7 +31,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         targets,
         seeds: seeds.clone(),
         jobs,
-        stages: args.stages.map_or(1, |s| s as usize),
+        stages: crate::cli::Stages::resolve(args.stages, jobs),
         dry_run: args.dry_run,
     };
     let observer = MakeObserver::of(ctx);
@@ -51,10 +51,14 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     } else {
         None
     };
+    let cost = cost(&plan, &report, started.elapsed().as_secs_f64());
     if args.json {
         let mut value = serde_json::to_value(&report)?;
         if let Some(e) = &estimate {
             value["estimate"] = serde_json::to_value(e)?;
+        }
+        if !args.dry_run {
+            value["cost"] = serde_json::to_value(&cost)?;
         }
         print_json(&value)?;
     } else if let Some(e) = &estimate
@@ -96,6 +100,15 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             plan.profile,
             started.elapsed().as_secs_f64()
         );
+        if built > 0 && !args.dry_run {
+            eprintln!(
+                "osms make: the builds used {:.0} core-s in {:.0} s: {:.0} % of {} cores",
+                cost.cpu_secs,
+                cost.wall_secs,
+                100.0 * cost.machine_share,
+                cost.cores
+            );
+        }
         if report.instances.is_empty() {
             eprintln!(
                 "hint: {} declares no stages yet",
@@ -376,5 +389,66 @@ mod tests {
                 .any(|l| l == format!("MJ_VERSION={}", osms_sim::MUJOCO_PINNED)),
             "scripts/setup-mujoco installs another MuJoCo than osms_sim::MUJOCO_PINNED"
         );
+    }
+}
+
+/// What a make's builds cost (`make --json`'s `cost`): the make's wall time, the CPU time its
+/// builds used, the cores it had, and the same by stage kind.
+#[derive(Debug, serde::Serialize)]
+pub(crate) struct Cost {
+    pub wall_secs: f64,
+    pub cpu_secs: f64,
+    pub cores: usize,
+    /// CPU seconds over wall seconds times cores: 1 when every core was busy throughout.
+    pub machine_share: f64,
+    pub by_kind: Vec<KindCost>,
+}
+
+/// The builds of one stage kind in a make.
+#[derive(Debug, serde::Serialize)]
+pub(crate) struct KindCost {
+    pub kind: String,
+    pub builds: usize,
+    /// The sum of the builds' wall times (builds side by side each count in full).
+    pub wall_secs: f64,
+    pub cpu_secs: f64,
+    /// CPU seconds over wall seconds: how many cores a build of this kind kept busy.
+    pub cores_busy: f64,
+}
+
+pub(crate) fn cost(plan: &Plan, report: &osms_make::MakeReport, wall_secs: f64) -> Cost {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut kinds: std::collections::BTreeMap<String, (usize, f64, f64)> = Default::default();
+    for r in &report.instances {
+        if !matches!(r.outcome, Outcome::Built { .. } | Outcome::Failed { .. }) {
+            continue;
+        }
+        let stage = r.instance.split(['#', '@']).next().unwrap_or(&r.instance);
+        let kind = plan.stage_index(stage).map_or_else(
+            || stage.to_string(),
+            |i| plan.stages[i].info.name.to_string(),
+        );
+        let k = kinds.entry(kind).or_default();
+        *k = (k.0 + 1, k.1 + r.wall_time_secs, k.2 + r.cpu_secs);
+    }
+    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
+    let cpu_secs = kinds.values().map(|k| k.2).sum();
+    let mut by_kind: Vec<KindCost> = kinds
+        .into_iter()
+        .map(|(kind, (builds, wall, cpu))| KindCost {
+            kind,
+            builds,
+            wall_secs: wall,
+            cpu_secs: cpu,
+            cores_busy: ratio(cpu, wall),
+        })
+        .collect();
+    by_kind.sort_by(|a, b| b.cpu_secs.total_cmp(&a.cpu_secs));
+    Cost {
+        wall_secs,
+        cpu_secs,
+        cores,
+        machine_share: ratio(cpu_secs, wall_secs * cores as f64),
+        by_kind,
     }
 }

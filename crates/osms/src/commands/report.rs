@@ -99,19 +99,26 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
         .iter()
         .filter_map(|(_, _, r)| r.as_ref().map(|r| r.wall_time_secs))
         .sum();
+    let total_cpu: f64 = lineage
+        .iter()
+        .filter_map(|(_, _, r)| r.as_ref().and_then(|r| r.cpu_secs))
+        .sum();
     let _ = writeln!(
         s,
         "## Provenance\n\nProfile `{}`, run seeds {seeds_text}, platform class `{}`, osms {}. \
          Every stage instance behind this report, in build order, with its key (what it was \
-         built from), the content hash of its artifact and the wall time of the build that \
-         stored it; {} instances, {:.0} s of builds in total (a stage built once serves every \
-         later make).\n",
+         built from), the content hash of its artifact and the wall and CPU time of the build \
+         that stored it; {} instances, {:.0} s and {:.0} core-s of builds in total (a stage \
+         built once serves every later make; builds side by side each count their whole \
+         wall time).\n",
         plan.profile,
         crate::platform::class(),
         env!("CARGO_PKG_VERSION"),
         lineage.len(),
-        total
+        total,
+        total_cpu
     );
+    s.push_str(&cost_by_kind(lineage));
     let mut t = Table::new(
         "provenance",
         "Provenance",
@@ -120,6 +127,7 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
             Column::new("key", Unit::Text),
             Column::new("content hash", Unit::Text),
             Column::new("wall time (s)", Unit::Number(1)),
+            Column::new("CPU time (s)", Unit::Number(1)),
         ],
     );
     for (instance, kind, r) in lineage {
@@ -130,9 +138,11 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
                 short(&r.key),
                 short(&r.content_hash),
                 Cell::one(r.wall_time_secs),
+                Cell::opt(r.cpu_secs),
             ],
             None => vec![
                 Cell::text(kind),
+                Cell::opt(None),
                 Cell::opt(None),
                 Cell::opt(None),
                 Cell::opt(None),
@@ -142,4 +152,46 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
     }
     s.push_str(&t.markdown_with(Layout::plain("instance")));
     s
+}
+
+/// The builds behind the report by stage kind: how many, their wall and CPU time, and how many
+/// cores a build of the kind kept busy (CPU over wall), most expensive first. Records from
+/// before osms measured CPU time count only in the wall column.
+fn cost_by_kind(lineage: &[(String, String, Option<Record>)]) -> String {
+    let mut kinds: std::collections::BTreeMap<&str, (usize, f64, f64, f64)> = Default::default();
+    for (_, kind, r) in lineage {
+        if let Some(r) = r {
+            let k = kinds.entry(kind.as_str()).or_default();
+            k.0 += 1;
+            k.1 += r.wall_time_secs;
+            if let Some(cpu) = r.cpu_secs {
+                k.2 += cpu;
+                k.3 += r.wall_time_secs;
+            }
+        }
+    }
+    let mut rows: Vec<_> = kinds.into_iter().collect();
+    rows.sort_by(|a, b| b.1.2.total_cmp(&a.1.2).then(b.1.1.total_cmp(&a.1.1)));
+    let mut t = Table::new(
+        "cost",
+        "Cost by stage kind",
+        vec![
+            Column::new("builds", Unit::Count),
+            Column::new("wall time (s)", Unit::Number(0)),
+            Column::new("CPU time (s)", Unit::Number(0)),
+            Column::new("cores busy", Unit::Number(2)),
+        ],
+    );
+    for (kind, (builds, wall, cpu, metered_wall)) in rows {
+        t.push(
+            kind,
+            vec![
+                Cell::one(builds as f64),
+                Cell::one(wall),
+                Cell::one(cpu),
+                Cell::opt((metered_wall > 0.0).then(|| cpu / metered_wall)),
+            ],
+        );
+    }
+    format!("{}\n", t.markdown_with(Layout::plain("kind")))
 }
