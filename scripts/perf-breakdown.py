@@ -17,6 +17,8 @@ PARTS = [
     ("physics-rate bookkeeping: evaluator", ["Evaluator::physics_step", "site_velocity"]),
     ("physics-rate bookkeeping: DR gain scaling, instability check", ["physics_step"]),
     ("policy: teacher network", ["act_deterministic"]),
+    ("policy: student network (flow sampling)", ["sample_batch"]),
+    ("policy: student observation and normalisation", ["Student::observation", "act_batch_with"]),
     ("policy: scripted prior / catcher", ["ScriptedCatcher"]),
     ("policy: follow-through channel", ["palm_motion_channels"]),
     ("policy: observation vector, residual", ["Residual", "residual_action"]),
