@@ -224,6 +224,7 @@ per_level!(axpy_baseline, axpy_avx2, axpy_avx512,
 const AXPY_MAX_ROWS: usize = 2;
 
 fn product(level: Level, a: Operand<'_>, b: Operand<'_>, what: &str) -> Matrix {
+    let level = level.runnable();
     assert_eq!(
         a.cols(),
         b.rows(),
@@ -301,6 +302,7 @@ impl PackedB {
 
     /// B packed for `level` (a level the CPU lacks runs the baseline, as [`matmul_at`]).
     pub fn at(level: Level, b: Matrix) -> Self {
+        let level = level.runnable();
         let panels = if b.data.is_empty() {
             Vec::new()
         } else {
@@ -546,6 +548,18 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    #[test]
+    fn a_level_the_cpu_lacks_runs_the_baseline_with_the_same_bits() {
+        let (a, b) = (random(9, 40, 8), random(40, 37, 9));
+        let reference = bits(&matmul_reference(&a, &b));
+        for level in [Level::Baseline, Level::Avx2, Level::Avx512] {
+            assert_eq!(bits(&matmul_at(level, &a, &b)), reference, "{level:?}");
+            let mut c = Matrix::zeros(9, 37);
+            matmul_acc_packed(&a, &PackedB::at(level, b.clone()), &mut c);
+            assert_eq!(bits(&c), reference, "packed {level:?}");
         }
     }
 

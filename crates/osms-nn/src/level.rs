@@ -34,6 +34,16 @@ impl Level {
         })
     }
 
+    /// The level a kernel asked for `self` runs at: itself if the CPU has it, else the
+    /// baseline (as [`dispatch!`] falls back), so that B is packed for the kernel that reads it.
+    pub(crate) fn runnable(self) -> Level {
+        if self as u8 <= Level::detected() as u8 {
+            self
+        } else {
+            Level::Baseline
+        }
+    }
+
     /// Every level this CPU can run, narrowest first (tests compare them bit for bit).
     pub fn available() -> Vec<Level> {
         [Level::Baseline, Level::Avx2, Level::Avx512]
