@@ -240,16 +240,22 @@ fn product(level: Level, a: Operand<'_>, b: Operand<'_>, what: &str) -> Matrix {
         return c;
     }
     if m <= AXPY_MAX_ROWS && !a.transposed && !b.transposed {
-        dispatch!(
-            level,
-            axpy_baseline,
-            axpy_avx2,
-            axpy_avx512(&a.m.data, &b.m.data, &mut c.data, n)
-        );
+        axpy(level, &a.m.data, &b.m.data, &mut c);
         return c;
     }
     blocks(level, a, &pack_b(b, level.nr()), &mut c, false);
     c
+}
+
+/// C += A · B row by row (plain A and B, a few rows): [`rows_axpy`] at `level`.
+fn axpy(level: Level, a: &[f32], b: &[f32], c: &mut Matrix) {
+    let n = c.cols;
+    dispatch!(
+        level,
+        axpy_baseline,
+        axpy_avx2,
+        axpy_avx512(a, b, &mut c.data, n)
+    );
 }
 
 /// C (`m × n`) from A and B's packed panels, in whole MR-row groups, on rayon's threads when
@@ -339,12 +345,7 @@ pub fn matmul_acc_packed(a: &Matrix, b: &PackedB, c: &mut Matrix) {
         return;
     }
     if m <= AXPY_MAX_ROWS {
-        dispatch!(
-            b.level,
-            axpy_baseline,
-            axpy_avx2,
-            axpy_avx512(&a.data, &b.plain.data, &mut c.data, n)
-        );
+        axpy(b.level, &a.data, &b.plain.data, c);
         return;
     }
     blocks(b.level, plain(a), &b.panels, c, true);

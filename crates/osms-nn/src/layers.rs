@@ -151,11 +151,7 @@ impl Linear {
 
     pub fn forward(&self, x: &Matrix) -> Matrix {
         let mut y = matmul(x, &self.w);
-        for i in 0..y.rows {
-            for (v, b) in y.data[i * y.cols..(i + 1) * y.cols].iter_mut().zip(&self.b) {
-                *v += b;
-            }
-        }
+        add_bias(&mut y, &self.b);
         y
     }
 
@@ -469,13 +465,17 @@ impl MlpInference {
 
     /// Layer `l`'s bias and activation, as [`Linear::forward`] and [`Mlp::forward`] apply them.
     fn finish(&self, l: usize, y: &mut Matrix) {
-        let b = &self.biases[l];
-        for row in y.data.chunks_exact_mut(b.len().max(1)) {
-            for (v, b) in row.iter_mut().zip(b) {
-                *v += b;
-            }
-        }
+        add_bias(y, &self.biases[l]);
         self.activations[l].apply_slice(&mut y.data);
+    }
+}
+
+/// `b` added to every row of `y`.
+fn add_bias(y: &mut Matrix, b: &[f32]) {
+    for row in y.data.chunks_exact_mut(y.cols.max(1)) {
+        for (v, b) in row.iter_mut().zip(b) {
+            *v += b;
+        }
     }
 }
 

@@ -145,6 +145,7 @@ impl FlowNet {
 
     /// Rows [c, emb(t)], then x if `with_x`.
     fn input(&self, x: &Matrix, t: &[f32], cond: &Matrix, with_x: bool) -> Matrix {
+        assert_eq!(cond.cols, self.cond_len, "flow: condition width");
         assert!(x.rows == cond.rows, "flow: batch sizes");
         assert_eq!(x.cols, self.x_len, "flow: sample width");
         self.joined(Some(cond), t, with_x.then_some(x), x.rows)

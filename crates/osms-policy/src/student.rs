@@ -692,8 +692,13 @@ impl Student {
     /// The first action of a sampled chunk for a raw observation (the policy's output),
     /// drawing the initial noise from `rng`.
     pub fn act(&self, obs: &[f32], rng: &mut StreamRng) -> Action {
+        self.act_with(&self.net.sampler(), obs, rng)
+    }
+
+    /// [`Student::act`] through a sampler prepared once ([`FlowNet::sampler`]).
+    pub fn act_with(&self, sampler: &FlowSampler<'_>, obs: &[f32], rng: &mut StreamRng) -> Action {
         let [action] = self
-            .act_batch(std::slice::from_ref(&obs), [rng])
+            .act_batch_with(sampler, std::slice::from_ref(&obs), [rng])
             .try_into()
             .unwrap_or_else(|_| unreachable!("one observation, one action"));
         action
@@ -857,12 +862,7 @@ impl<'s> StudentPolicy<'s> {
 impl Policy for StudentPolicy<'_> {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let obs = self.student.observation(view);
-        let [action] = self
-            .student
-            .act_batch_with(&self.sampler, &[obs], [&mut self.rng])
-            .try_into()
-            .unwrap_or_else(|_| unreachable!("one observation, one action"));
-        action
+        self.student.act_with(&self.sampler, &obs, &mut self.rng)
     }
 
     /// A deployable policy: it reads no privileged quantity at all.

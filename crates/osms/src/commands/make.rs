@@ -1,3 +1,4 @@
+use std::collections::BTreeMap;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -51,7 +52,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     } else {
         None
     };
-    let cost = cost(&plan, &report, started.elapsed().as_secs_f64());
+    let cost = cost(&plan, &seeds, &report, started.elapsed().as_secs_f64());
     if args.json {
         let mut value = serde_json::to_value(&report)?;
         if let Some(e) = &estimate {
@@ -404,7 +405,7 @@ pub(crate) struct Cost {
     pub by_kind: Vec<KindCost>,
 }
 
-/// The builds of one stage kind in a make.
+/// The builds of one stage kind (in a make, or behind a report).
 #[derive(Debug, serde::Serialize)]
 pub(crate) struct KindCost {
     pub kind: String,
@@ -412,43 +413,75 @@ pub(crate) struct KindCost {
     /// The sum of the builds' wall times (builds side by side each count in full).
     pub wall_secs: f64,
     pub cpu_secs: f64,
-    /// CPU seconds over wall seconds: how many cores a build of this kind kept busy.
-    pub cores_busy: f64,
+    /// CPU seconds over the wall seconds of the builds whose CPU time was measured: how many
+    /// cores a build of this kind kept busy (none when no build of it was measured).
+    pub cores_busy: Option<f64>,
 }
 
-pub(crate) fn cost(plan: &Plan, report: &osms_make::MakeReport, wall_secs: f64) -> Cost {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut kinds: std::collections::BTreeMap<String, (usize, f64, f64)> = Default::default();
-    for r in &report.instances {
-        if !matches!(r.outcome, Outcome::Built { .. } | Outcome::Failed { .. }) {
-            continue;
+impl KindCost {
+    /// Builds (kind, wall seconds, CPU seconds if measured) summed by kind, the most CPU first
+    /// (then the most wall time).
+    pub(crate) fn tally(builds: impl IntoIterator<Item = (String, f64, Option<f64>)>) -> Vec<Self> {
+        let mut kinds: BTreeMap<String, (usize, f64, f64, f64)> = BTreeMap::new();
+        for (kind, wall, cpu) in builds {
+            let k = kinds.entry(kind).or_default();
+            k.0 += 1;
+            k.1 += wall;
+            if let Some(cpu) = cpu {
+                k.2 += cpu;
+                k.3 += wall;
+            }
         }
-        let stage = r.instance.split(['#', '@']).next().unwrap_or(&r.instance);
-        let kind = plan.stage_index(stage).map_or_else(
-            || stage.to_string(),
-            |i| plan.stages[i].info.name.to_string(),
-        );
-        let k = kinds.entry(kind).or_default();
-        *k = (k.0 + 1, k.1 + r.wall_time_secs, k.2 + r.cpu_secs);
+        let mut out: Vec<KindCost> = kinds
+            .into_iter()
+            .map(|(kind, (builds, wall, cpu, metered))| KindCost {
+                kind,
+                builds,
+                wall_secs: wall,
+                cpu_secs: cpu,
+                cores_busy: (metered > 0.0).then(|| cpu / metered),
+            })
+            .collect();
+        out.sort_by(|a, b| {
+            b.cpu_secs
+                .total_cmp(&a.cpu_secs)
+                .then(b.wall_secs.total_cmp(&a.wall_secs))
+        });
+        out
     }
-    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
-    let cpu_secs = kinds.values().map(|k| k.2).sum();
-    let mut by_kind: Vec<KindCost> = kinds
-        .into_iter()
-        .map(|(kind, (builds, wall, cpu))| KindCost {
-            kind,
-            builds,
-            wall_secs: wall,
-            cpu_secs: cpu,
-            cores_busy: ratio(cpu, wall),
-        })
-        .collect();
-    by_kind.sort_by(|a, b| b.cpu_secs.total_cmp(&a.cpu_secs));
+}
+
+pub(crate) fn cost(
+    plan: &Plan,
+    seeds: &[u64],
+    report: &osms_make::MakeReport,
+    wall_secs: f64,
+) -> Cost {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let by_kind = KindCost::tally(
+        report
+            .instances
+            .iter()
+            .filter(|r| matches!(r.outcome, Outcome::Built { .. } | Outcome::Failed { .. }))
+            .map(|r| {
+                let kind = plan.instance_named(&r.instance, seeds).map_or_else(
+                    || r.instance.clone(),
+                    |id| plan.stages[id.stage].info.name.to_string(),
+                );
+                (kind, r.wall_time_secs, Some(r.cpu_secs))
+            }),
+    );
+    let cpu_secs = by_kind.iter().map(|k| k.cpu_secs).sum();
+    let machine = wall_secs * cores as f64;
     Cost {
         wall_secs,
         cpu_secs,
         cores,
-        machine_share: ratio(cpu_secs, wall_secs * cores as f64),
+        machine_share: if machine > 0.0 {
+            cpu_secs / machine
+        } else {
+            0.0
+        },
         by_kind,
     }
 }

@@ -158,20 +158,10 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
 /// cores a build of the kind kept busy (CPU over wall), most expensive first. Records from
 /// before osms measured CPU time count only in the wall column.
 fn cost_by_kind(lineage: &[(String, String, Option<Record>)]) -> String {
-    let mut kinds: std::collections::BTreeMap<&str, (usize, f64, f64, f64)> = Default::default();
-    for (_, kind, r) in lineage {
-        if let Some(r) = r {
-            let k = kinds.entry(kind.as_str()).or_default();
-            k.0 += 1;
-            k.1 += r.wall_time_secs;
-            if let Some(cpu) = r.cpu_secs {
-                k.2 += cpu;
-                k.3 += r.wall_time_secs;
-            }
-        }
-    }
-    let mut rows: Vec<_> = kinds.into_iter().collect();
-    rows.sort_by(|a, b| b.1.2.total_cmp(&a.1.2).then(b.1.1.total_cmp(&a.1.1)));
+    let kinds = super::make::KindCost::tally(lineage.iter().filter_map(|(_, kind, r)| {
+        r.as_ref()
+            .map(|r| (kind.clone(), r.wall_time_secs, r.cpu_secs))
+    }));
     let mut t = Table::new(
         "cost",
         "Cost by stage kind",
@@ -182,14 +172,14 @@ fn cost_by_kind(lineage: &[(String, String, Option<Record>)]) -> String {
             Column::new("cores busy", Unit::Number(2)),
         ],
     );
-    for (kind, (builds, wall, cpu, metered_wall)) in rows {
+    for k in kinds {
         t.push(
-            kind,
+            k.kind,
             vec![
-                Cell::one(builds as f64),
-                Cell::one(wall),
-                Cell::one(cpu),
-                Cell::opt((metered_wall > 0.0).then(|| cpu / metered_wall)),
+                Cell::one(k.builds as f64),
+                Cell::one(k.wall_secs),
+                Cell::one(k.cpu_secs),
+                Cell::opt(k.cores_busy),
             ],
         );
     }
