@@ -27,6 +27,13 @@ pub fn failure_column(f: Failure) -> String {
 
 /// The table of an evaluation's rows, one per rollout, in row (= condition) order.
 pub fn table(rows: &[EvalRow]) -> Table {
+    table_on(rows, &(0..rows.len()).collect::<Vec<_>>())
+}
+
+/// The table of rollouts on some conditions of a set: row `k` ran condition `conditions[k]`
+/// (an evaluation of a subset, from Python's `osms.eval.evaluate`).
+pub fn table_on(rows: &[EvalRow], conditions: &[usize]) -> Table {
+    assert_eq!(rows.len(), conditions.len(), "one condition per row");
     let ints = |f: &dyn Fn(usize, &EvalRow) -> i64| {
         Cells::Int(
             rows.iter()
@@ -39,7 +46,7 @@ pub fn table(rows: &[EvalRow]) -> Table {
     let bools =
         |f: &dyn Fn(&EvalRow) -> bool| Cells::Bool(rows.iter().map(|r| Some(f(r))).collect());
     let mut columns = vec![
-        Column::new("condition", ints(&|i, _| i as i64)),
+        Column::new("condition", ints(&|i, _| conditions[i] as i64)),
         Column::new(
             "variant",
             Cells::Text(rows.iter().map(|r| Some(r.variant.to_string())).collect()),

@@ -1,0 +1,21 @@
+//! The catching world for policies written outside osms: evaluation protocols read from a project's pipeline and store, episode pools stepped in parallel for one batch policy, and the store's teacher, students and scripted catcher as batch policies, row for row the evaluations osms makes itself.
+//!
+//! A [`Protocol`] is an evaluation stage of the pipeline (`eval_teacher`, `eval_naive@1`,
+//! `dev_teacher`, …) read as the rules of a rollout: its world, its condition set, its rollout
+//! spec and the seed and name of its random streams. Rollout `i` of a protocol is the rollout the
+//! stage itself runs on condition `i` (domain randomisation from its ("item", i) stream, a
+//! student's noise from ("policy", i)), whichever policy acts, however many rollouts run at once
+//! and whatever order they finish in. A [`Pool`] steps many of them in parallel and hands their
+//! observations to one batch policy per control step; [`Native`] is a policy of the store
+//! (teacher, student, scripted catcher) acting on a pool's episodes. The Python package (crate
+//! `osms-py`) is a thin layer over this crate.
+
+mod error;
+pub mod native;
+pub mod pool;
+pub mod project;
+
+pub use error::{ActionProblem, GymError, Result};
+pub use native::Native;
+pub use pool::{Pool, SingleEpisode, StepInfo, check_action, rows_csv};
+pub use project::{Project, Protocol};

@@ -1,0 +1,158 @@
+//! The store's own policies acting on a pool's episodes: the scripted catcher, a teacher and a
+//! student, each exactly as its evaluation stage rolls it out.
+
+use std::sync::Arc;
+
+use osms_core::rng::StreamRng;
+use osms_policy::artifacts::{StudentArtifact, Teacher};
+use osms_policy::catch::{ActorInputs, TeacherQuery};
+use osms_policy::student::Student;
+use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
+use osms_sim::control::Action;
+use osms_sim::{Policy, PolicyView, RolloutSpec};
+use self_cell::self_cell;
+
+use crate::error::{GymError, Result};
+use crate::project::{Project, Protocol};
+
+/// A policy of the store.
+#[derive(Clone)]
+pub enum Native {
+    /// The scripted privileged catcher (`eval_scripted`'s), reading the world as the prior of
+    /// rung `inputs` of the teacher's actor-input ladder does.
+    Scripted {
+        catcher: Box<CatcherSpec>,
+        inputs: ActorInputs,
+    },
+    /// A frozen teacher, deterministic: the residual on its prior (`eval_teacher`'s).
+    Teacher { name: String, teacher: Arc<Teacher> },
+    /// A flow-matching student with its noise from the protocol's ("policy", i) stream
+    /// (`eval_student`'s).
+    Student { name: String, student: Arc<Student> },
+}
+
+impl Native {
+    /// The policy `name` names: `scripted`, or a built instance of a `teacher` or `student`
+    /// stage (`teacher`, `student_naive@0`, `student_il#1`).
+    pub fn load(project: &Project, name: &str) -> Result<Native> {
+        if name == "scripted" {
+            return Ok(Native::Scripted {
+                catcher: Box::default(),
+                inputs: ActorInputs::Privileged,
+            });
+        }
+        let (_, kind) = project.instance(name)?;
+        match kind {
+            "teacher" => Ok(Native::Teacher {
+                name: name.to_string(),
+                teacher: Arc::new(project.load::<Teacher>(name)?),
+            }),
+            "student" => Ok(Native::Student {
+                name: name.to_string(),
+                student: Arc::new(project.load::<StudentArtifact>(name)?.student),
+            }),
+            other => Err(GymError::WrongKind {
+                name: name.to_string(),
+                kind: other.to_string(),
+                expected: "a policy is `scripted` or an instance of a `teacher` or `student` stage (e.g. `teacher`, `student_naive@0`)".to_string(),
+            }),
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        match self {
+            Native::Scripted { .. } => "scripted",
+            Native::Teacher { name, .. } | Native::Student { name, .. } => name,
+        }
+    }
+
+    /// The rollout spec this policy runs under in `protocol`: the protocol's, with the history
+    /// a student reads, or a teacher's own task under the protocol's domain randomisation.
+    pub fn spec(&self, protocol: &Protocol) -> RolloutSpec {
+        match self {
+            Native::Scripted { inputs, .. } => inputs.rollout(&protocol.base),
+            Native::Teacher { teacher, .. } => {
+                teacher
+                    .task
+                    .with_dr(&Some(protocol.base.dr.clone()))
+                    .rollout
+            }
+            Native::Student { student, .. } => student.rollout_spec(&protocol.base),
+        }
+    }
+
+    /// Whether the policy reads the admissible contact force (the teacher's privileged frame).
+    pub fn reads_contact_force(&self) -> bool {
+        matches!(self, Native::Teacher { .. })
+    }
+
+    /// The policy's state at the start of rollout `index` of `protocol`.
+    pub fn start(&self, protocol: &Protocol, index: usize) -> NativeEpisode {
+        match self {
+            Native::Scripted { catcher, inputs } => {
+                NativeEpisode::Scripted(ScriptedCatcher::with_perception(
+                    (**catcher).clone(),
+                    protocol.base.control.clone(),
+                    inputs.perception(),
+                ))
+            }
+            Native::Teacher { teacher, .. } => {
+                NativeEpisode::Teacher(TeacherEpisode::new(teacher.clone(), |t| {
+                    TeacherQuery::new(&t.agent, &t.task)
+                }))
+            }
+            Native::Student { .. } => NativeEpisode::Student(protocol.policy_rng(index)),
+        }
+    }
+
+    /// The actions of a batch of running episodes, each with its state and what it observed;
+    /// `last_phase` is the phase the episode's last control step ended in (none at step 0).
+    pub fn act(
+        &self,
+        batch: &mut [(&mut NativeEpisode, PolicyView<'_>, Option<u8>)],
+    ) -> Vec<Action> {
+        if let Native::Student { student, .. } = self {
+            let sampler = student.net.sampler();
+            let obs: Vec<Vec<f32>> = batch
+                .iter()
+                .map(|(_, v, _)| student.observation(v))
+                .collect();
+            let rngs = batch.iter_mut().map(|(state, _, _)| match state {
+                NativeEpisode::Student(rng) => rng,
+                _ => unreachable!("a student's episodes hold its noise streams"),
+            });
+            return student.act_batch_with(&sampler, &obs, rngs);
+        }
+        batch
+            .iter_mut()
+            .map(|(state, view, last_phase)| match state {
+                NativeEpisode::Scripted(catcher) => catcher.act(view),
+                NativeEpisode::Teacher(cell) => cell.with_dependent_mut(|_, query| {
+                    if let Some(p) = last_phase {
+                        query.observe_phase(*p);
+                    }
+                    query.act(view)
+                }),
+                NativeEpisode::Student(_) => {
+                    unreachable!("a student acts on its whole batch at once")
+                }
+            })
+            .collect()
+    }
+}
+
+self_cell!(
+    /// A teacher query with the teacher it borrows.
+    pub struct TeacherEpisode {
+        owner: Arc<Teacher>,
+        #[covariant]
+        dependent: TeacherQuery,
+    }
+);
+
+/// A native policy's state in one rollout.
+pub enum NativeEpisode {
+    Scripted(ScriptedCatcher),
+    Teacher(TeacherEpisode),
+    Student(StreamRng),
+}

@@ -1,0 +1,488 @@
+//! Episodes of a protocol stepped for a caller that chooses the actions: many in parallel for a
+//! batch policy ([`Pool`]), or one at a time for an environment ([`SingleEpisode`]).
+
+use std::sync::Arc;
+
+use osms_sim::artifacts::EvalRow;
+use osms_sim::control::{Action, N_ACTION};
+use osms_sim::episode::Observed;
+use osms_sim::{Episode, NoHooks, PolicyView, RolloutRecord, RolloutSpec, World};
+use rayon::prelude::*;
+use self_cell::self_cell;
+
+use crate::error::{ActionProblem, GymError, Result};
+use crate::project::Protocol;
+
+/// What an episode borrows: the world and its rollout spec.
+struct Setting {
+    world: Arc<World>,
+    spec: Arc<RolloutSpec>,
+}
+
+type MaybeEpisode<'a> = Option<Episode<'a>>;
+
+self_cell!(
+    /// A running episode with the world and spec it borrows; empty once finished.
+    struct LiveEpisode {
+        owner: Setting,
+        #[covariant]
+        dependent: MaybeEpisode,
+    }
+);
+
+/// One rollout in progress: its condition index and the observation awaiting an action.
+struct Slot {
+    live: LiveEpisode,
+    index: usize,
+    observed: Option<Observed>,
+}
+
+impl Slot {
+    fn start(protocol: &Protocol, spec: &Arc<RolloutSpec>, index: usize) -> Slot {
+        let setting = Setting {
+            world: protocol.world.clone(),
+            spec: spec.clone(),
+        };
+        let condition = protocol.conditions[index].clone();
+        let dr = protocol.dr_rng(index);
+        Slot {
+            live: LiveEpisode::new(setting, |s| {
+                Some(Episode::new(&s.world, &s.spec, condition, dr))
+            }),
+            index,
+            observed: None,
+        }
+    }
+
+    fn episode(&self) -> &Episode<'_> {
+        self.live
+            .borrow_dependent()
+            .as_ref()
+            .expect("a slot holds its episode until it is finished")
+    }
+
+    /// Observes the next control step; false once the episode is over.
+    fn observe(&mut self, reads_contact_force: bool) -> bool {
+        let observed = self.live.with_dependent_mut(|_, e| {
+            e.as_mut().and_then(|e| e.observe_step(reads_contact_force))
+        });
+        self.observed = observed;
+        self.observed.is_some()
+    }
+
+    /// Runs `action` on the observed step; false once the episode is over.
+    fn act_only(&mut self, action: Action) -> bool {
+        let observed = self
+            .observed
+            .take()
+            .expect("an action answers an observation");
+        self.live.with_dependent_mut(|_, e| {
+            e.as_mut()
+                .is_some_and(|e| e.act_step(observed, action, &mut NoHooks))
+        })
+    }
+
+    /// Runs `action` on the observed step; the finished record once the episode is over (the
+    /// episode is gone then).
+    fn act(&mut self, action: Action) -> Option<RolloutRecord> {
+        if self.act_only(action) {
+            None
+        } else {
+            self.take_record()
+        }
+    }
+
+    fn take_record(&mut self) -> Option<RolloutRecord> {
+        self.live
+            .with_dependent_mut(|_, e| e.take().map(Episode::finish))
+    }
+
+    /// The record as [`Episode::finish`] would return it, the episode kept (to draw it).
+    fn record_now(&self) -> RolloutRecord {
+        let e = self.episode();
+        let mut record = e.record().clone();
+        (record.outcome, record.metrics) = e.outcome();
+        record
+    }
+
+    fn view(&self) -> PolicyView<'_> {
+        let observed = self
+            .observed
+            .as_ref()
+            .expect("a view is of an observed step");
+        self.episode().view(observed)
+    }
+
+    fn step(&self) -> usize {
+        self.episode().step_index()
+    }
+}
+
+/// Fails unless `action` is one the world runs: 24 finite channels in [−1, 1].
+pub fn check_action(action: &[f64], condition: usize, step: usize) -> Result<Action> {
+    let problem = if action.len() != N_ACTION {
+        Some(ActionProblem::Shape {
+            expected: format!("({N_ACTION},)"),
+            got: format!("({},)", action.len()),
+        })
+    } else if let Some(channel) = action.iter().position(|a| !a.is_finite()) {
+        Some(ActionProblem::NotFinite { channel })
+    } else {
+        // The world's own bound (`Episode::act_step`), so whatever passes here runs.
+        action
+            .iter()
+            .position(|a| a.abs() > 1.0 + 1e-9)
+            .map(|channel| ActionProblem::OutOfRange {
+                channel,
+                value: action[channel],
+            })
+    };
+    match problem {
+        Some(problem) => Err(GymError::Action {
+            condition,
+            step,
+            problem,
+        }),
+        None => Ok(std::array::from_fn(|i| action[i])),
+    }
+}
+
+/// Rollouts of a protocol on a list of its conditions, `n_envs` at a time, stepped in lockstep
+/// for one batch policy: [`Pool::observe`] starts rollouts in free slots and observes every
+/// running one, the caller chooses their actions, [`Pool::act`] runs them. Slots refill in
+/// list order. Each rollout is its stage's rollout on its condition, whatever `n_envs` and the
+/// order the others finish in (nothing is shared between episodes but the world).
+pub struct Pool {
+    protocol: Arc<Protocol>,
+    spec: Arc<RolloutSpec>,
+    reads_contact_force: bool,
+    indices: Vec<usize>,
+    next: usize,
+    slots: Vec<Option<Slot>>,
+    records: Vec<Option<RolloutRecord>>,
+    /// Which slot holds which entry of `indices`.
+    position: Vec<usize>,
+    /// Counts observations: a batch is answered at the generation it was observed in.
+    generation: u64,
+}
+
+impl Pool {
+    /// A pool over conditions `indices` of `protocol` (each at most once), episodes under
+    /// `spec`, observing the contact force if `reads_contact_force`.
+    pub fn new(
+        protocol: Arc<Protocol>,
+        spec: RolloutSpec,
+        reads_contact_force: bool,
+        indices: Vec<i64>,
+        n_envs: usize,
+    ) -> Result<Pool> {
+        if n_envs == 0 {
+            return Err(GymError::State("n_envs must be at least 1".to_string()));
+        }
+        let mut checked = Vec::with_capacity(indices.len());
+        let mut seen = vec![false; protocol.conditions.len()];
+        for &i in &indices {
+            protocol.condition(i)?;
+            let i = i as usize;
+            if std::mem::replace(&mut seen[i], true) {
+                return Err(GymError::State(format!(
+                    "condition {i} is listed twice: a protocol's rollout of a condition is one rollout"
+                )));
+            }
+            checked.push(i);
+        }
+        let n = checked.len();
+        Ok(Pool {
+            protocol,
+            spec: Arc::new(spec),
+            reads_contact_force,
+            indices: checked,
+            next: 0,
+            slots: (0..n_envs.min(n.max(1))).map(|_| None).collect(),
+            records: (0..n).map(|_| None).collect(),
+            position: vec![0; n_envs.min(n.max(1))],
+            generation: 0,
+        })
+    }
+
+    pub fn protocol(&self) -> &Protocol {
+        &self.protocol
+    }
+
+    pub fn spec(&self) -> &RolloutSpec {
+        &self.spec
+    }
+
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Starts the next rollouts in free slots and observes every running episode, in parallel.
+    /// The observed slots, in slot order; empty once every rollout has finished.
+    pub fn observe(&mut self) -> Vec<usize> {
+        let reads = self.reads_contact_force;
+        loop {
+            for (k, slot) in self.slots.iter_mut().enumerate() {
+                if slot.is_none() && self.next < self.indices.len() {
+                    *slot = Some(Slot::start(
+                        &self.protocol,
+                        &self.spec,
+                        self.indices[self.next],
+                    ));
+                    self.position[k] = self.next;
+                    self.next += 1;
+                }
+            }
+            // Only slots not yet observed: observing pushes a frame onto the history.
+            let running: Vec<bool> = self
+                .slots
+                .par_iter_mut()
+                .map(|slot| match slot {
+                    Some(s) if s.observed.is_none() => s.observe(reads),
+                    Some(_) => true,
+                    None => false,
+                })
+                .collect();
+            // An episode over before an observation (none is today) finishes, and its slot
+            // takes the next condition.
+            let mut refilled = false;
+            for (k, &r) in running.iter().enumerate() {
+                if !r && let Some(mut slot) = self.slots[k].take() {
+                    self.records[self.position[k]] = slot.take_record();
+                    refilled = true;
+                }
+            }
+            if !refilled {
+                self.generation += 1;
+                return (0..self.slots.len()).filter(|&k| running[k]).collect();
+            }
+        }
+    }
+
+    fn slot(&self, k: usize) -> &Slot {
+        self.slots[k]
+            .as_ref()
+            .expect("only observed slots are asked about")
+    }
+
+    /// What the policy sees in slot `k` (observed).
+    pub fn view(&self, k: usize) -> PolicyView<'_> {
+        self.slot(k).view()
+    }
+
+    /// The condition index of slot `k`'s rollout.
+    pub fn condition(&self, k: usize) -> usize {
+        self.slot(k).index
+    }
+
+    /// The control step slot `k` observed.
+    pub fn step(&self, k: usize) -> usize {
+        self.slot(k).step()
+    }
+
+    /// The phase slot `k`'s last control step ended in; none before the first.
+    pub fn last_phase(&self, k: usize) -> Option<u8> {
+        self.slot(k).episode().record().phase.last().copied()
+    }
+
+    /// Runs one action per observed slot (`(slot, action)`), in parallel; an action the world
+    /// cannot run fails the call before any episode moves.
+    pub fn act(&mut self, actions: Vec<(usize, Vec<f64>)>) -> Result<()> {
+        let mut checked: Vec<Option<Action>> = vec![None; self.slots.len()];
+        for (k, a) in actions {
+            let slot = self
+                .slots
+                .get(k)
+                .and_then(Option::as_ref)
+                .filter(|s| s.observed.is_some());
+            let Some(slot) = slot else {
+                return Err(GymError::State(format!("slot {k} awaits no action")));
+            };
+            checked[k] = Some(check_action(&a, slot.index, slot.step())?);
+        }
+        if let Some(k) = self.slots.iter().enumerate().position(|(k, s)| {
+            s.as_ref().is_some_and(|s| s.observed.is_some()) && checked[k].is_none()
+        }) {
+            return Err(GymError::State(format!(
+                "condition {} awaits an action",
+                self.slot(k).index
+            )));
+        }
+        let finished: Vec<Option<RolloutRecord>> = self
+            .slots
+            .par_iter_mut()
+            .zip(checked)
+            .map(|(slot, action)| match (slot.as_mut(), action) {
+                (Some(s), Some(a)) => s.act(a),
+                _ => None,
+            })
+            .collect();
+        for (k, record) in finished.into_iter().enumerate() {
+            if let Some(record) = record {
+                self.records[self.position[k]] = Some(record);
+                self.slots[k] = None;
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether every rollout has finished.
+    pub fn is_done(&self) -> bool {
+        self.records.iter().all(Option::is_some)
+    }
+
+    /// The condition indices, in the order given, with each rollout's row.
+    pub fn rows(&self) -> Result<Vec<(usize, EvalRow)>> {
+        if !self.is_done() {
+            return Err(GymError::State(
+                "the pool's rollouts have not all finished".to_string(),
+            ));
+        }
+        Ok(self
+            .indices
+            .iter()
+            .zip(&self.records)
+            .filter_map(|(&i, r)| r.as_ref().map(|r| (i, EvalRow::of(r.clone()))))
+            .collect())
+    }
+}
+
+/// What an environment reports after a step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepInfo {
+    pub condition: usize,
+    /// Control steps taken.
+    pub steps: usize,
+    pub done: bool,
+    /// The outcome as it stands (final once done).
+    pub success: bool,
+    pub completion: bool,
+    /// v_rel at first contact (m/s), once it happened.
+    pub v_rel_mps: Option<f64>,
+    /// f_max within Δt_eval of first contact (N), once it happened.
+    pub f_max_n: Option<f64>,
+    /// ℓ_max (m).
+    pub l_max_m: f64,
+    /// The failure kinds, by their stored names (`drop`, `force_exceeded`).
+    pub failures: Vec<String>,
+}
+
+/// One episode at a time, stepped by the caller: a gymnasium environment's core. An ended
+/// episode stays (its last state can be drawn) until the next reset.
+pub struct SingleEpisode {
+    protocol: Arc<Protocol>,
+    spec: Arc<RolloutSpec>,
+    reads_contact_force: bool,
+    slot: Option<Slot>,
+    running: bool,
+}
+
+impl SingleEpisode {
+    pub fn new(protocol: Arc<Protocol>, spec: RolloutSpec, reads_contact_force: bool) -> Self {
+        SingleEpisode {
+            protocol,
+            spec: Arc::new(spec),
+            reads_contact_force,
+            slot: None,
+            running: false,
+        }
+    }
+
+    pub fn protocol(&self) -> &Protocol {
+        &self.protocol
+    }
+
+    /// Starts the rollout of condition `index` (the protocol's, whatever came before) and
+    /// observes its first step.
+    pub fn reset(&mut self, index: i64) -> Result<()> {
+        self.protocol.condition(index)?;
+        let mut slot = Slot::start(&self.protocol, &self.spec, index as usize);
+        self.running = slot.observe(self.reads_contact_force);
+        self.slot = Some(slot);
+        Ok(())
+    }
+
+    /// The observation awaiting an action, while the episode runs.
+    pub fn view(&self) -> Option<PolicyView<'_>> {
+        self.slot.as_ref().filter(|_| self.running).map(Slot::view)
+    }
+
+    /// The episode, running or ended (its last state can be drawn), since the last reset.
+    pub fn episode(&self) -> Option<&Episode<'_>> {
+        self.slot.as_ref().map(Slot::episode)
+    }
+
+    /// Runs `action` and observes the next step; fails on an action the world cannot run, or
+    /// when no episode runs.
+    pub fn step(&mut self, action: &[f64]) -> Result<StepInfo> {
+        let slot = match self.slot.as_mut() {
+            Some(slot) if self.running => slot,
+            _ => {
+                return Err(GymError::State(
+                    "no episode is running: call reset() first (and again after an episode ends)"
+                        .to_string(),
+                ));
+            }
+        };
+        let action = check_action(action, slot.index, slot.step())?;
+        self.running = slot.act_only(action) && slot.observe(self.reads_contact_force);
+        Ok(self.info())
+    }
+
+    /// The episode's state: running, or ended with its outcome.
+    pub fn info(&self) -> StepInfo {
+        let Some(slot) = &self.slot else {
+            return StepInfo {
+                condition: 0,
+                steps: 0,
+                done: true,
+                success: false,
+                completion: false,
+                v_rel_mps: None,
+                f_max_n: None,
+                l_max_m: 0.0,
+                failures: Vec::new(),
+            };
+        };
+        let e = slot.episode();
+        let (o, m) = e.outcome();
+        let done = !self.running;
+        StepInfo {
+            condition: slot.index,
+            steps: e.step_index(),
+            done,
+            success: done && o.success(),
+            completion: done && o.completion(),
+            v_rel_mps: m.contact_speed_mps,
+            f_max_n: m.contact_time_secs.map(|_| m.max_force_n),
+            l_max_m: m.follow_through_m,
+            failures: o
+                .failures
+                .iter()
+                .map(|f| {
+                    serde_json::to_value(f)
+                        .ok()
+                        .and_then(|v| v.as_str().map(String::from))
+                        .unwrap_or_default()
+                })
+                .collect(),
+        }
+    }
+
+    /// The ended episode's row (its condition and the row), once it has ended.
+    pub fn row(&self) -> Option<(usize, EvalRow)> {
+        self.slot
+            .as_ref()
+            .filter(|_| !self.running)
+            .map(|s| (s.index, EvalRow::of(s.record_now())))
+    }
+}
+
+/// `rollouts.csv` of rows on conditions of one set, as `osms export` writes an evaluation's:
+/// the same columns, the `condition` column naming each row's condition.
+pub fn rows_csv(rows: &[(usize, EvalRow)]) -> Result<String> {
+    let (conditions, rows): (Vec<usize>, Vec<EvalRow>) = rows.iter().cloned().unzip();
+    osms_export::rollouts::table_on(&rows, &conditions)
+        .csv()
+        .map_err(|e| GymError::State(format!("cannot write the rows: {e}")))
+}

@@ -1,0 +1,349 @@
+//! A project (pipeline.toml, a profile and the store beside it) and the evaluation protocols
+//! its stages define.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use osms_core::Artifact;
+use osms_core::rng::{self, StreamRng};
+use osms_make::{InstanceId, Pipeline, Plan, Sharded, State, StoreObjects};
+use osms_policy::artifacts::Teacher;
+use osms_policy::stages::{EvalStudentParams, EvalTeacherParams, EvaluateParams};
+use osms_sim::artifacts::{Conditions, WorldArtifact};
+use osms_sim::conditions::TaskCondition;
+use osms_sim::stages::EvalParams;
+use osms_sim::{RolloutSpec, World};
+use osms_store::Store;
+
+use crate::error::{GymError, Result};
+
+/// The stage kinds that evaluate a policy on a condition set, and so can serve as protocols.
+pub const EVALUATION_KINDS: [&str; 4] =
+    ["eval_teacher", "eval_student", "eval_scripted", "evaluate"];
+
+/// A pipeline under one profile, with its store: where protocols and policies are read from.
+pub struct Project {
+    pipeline_path: PathBuf,
+    store: Store,
+    plan: Plan,
+}
+
+impl Project {
+    /// Opens `pipeline` (else the pipeline.toml of the working directory or its nearest parent)
+    /// under `profile` (else the pipeline's default), with `store` (else `store/` beside the
+    /// pipeline). The store must exist: this reads what `osms make` built, and builds nothing.
+    pub fn open(
+        pipeline: Option<&Path>,
+        store: Option<&Path>,
+        profile: Option<&str>,
+    ) -> Result<Self> {
+        let pipeline_path = match pipeline {
+            Some(p) => p.to_path_buf(),
+            None => find_pipeline()?,
+        };
+        let loaded = Pipeline::load(&pipeline_path, profile)?;
+        let plan = Plan::new(&loaded, &osms::registry())?;
+        let store_path = match store {
+            Some(s) => s.to_path_buf(),
+            None => pipeline_path
+                .parent()
+                .unwrap_or(Path::new("."))
+                .join("store"),
+        };
+        if !store_path.is_dir() {
+            return Err(GymError::Project(format!(
+                "no store at {}\nhint: `./osms make` in the project builds one, or pass store=PATH",
+                store_path.display()
+            )));
+        }
+        Ok(Project {
+            store: Store::open(&store_path)?,
+            pipeline_path,
+            plan,
+        })
+    }
+
+    pub fn profile(&self) -> &str {
+        &self.plan.profile
+    }
+
+    pub fn pipeline_path(&self) -> &Path {
+        &self.pipeline_path
+    }
+
+    pub fn store_path(&self) -> &Path {
+        self.store.root()
+    }
+
+    /// The instance `name` names (`stage`, `stage@seed`, `stage#fold`), and its kind.
+    pub fn instance(&self, name: &str) -> Result<(InstanceId, &str)> {
+        let stage = name.split(['@', '#']).next().unwrap_or(name);
+        let Some(index) = self.plan.stage_index(stage) else {
+            return Err(GymError::UnknownStage {
+                name: name.to_string(),
+                pipeline: self.pipeline_path.display().to_string(),
+                known: self.plan.stage_names().join(", "),
+            });
+        };
+        let id = self
+            .plan
+            .instance_named(name, &self.seeds_for(name))
+            .ok_or_else(|| {
+                let examples: Vec<String> = self
+                    .plan
+                    .stage_instances(index, &self.plan.default_seeds)
+                    .into_iter()
+                    .map(|id| self.plan.display(id))
+                    .collect();
+                GymError::Project(format!(
+                    "`{name}` names no instance of stage `{stage}`\nhint: its instances are {}",
+                    examples.join(", ")
+                ))
+            })?;
+        Ok((id, self.plan.stages[index].info.name))
+    }
+
+    /// The run seeds a name can refer to: the pipeline's, and the one it names.
+    fn seeds_for(&self, name: &str) -> Vec<u64> {
+        let mut seeds = self.plan.default_seeds.clone();
+        if let Some(seed) = name.rsplit_once('@').and_then(|(_, s)| s.parse().ok()) {
+            seeds.push(seed);
+        }
+        seeds.sort_unstable();
+        seeds.dedup();
+        seeds
+    }
+
+    /// The stored bytes of `name`'s current build, and whether they are a manifest.
+    fn built(&self, name: &str) -> Result<(Vec<u8>, bool)> {
+        let (id, _) = self.instance(name)?;
+        let display = self.plan.display(id);
+        let statuses = osms_make::status(
+            &self.plan,
+            &self.store,
+            std::slice::from_ref(&display),
+            &self.seeds_for(&display),
+        )?;
+        let status = statuses
+            .iter()
+            .find(|s| s.id == id)
+            .ok_or_else(|| GymError::Project(format!("no status for `{display}`")))?;
+        match (status.state, status.content_hash) {
+            (State::Cached, Some(hash)) => Ok((
+                self.store.get(&hash)?,
+                self.plan.stages[id.stage].info.itemised,
+            )),
+            _ => Err(GymError::NotBuilt {
+                instance: display,
+                store: self.store.root().display().to_string(),
+                profile: self.plan.profile.clone(),
+                reason: osms_make::describe(&status.reasons),
+            }),
+        }
+    }
+
+    /// The artifact of `name`'s current build (a stage whose kind stores it whole).
+    pub fn load<A: Artifact>(&self, name: &str) -> Result<A> {
+        let (bytes, manifest) = self.built(name)?;
+        if manifest {
+            return Err(GymError::Decode {
+                instance: name.to_string(),
+                message: "it is stored sharded".to_string(),
+            });
+        }
+        osms_core::decode(&bytes).map_err(|e| GymError::Decode {
+            instance: name.to_string(),
+            message: e.to_string(),
+        })
+    }
+
+    /// The whole artifact of `name`'s current build, items included, sharded or not.
+    pub fn load_sharded<A: Sharded>(&self, name: &str) -> Result<A> {
+        let (bytes, manifest) = self.built(name)?;
+        let decoded = if manifest {
+            osms_make::assemble(&bytes, &StoreObjects(&self.store)).map_err(|e| e.to_string())
+        } else {
+            osms_core::decode(&bytes).map_err(|e| e.to_string())
+        };
+        decoded.map_err(|message| GymError::Decode {
+            instance: name.to_string(),
+            message,
+        })
+    }
+
+    /// The instance wired to `slot` of `id`, by name.
+    pub fn input(&self, id: InstanceId, slot: &str) -> Option<String> {
+        self.plan
+            .input_instances(id, &self.seeds_for(&self.plan.display(id)))
+            .into_iter()
+            .find(|i| i.slot == slot)
+            .map(|i| self.plan.display(i.id))
+    }
+
+    /// The protocol of evaluation stage `name` (an instance of kind `eval_teacher`,
+    /// `eval_student`, `eval_scripted` or `evaluate`): its world, conditions, rollout spec and
+    /// random streams. The stage itself need not be built; its world and conditions (and, for
+    /// `eval_teacher`, the teacher whose task sets the rollout spec) must be.
+    pub fn protocol(&self, name: &str) -> Result<Protocol> {
+        let (id, kind) = self.instance(name)?;
+        if !EVALUATION_KINDS.contains(&kind) {
+            return Err(GymError::WrongKind {
+                name: name.to_string(),
+                kind: kind.to_string(),
+                expected: format!(
+                    "a protocol is an evaluation stage (kind {})\nhint: evaluation stages here are {}",
+                    EVALUATION_KINDS.join(", "),
+                    self.evaluation_stages().join(", ")
+                ),
+            });
+        }
+        let stage = &self.plan.stages[id.stage];
+        let params = stage.params.json.clone();
+        let bad = |e: serde_json::Error| GymError::Decode {
+            instance: name.to_string(),
+            message: format!("params: {e}"),
+        };
+        let input = |slot: &str| {
+            self.input(id, slot)
+                .ok_or_else(|| GymError::Project(format!("stage `{name}` has no `{slot}` input")))
+        };
+        let base = match kind {
+            "eval_teacher" => {
+                let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad)?;
+                let teacher: Teacher = self.load(&input("teacher")?)?;
+                teacher.task.with_dr(&p.dr).rollout
+            }
+            "eval_student" => {
+                let p: EvalStudentParams = serde_json::from_value(params).map_err(bad)?;
+                p.rollout
+            }
+            "eval_scripted" => {
+                let p: EvalParams = serde_json::from_value(params).map_err(bad)?;
+                p.rollout
+            }
+            _ => {
+                let p: EvaluateParams = serde_json::from_value(params).map_err(bad)?;
+                p.rollout
+            }
+        };
+        let conditions_name = input("conditions")?;
+        let conditions: Conditions = self.load_sharded(&conditions_name)?;
+        let world_name = input("world")?;
+        let world = self
+            .load::<WorldArtifact>(&world_name)?
+            .world()
+            .map_err(|e| GymError::Decode {
+                instance: world_name,
+                message: e.to_string(),
+            })?;
+        Ok(Protocol {
+            name: self.plan.display(id),
+            kind: kind.to_string(),
+            world: Arc::new(world),
+            conditions_name,
+            conditions: Arc::new(conditions.items),
+            base,
+            seed: self.plan.effective_seed(id),
+            stream: self.plan.stream_name(id),
+        })
+    }
+
+    /// The evaluation stages of the pipeline, in its order.
+    pub fn evaluation_stages(&self) -> Vec<String> {
+        self.plan
+            .stages
+            .iter()
+            .filter(|s| EVALUATION_KINDS.contains(&s.info.name))
+            .map(|s| s.name.clone())
+            .collect()
+    }
+
+    /// The protocol osms uses by default for condition set `conditions` (`dev`, `heldout`): the
+    /// first evaluation stage on it that rolls out a teacher, else the first on it.
+    pub fn default_protocol(&self, conditions: &str) -> Result<String> {
+        let (set, _) = self.instance(conditions)?;
+        let on_set: Vec<&osms_make::PlannedStage> = self
+            .plan
+            .stages
+            .iter()
+            .filter(|s| EVALUATION_KINDS.contains(&s.info.name))
+            .filter(|s| {
+                s.inputs
+                    .iter()
+                    .any(|i| i.slot == "conditions" && i.upstream == set.stage)
+            })
+            .collect();
+        on_set
+            .iter()
+            .find(|s| s.inputs.iter().any(|i| i.slot == "teacher"))
+            .or(on_set.first())
+            .map(|s| s.name.clone())
+            .ok_or_else(|| {
+                GymError::Project(format!(
+                    "no evaluation stage reads the conditions `{conditions}`\nhint: evaluation stages here are {}",
+                    self.evaluation_stages().join(", ")
+                ))
+            })
+    }
+}
+
+/// The rules of an evaluation stage's rollouts: rollout `i` runs condition `i` of its set under
+/// its rollout spec, with its domain randomisation from the stage's ("item", i) stream and a
+/// stochastic policy's noise from its ("policy", i) stream.
+#[derive(Clone)]
+pub struct Protocol {
+    /// The stage instance (`eval_naive@1`).
+    pub name: String,
+    pub kind: String,
+    pub world: Arc<World>,
+    /// The condition set's instance (`heldout`).
+    pub conditions_name: String,
+    pub conditions: Arc<Vec<TaskCondition>>,
+    /// The rollout spec a policy without needs of its own runs under (history: the policy's).
+    pub base: RolloutSpec,
+    /// The seed of the stage's streams; `None` when the stage draws nothing (no DR).
+    pub seed: Option<u64>,
+    /// The name the stage's streams go by (the stage, with `#fold` for folds).
+    pub stream: String,
+}
+
+impl Protocol {
+    /// The generator of rollout `index`'s domain randomisation, as the executor makes it.
+    pub fn dr_rng(&self, index: usize) -> StreamRng {
+        match self.seed {
+            Some(seed) => rng::stream(seed, &self.stream, "item", index as u64),
+            None => rng::stream(0, "", "item", index as u64),
+        }
+    }
+
+    /// The generator of a stochastic policy's noise in rollout `index` (a student's).
+    pub fn policy_rng(&self, index: usize) -> StreamRng {
+        rng::stream(self.seed.unwrap_or(0), &self.stream, "policy", index as u64)
+    }
+
+    /// Condition `index`, or an error naming the valid range.
+    pub fn condition(&self, index: i64) -> Result<&TaskCondition> {
+        usize::try_from(index)
+            .ok()
+            .and_then(|i| self.conditions.get(i))
+            .ok_or_else(|| GymError::Condition {
+                index,
+                conditions: self.conditions_name.clone(),
+                n: self.conditions.len(),
+            })
+    }
+}
+
+fn find_pipeline() -> Result<PathBuf> {
+    let cwd = std::env::current_dir()
+        .map_err(|e| GymError::Project(format!("cannot read the current directory: {e}")))?;
+    cwd.ancestors()
+        .map(|dir| dir.join("pipeline.toml"))
+        .find(|p| p.is_file())
+        .ok_or_else(|| {
+            GymError::Project(format!(
+                "no pipeline.toml in {} or any parent directory\nhint: run inside an osms project, or pass pipeline=PATH",
+                cwd.display()
+            ))
+        })
+}

@@ -1,0 +1,42 @@
+"""osms from Python: the catching world of *Outcome-Sensitive Motion Search* as a gymnasium
+environment (``osms/Catch-v0``), bit-exact batch evaluation of any policy on osms's condition
+sets (:func:`osms.eval.evaluate`) and the store's teacher, students and scripted catcher as
+callables (:func:`osms.policies.load`).
+
+Everything reads an osms project: its ``pipeline.toml`` (found from the working directory, or
+passed as ``pipeline=``), a profile and the store beside it that ``./osms make`` built.
+"""
+
+from osms._native import (
+    N_ACTION,
+    ActionError,
+    NativePolicy,
+    OsmsError,
+    Project,
+    Protocol,
+    channels,
+    row_columns,
+)
+
+from osms import eval, policies  # noqa: E402  (submodules need the names above)
+
+__all__ = [
+    "N_ACTION",
+    "ActionError",
+    "NativePolicy",
+    "OsmsError",
+    "Project",
+    "Protocol",
+    "channels",
+    "eval",
+    "policies",
+    "row_columns",
+]
+
+try:
+    import gymnasium as _gymnasium
+except ImportError:  # the environment needs gymnasium; evaluation does not
+    pass
+else:
+    if "osms/Catch-v0" not in _gymnasium.registry:
+        _gymnasium.register(id="osms/Catch-v0", entry_point="osms.gym:CatchEnv")

@@ -1,0 +1,635 @@
+//! The Python package `osms`: PyO3 bindings of osms-gym (a gymnasium environment, batch evaluation with the GIL released, the store's policies as Python callables).
+//!
+//! This module is `osms._native`; the package's Python half (`python/osms/`) builds the
+//! gymnasium environment, `osms.eval.evaluate` and `osms.policies` on it. Stepping and the
+//! store's policies run here with the GIL released.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use osms_gym::native::NativeEpisode;
+use osms_gym::{GymError, Native, Pool, Project, Protocol, SingleEpisode, StepInfo};
+use osms_sim::control::Action;
+use pyo3::create_exception;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+create_exception!(
+    _native,
+    OsmsError,
+    PyRuntimeError,
+    "A project, stage, artifact or call osms cannot use; the message says which and what would do."
+);
+create_exception!(
+    _native,
+    ActionError,
+    PyValueError,
+    "A policy's action the world cannot run (wrong shape, not finite, outside [-1, 1]); the message names the condition and the control step."
+);
+
+fn to_py(e: GymError) -> PyErr {
+    match e {
+        GymError::Action { .. } => ActionError::new_err(e.to_string()),
+        other => OsmsError::new_err(other.to_string()),
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic inside a step leaves no half-updated state that a later call could misread: every
+    // call checks the pool's generation and slots first.
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// A project: pipeline.toml under a profile, and its store.
+#[pyclass(name = "Project", module = "osms._native", frozen)]
+struct PyProject {
+    inner: Arc<Project>,
+}
+
+#[pymethods]
+impl PyProject {
+    #[new]
+    #[pyo3(signature = (pipeline=None, store=None, profile=None))]
+    fn new(
+        py: Python<'_>,
+        pipeline: Option<PathBuf>,
+        store: Option<PathBuf>,
+        profile: Option<String>,
+    ) -> PyResult<Self> {
+        let project = py
+            .detach(|| Project::open(pipeline.as_deref(), store.as_deref(), profile.as_deref()))
+            .map_err(to_py)?;
+        Ok(PyProject {
+            inner: Arc::new(project),
+        })
+    }
+
+    #[getter]
+    fn profile(&self) -> String {
+        self.inner.profile().to_string()
+    }
+
+    #[getter]
+    fn pipeline(&self) -> PathBuf {
+        self.inner.pipeline_path().to_path_buf()
+    }
+
+    #[getter]
+    fn store(&self) -> PathBuf {
+        self.inner.store_path().to_path_buf()
+    }
+
+    /// The evaluation stage (protocol) of `name`: an instance of an `eval_*` or `evaluate` stage.
+    fn protocol(&self, py: Python<'_>, name: &str) -> PyResult<PyProtocol> {
+        let inner = self.inner.clone();
+        let protocol = py.detach(|| inner.protocol(name)).map_err(to_py)?;
+        Ok(PyProtocol {
+            inner: Arc::new(protocol),
+        })
+    }
+
+    /// The protocol osms uses by default on condition set `conditions`.
+    fn default_protocol(&self, conditions: &str) -> PyResult<String> {
+        self.inner.default_protocol(conditions).map_err(to_py)
+    }
+
+    /// The pipeline's evaluation stages, in order.
+    fn evaluation_stages(&self) -> Vec<String> {
+        self.inner.evaluation_stages()
+    }
+
+    /// A policy of the store: `scripted`, or a built `teacher` or `student` instance.
+    fn policy(&self, py: Python<'_>, name: &str) -> PyResult<PyNative> {
+        let inner = self.inner.clone();
+        let native = py.detach(|| Native::load(&inner, name)).map_err(to_py)?;
+        Ok(PyNative {
+            inner: native,
+            states: Mutex::new(BTreeMap::new()),
+        })
+    }
+}
+
+/// The rules of one evaluation stage's rollouts.
+#[pyclass(name = "Protocol", module = "osms._native", frozen)]
+struct PyProtocol {
+    inner: Arc<Protocol>,
+}
+
+#[pymethods]
+impl PyProtocol {
+    #[getter]
+    fn name(&self) -> String {
+        self.inner.name.clone()
+    }
+
+    #[getter]
+    fn kind(&self) -> String {
+        self.inner.kind.clone()
+    }
+
+    #[getter]
+    fn conditions(&self) -> String {
+        self.inner.conditions_name.clone()
+    }
+
+    #[getter]
+    fn n_conditions(&self) -> usize {
+        self.inner.conditions.len()
+    }
+
+    #[getter]
+    fn seed(&self) -> Option<u64> {
+        self.inner.seed
+    }
+
+    /// Control steps per second.
+    #[getter]
+    fn control_hz(&self) -> f64 {
+        1.0 / self.inner.world.control_period_secs()
+    }
+
+    /// The variant (object family and size) of condition `index`.
+    fn variant(&self, index: i64) -> PyResult<String> {
+        Ok(self
+            .inner
+            .condition(index)
+            .map_err(to_py)?
+            .variant
+            .to_string())
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Protocol({:?}: {} conditions of `{}`)",
+            self.inner.name,
+            self.inner.conditions.len(),
+            self.inner.conditions_name
+        )
+    }
+}
+
+static NEXT_POOL: AtomicU64 = AtomicU64::new(1);
+
+/// The state a native policy keeps per rollout, by (pool, condition).
+type States = BTreeMap<(u64, usize), NativeEpisode>;
+
+/// A policy of the store as a Python callable over the observations of a [`PyPool`].
+#[pyclass(name = "NativePolicy", module = "osms._native", frozen)]
+struct PyNative {
+    inner: Native,
+    states: Mutex<States>,
+}
+
+#[pymethods]
+impl PyNative {
+    #[getter]
+    fn name(&self) -> String {
+        self.inner.name().to_string()
+    }
+
+    /// The actions (float64, one row per observed rollout) for a batch that a pool observed.
+    fn __call__<'py>(
+        &self,
+        py: Python<'py>,
+        observation: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let batch = observation
+            .get_item("osms_batch")
+            .ok()
+            .and_then(|b| b.extract::<PyRef<'_, PyBatch>>().ok())
+            .ok_or_else(|| {
+                OsmsError::new_err(format!(
+                    "`{}` acts on observations from osms (osms.eval.evaluate, or an osms pool's `observe()`): they carry the rollouts' full state under `osms_batch`",
+                    self.inner.name()
+                ))
+            })?;
+        let (pool, id, generation, slots) = (
+            batch.pool.clone(),
+            batch.id,
+            batch.generation,
+            batch.slots.clone(),
+        );
+        drop(batch);
+        let actions = py
+            .detach(|| act_native(&self.inner, &self.states, &pool, id, generation, &slots))
+            .map_err(to_py)?;
+        let n = actions.len();
+        let flat: Vec<f64> = actions.into_iter().flatten().collect();
+        flat.into_pyarray(py).reshape([n, osms_sim::N_ACTION])
+    }
+
+    fn __repr__(&self) -> String {
+        format!("NativePolicy({:?})", self.inner.name())
+    }
+}
+
+fn act_native(
+    native: &Native,
+    states: &Mutex<States>,
+    pool: &Mutex<Pool>,
+    id: u64,
+    generation: u64,
+    slots: &[usize],
+) -> Result<Vec<Action>, GymError> {
+    let pool = lock(pool);
+    if pool.generation() != generation {
+        return Err(GymError::State(
+            "these observations are stale: act on the latest `observe()` of the pool".to_string(),
+        ));
+    }
+    if native.spec(pool.protocol()) != *pool.spec() {
+        return Err(GymError::State(format!(
+            "`{}` runs under a rollout spec of its own: pass it to the pool as its policy (osms.eval.evaluate does) to act on its rollouts",
+            native.name()
+        )));
+    }
+    let mut states = lock(states);
+    let running: Vec<usize> = slots.iter().map(|&k| pool.condition(k)).collect();
+    // Rollouts of this pool that are no longer observed have finished.
+    states.retain(|(pool_id, c), _| *pool_id != id || running.contains(c));
+    let mut taken = Vec::with_capacity(slots.len());
+    for &k in slots {
+        let c = pool.condition(k);
+        let state = match states.remove(&(id, c)) {
+            Some(s) => s,
+            None if pool.step(k) == 0 => native.start(pool.protocol(), c),
+            None => {
+                return Err(GymError::State(format!(
+                    "`{}` first saw condition {c} at control step {}: a policy of the store acts from a rollout's first step",
+                    native.name(),
+                    pool.step(k)
+                )));
+            }
+        };
+        taken.push(state);
+    }
+    let mut batch: Vec<_> = taken
+        .iter_mut()
+        .zip(slots)
+        .map(|(s, &k)| (s, pool.view(k), pool.last_phase(k)))
+        .collect();
+    let actions = native.act(&mut batch);
+    drop(batch);
+    for (state, c) in taken.into_iter().zip(running) {
+        states.insert((id, c), state);
+    }
+    Ok(actions)
+}
+
+/// What a pool observed at one control step, for a native policy to read the rollouts' state.
+#[pyclass(name = "Batch", module = "osms._native", frozen)]
+struct PyBatch {
+    pool: Arc<Mutex<Pool>>,
+    id: u64,
+    generation: u64,
+    slots: Vec<usize>,
+}
+
+/// Rollouts of a protocol stepped in lockstep for one batch policy (`osms.eval.evaluate`).
+#[pyclass(name = "Pool", module = "osms._native")]
+struct PyPool {
+    pool: Arc<Mutex<Pool>>,
+    id: u64,
+    privileged: bool,
+    /// The slots of the last observation, awaiting actions.
+    observed: Vec<usize>,
+}
+
+#[pymethods]
+impl PyPool {
+    /// Rollouts of `protocol` on conditions `indices`, `n_envs` at a time. With `policy` (a
+    /// NativePolicy) they run under that policy's rollout spec, as its own evaluation does;
+    /// `privileged` adds the privileged frame to the observations.
+    #[new]
+    #[pyo3(signature = (protocol, indices, n_envs, policy=None, privileged=false))]
+    fn new(
+        protocol: &PyProtocol,
+        indices: Vec<i64>,
+        n_envs: usize,
+        policy: Option<PyRef<'_, PyNative>>,
+        privileged: bool,
+    ) -> PyResult<Self> {
+        let protocol = protocol.inner.clone();
+        let (spec, reads) = match &policy {
+            Some(p) => (
+                p.inner.spec(&protocol),
+                p.inner.reads_contact_force() || privileged,
+            ),
+            None => (external_spec(&protocol), privileged),
+        };
+        let pool = Pool::new(protocol, spec, reads, indices, n_envs).map_err(to_py)?;
+        Ok(PyPool {
+            pool: Arc::new(Mutex::new(pool)),
+            id: NEXT_POOL.fetch_add(1, Ordering::Relaxed),
+            privileged,
+            observed: Vec::new(),
+        })
+    }
+
+    /// Starts rollouts in free slots and observes every running one (GIL released): a dict of
+    /// `agent_pos` (n × 76, float32), `environment_state` (n × 85, if privileged), `condition`
+    /// and `step` (n, int64) and `osms_batch` (for the store's policies); None once all ended.
+    fn observe<'py>(&mut self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        if !self.observed.is_empty() {
+            return Err(OsmsError::new_err(
+                "the last observation awaits its actions: call act() first",
+            ));
+        }
+        let pool = self.pool.clone();
+        let privileged = self.privileged;
+        let (slots, generation, frames) = py.detach(|| {
+            let mut pool = lock(&pool);
+            let slots = pool.observe();
+            let frames = frames_of(&pool, &slots, privileged);
+            (slots, pool.generation(), frames)
+        });
+        if slots.is_empty() {
+            return Ok(None);
+        }
+        let n = slots.len();
+        let dict = observation_dict(py, n, frames)?;
+        dict.set_item(
+            "osms_batch",
+            PyBatch {
+                pool: self.pool.clone(),
+                id: self.id,
+                generation,
+                slots: slots.clone(),
+            },
+        )?;
+        self.observed = slots;
+        Ok(Some(dict))
+    }
+
+    /// Runs one action per observed rollout (`actions`: n × 24, float64, in observation order),
+    /// GIL released. An action the world cannot run raises ActionError and moves nothing.
+    fn act(&mut self, py: Python<'_>, actions: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+        let view = actions.as_array();
+        let shape = view.shape().to_vec();
+        let n = self.observed.len();
+        if n == 0 {
+            return Err(OsmsError::new_err(
+                "no observation awaits actions: call observe() first",
+            ));
+        }
+        if shape != [n, osms_sim::N_ACTION] {
+            let pool = lock(&self.pool);
+            let (condition, step) = (
+                pool.condition(self.observed[0]),
+                pool.step(self.observed[0]),
+            );
+            return Err(to_py(GymError::Action {
+                condition,
+                step,
+                problem: osms_gym::ActionProblem::Shape {
+                    expected: format!(
+                        "({n}, {}): one row per observed rollout",
+                        osms_sim::N_ACTION
+                    ),
+                    got: format!("{shape:?}"),
+                },
+            }));
+        }
+        let rows: Vec<(usize, Vec<f64>)> = self
+            .observed
+            .iter()
+            .zip(view.rows())
+            .map(|(&k, row)| (k, row.to_vec()))
+            .collect();
+        let pool = self.pool.clone();
+        py.detach(|| lock(&pool).act(rows)).map_err(to_py)?;
+        self.observed.clear();
+        Ok(())
+    }
+
+    /// Whether every rollout has ended.
+    #[getter]
+    fn done(&self) -> bool {
+        lock(&self.pool).is_done()
+    }
+
+    /// The rows of the ended rollouts as `rollouts.csv` (the columns of `osms export eval_*`).
+    fn rows_csv(&self) -> PyResult<String> {
+        let pool = lock(&self.pool);
+        osms_gym::rows_csv(&pool.rows().map_err(to_py)?).map_err(to_py)
+    }
+}
+
+/// The rollout spec of a policy outside osms: the protocol's, showing one frame (a policy keeps
+/// its own history).
+fn external_spec(protocol: &Protocol) -> osms_sim::RolloutSpec {
+    let mut spec = protocol.base.clone();
+    spec.history_steps = 1;
+    spec
+}
+
+/// The observed frames of `slots`, flattened, as float32: deployable, and privileged if asked.
+struct Frames {
+    deployable: Vec<f32>,
+    privileged: Option<Vec<f32>>,
+    condition: Vec<i64>,
+    step: Vec<i64>,
+}
+
+fn frames_of(pool: &Pool, slots: &[usize], privileged: bool) -> Frames {
+    let mut f = Frames {
+        deployable: Vec::new(),
+        privileged: privileged.then(Vec::new),
+        condition: Vec::new(),
+        step: Vec::new(),
+    };
+    for &k in slots {
+        let view = pool.view(k);
+        f.deployable
+            .extend(view.deployable.iter().map(|&v| v as f32));
+        if let Some(p) = f.privileged.as_mut() {
+            p.extend(view.privileged.iter().map(|&v| v as f32));
+        }
+        f.condition.push(pool.condition(k) as i64);
+        f.step.push(pool.step(k) as i64);
+    }
+    f
+}
+
+fn observation_dict(py: Python<'_>, n: usize, f: Frames) -> PyResult<Bound<'_, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item(
+        "agent_pos",
+        f.deployable
+            .into_pyarray(py)
+            .reshape([n, osms_sim::episode::DEPLOYABLE_LEN])?,
+    )?;
+    if let Some(p) = f.privileged {
+        dict.set_item(
+            "environment_state",
+            p.into_pyarray(py)
+                .reshape([n, osms_sim::episode::PRIVILEGED_LEN])?,
+        )?;
+    }
+    dict.set_item("condition", f.condition.into_pyarray(py))?;
+    dict.set_item("step", f.step.into_pyarray(py))?;
+    Ok(dict)
+}
+
+/// Side of a rendered frame (pixels).
+const RENDER_SIDE: u32 = 480;
+
+/// One rollout at a time (the gymnasium environment's core). Bound to the thread that made it:
+/// an OpenGL context (the renderer's) is per thread.
+#[pyclass(name = "Env", module = "osms._native", unsendable)]
+struct PyEnv {
+    inner: SingleEpisode,
+    privileged: bool,
+    renderers: Vec<(osms_sim::ObjectVariant, osms_render::Renderer)>,
+}
+
+#[pymethods]
+impl PyEnv {
+    #[new]
+    #[pyo3(signature = (protocol, privileged=false))]
+    fn new(protocol: &PyProtocol, privileged: bool) -> Self {
+        let protocol = protocol.inner.clone();
+        let spec = external_spec(&protocol);
+        PyEnv {
+            inner: SingleEpisode::new(protocol, spec, privileged),
+            privileged,
+            renderers: Vec::new(),
+        }
+    }
+
+    /// Starts the protocol's rollout of condition `index`; its first observation.
+    fn reset<'py>(&mut self, py: Python<'py>, index: i64) -> PyResult<Bound<'py, PyDict>> {
+        py.detach(|| self.inner.reset(index)).map_err(to_py)?;
+        self.observation(py)
+    }
+
+    /// Runs `action` (24 values in [-1, 1]); (observation, info). The observation is the last
+    /// one once the rollout has ended.
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        action: PyReadonlyArray1<'_, f64>,
+    ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+        let action = action.as_array().to_vec();
+        let info = py.detach(|| self.inner.step(&action)).map_err(to_py)?;
+        let obs = if info.done {
+            PyDict::new(py)
+        } else {
+            self.observation(py)?
+        };
+        Ok((obs, info_dict(py, &info)?))
+    }
+
+    /// The rollout's state: running, or ended with its outcome.
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        info_dict(py, &self.inner.info())
+    }
+
+    /// The ended rollout's row as `rollouts.csv` (header and one line).
+    fn row_csv(&self) -> PyResult<Option<String>> {
+        self.inner
+            .row()
+            .map(|row| osms_gym::rows_csv(&[row]))
+            .transpose()
+            .map_err(to_py)
+    }
+
+    /// The current state drawn by MuJoCo's offscreen renderer (Mesa's OSMesa): an
+    /// (height, width, 3) uint8 array. The renderer of each object variant is made once.
+    fn render<'py>(
+        &mut self,
+        py: Python<'py>,
+    ) -> PyResult<Option<Bound<'py, numpy::PyArray3<u8>>>> {
+        let Some(episode) = self.inner.episode() else {
+            return Ok(None);
+        };
+        let protocol = self.inner.protocol();
+        let variant = episode.record().condition.variant;
+        let renderer = match self.renderers.iter().position(|(v, _)| *v == variant) {
+            Some(i) => &mut self.renderers[i].1,
+            None => {
+                let model =
+                    osms_render::render_model(&protocol.world, variant, RENDER_SIDE, RENDER_SIDE)
+                        .map_err(|e| OsmsError::new_err(e.to_string()))?;
+                let camera = osms_render::CameraSpec::catch_view(protocol.world.home_palm_pos);
+                let r = osms_render::Renderer::new(&model, RENDER_SIDE, RENDER_SIDE, &camera)
+                    .map_err(|e| OsmsError::new_err(format!("{e}\nhint: scripts/setup-render installs the offscreen renderer (Debian's OSMesa)")))?;
+                self.renderers.push((variant, r));
+                &mut self.renderers.last_mut().expect("just pushed").1
+            }
+        };
+        let image = renderer
+            .frame(episode.data())
+            .map_err(|e| OsmsError::new_err(e.to_string()))?;
+        let (h, w) = (image.height as usize, image.width as usize);
+        Ok(Some(image.rgb.into_pyarray(py).reshape([h, w, 3])?))
+    }
+}
+
+impl PyEnv {
+    fn observation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let dict = PyDict::new(py);
+        let Some(view) = self.inner.view() else {
+            return Ok(dict);
+        };
+        let frame: Vec<f32> = view.deployable.iter().map(|&v| v as f32).collect();
+        dict.set_item("agent_pos", PyArray1::from_vec(py, frame))?;
+        if self.privileged {
+            let p: Vec<f32> = view.privileged.iter().map(|&v| v as f32).collect();
+            dict.set_item("environment_state", PyArray1::from_vec(py, p))?;
+        }
+        Ok(dict)
+    }
+}
+
+fn info_dict<'py>(py: Python<'py>, info: &StepInfo) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("condition", info.condition)?;
+    d.set_item("steps", info.steps)?;
+    d.set_item("done", info.done)?;
+    d.set_item("is_success", info.success)?;
+    d.set_item("completion", info.completion)?;
+    d.set_item("v_rel_mps", info.v_rel_mps)?;
+    d.set_item("f_max_n", info.f_max_n)?;
+    d.set_item("l_max_m", info.l_max_m)?;
+    d.set_item("failures", info.failures.clone())?;
+    Ok(d)
+}
+
+/// Channel names: `agent_pos` (the deployable frame), `environment_state` (the privileged
+/// frame) and `action`, as osms's LeRobot export names them.
+#[pyfunction]
+fn channels<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("agent_pos", osms_export::state_names())?;
+    d.set_item("environment_state", osms_export::environment_state_names())?;
+    d.set_item("action", osms_export::action_names())?;
+    Ok(d)
+}
+
+/// The columns of `rollouts.csv`, in order.
+#[pyfunction]
+fn row_columns() -> Vec<String> {
+    osms_export::rollouts::column_names()
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    osms_sim::ffi::route_mujoco_logs_at_startup();
+    m.add_class::<PyProject>()?;
+    m.add_class::<PyProtocol>()?;
+    m.add_class::<PyNative>()?;
+    m.add_class::<PyBatch>()?;
+    m.add_class::<PyPool>()?;
+    m.add_class::<PyEnv>()?;
+    m.add_function(wrap_pyfunction!(channels, m)?)?;
+    m.add_function(wrap_pyfunction!(row_columns, m)?)?;
+    m.add("OsmsError", m.py().get_type::<OsmsError>())?;
+    m.add("ActionError", m.py().get_type::<ActionError>())?;
+    m.add("N_ACTION", osms_sim::N_ACTION)?;
+    Ok(())
+}
