@@ -10,6 +10,7 @@
 //! (teacher, student, scripted catcher) acting on a pool's episodes. The Python package (crate
 //! `osms-py`) is a thin layer over this crate.
 
+pub mod baseline;
 mod error;
 pub mod native;
 pub mod pool;

@@ -611,6 +611,35 @@ fn channels<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     Ok(d)
 }
 
+/// The Rust-native baseline of a Python-driven evaluation's speed (`scripts/bench-python`):
+/// the rollouts of `indices` under the constant `action`, stepped in a pool of `n_envs` without
+/// Python (`per_thread`: one rollout per task, as the evaluation stages run them). Returns
+/// (control steps, wall seconds); the GIL is released throughout.
+#[pyfunction]
+#[pyo3(signature = (protocol, indices, n_envs, action, per_thread=false))]
+fn bench_constant(
+    py: Python<'_>,
+    protocol: &PyProtocol,
+    indices: Vec<i64>,
+    n_envs: usize,
+    action: Vec<f64>,
+    per_thread: bool,
+) -> PyResult<(usize, f64)> {
+    let action = osms_gym::check_action(&action, 0, 0).map_err(to_py)?;
+    let protocol = protocol.inner.clone();
+    let spec = external_spec(&protocol);
+    py.detach(|| {
+        let started = std::time::Instant::now();
+        let steps = if per_thread {
+            osms_gym::baseline::per_thread(&protocol, &spec, &indices, action)
+        } else {
+            osms_gym::baseline::pooled(protocol.clone(), spec.clone(), indices, n_envs, action)
+        }?;
+        Ok((steps, started.elapsed().as_secs_f64()))
+    })
+    .map_err(to_py)
+}
+
 /// The columns of `rollouts.csv`, in order.
 #[pyfunction]
 fn row_columns() -> Vec<String> {
@@ -628,6 +657,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyEnv>()?;
     m.add_function(wrap_pyfunction!(channels, m)?)?;
     m.add_function(wrap_pyfunction!(row_columns, m)?)?;
+    m.add_function(wrap_pyfunction!(bench_constant, m)?)?;
     m.add("OsmsError", m.py().get_type::<OsmsError>())?;
     m.add("ActionError", m.py().get_type::<ActionError>())?;
     m.add("N_ACTION", osms_sim::N_ACTION)?;
