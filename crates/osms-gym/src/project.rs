@@ -21,6 +21,18 @@ use crate::error::{GymError, Result};
 pub const EVALUATION_KINDS: [&str; 4] =
     ["eval_teacher", "eval_student", "eval_scripted", "evaluate"];
 
+/// The stage kinds a protocol builds itself when missing: seconds of work, no training.
+const CHEAP_KINDS: [&str; 2] = ["world", "conditions"];
+
+/// A make that reports nothing (the builds it runs take seconds).
+struct Quiet;
+impl osms_make::Observer for Quiet {
+    fn started(&self, _: &str, _: &str) -> Box<dyn osms_make::Progress + '_> {
+        Box::new(osms_make::NoProgress)
+    }
+    fn finished(&self, _: &osms_make::InstanceReport) {}
+}
+
 /// A pipeline under one profile, with its store: where protocols and policies are read from.
 pub struct Project {
     pipeline_path: PathBuf,
@@ -227,8 +239,9 @@ impl Project {
             }
         };
         let conditions_name = input("conditions")?;
-        let conditions: Conditions = self.load_sharded(&conditions_name)?;
         let world_name = input("world")?;
+        self.build_cheap(&[world_name.clone(), conditions_name.clone()])?;
+        let conditions: Conditions = self.load_sharded(&conditions_name)?;
         let world = self
             .load::<WorldArtifact>(&world_name)?
             .world()
@@ -246,6 +259,53 @@ impl Project {
             seed: self.plan.effective_seed(id),
             stream: self.plan.stream_name(id),
         })
+    }
+
+    /// Builds those of `names` that are the world or a condition set and not built yet (seconds,
+    /// exactly as `osms make` builds them): a protocol needs them, and a fresh clone has none.
+    /// Anything costlier is left to `osms make`.
+    fn build_cheap(&self, names: &[String]) -> Result<()> {
+        let mut targets = Vec::new();
+        for name in names {
+            let (id, kind) = self.instance(name)?;
+            if !CHEAP_KINDS.contains(&kind) {
+                continue;
+            }
+            let display = self.plan.display(id);
+            let statuses = osms_make::status(
+                &self.plan,
+                &self.store,
+                std::slice::from_ref(&display),
+                &self.seeds_for(&display),
+            )?;
+            if statuses
+                .iter()
+                .any(|s| s.id == id && s.state != State::Cached)
+            {
+                targets.push(display);
+            }
+        }
+        if targets.is_empty() {
+            return Ok(());
+        }
+        let opts = osms_make::MakeOptions {
+            targets,
+            seeds: self.plan.default_seeds.clone(),
+            jobs: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            stages: 1,
+            dry_run: false,
+        };
+        let report = osms_make::make(&self.plan, &self.store, &opts, &Quiet)?;
+        let failed = report.instances.iter().find_map(|r| match &r.outcome {
+            osms_make::Outcome::Failed { error } => Some((r.instance.as_str(), error.as_str())),
+            _ => None,
+        });
+        match failed {
+            None => Ok(()),
+            Some((instance, error)) => Err(GymError::Project(format!(
+                "building `{instance}` failed: {error}"
+            ))),
+        }
     }
 
     /// The evaluation stages of the pipeline, in its order.

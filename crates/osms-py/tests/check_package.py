@@ -191,4 +191,12 @@ with open(os.path.join(tmp, "rollouts.csv"), encoding="utf-8") as f:
     assert f.read() == result.csv
 out["eval_info"] = {"pc_success": info["overall"]["pc_success"], "groups": len(info["per_group"])}
 
+# 8. A condition set not built yet is built on first use, as `osms make dev` builds it (seconds):
+#    a fresh clone's `gymnasium.make("osms/Catch-v0")` needs nothing else.
+fresh = gymnasium.make("osms/Catch-v0", project=project)
+obs, info = fresh.reset(seed=0)
+assert fresh.unwrapped.protocol.conditions == "dev", fresh.unwrapped.protocol
+assert obs["agent_pos"].shape == (76,)
+out["dev_built_on_use"] = fresh.unwrapped.protocol.n_conditions
+
 print(json.dumps(out))
