@@ -11,6 +11,7 @@ use rayon::prelude::*;
 use self_cell::self_cell;
 
 use crate::error::{ActionProblem, GymError, Result};
+use crate::native::{Native, NativeEpisode};
 use crate::project::Protocol;
 
 /// What an episode borrows: the world and its rollout spec.
@@ -164,6 +165,9 @@ pub struct Pool {
     position: Vec<usize>,
     /// Counts observations: a batch is answered at the generation it was observed in.
     generation: u64,
+    /// The store's policies' state in each running rollout, by (policy, condition): it lives
+    /// and ends with the rollout.
+    native: std::collections::BTreeMap<(String, usize), NativeEpisode>,
 }
 
 impl Pool {
@@ -202,6 +206,7 @@ impl Pool {
             records: (0..n).map(|_| None).collect(),
             position: vec![0; n_envs.min(n.max(1))],
             generation: 0,
+            native: std::collections::BTreeMap::new(),
         })
     }
 
@@ -319,11 +324,75 @@ impl Pool {
             .collect();
         for (k, record) in finished.into_iter().enumerate() {
             if let Some(record) = record {
+                let condition = self.indices[self.position[k]];
+                self.native.retain(|(_, c), _| *c != condition);
                 self.records[self.position[k]] = Some(record);
                 self.slots[k] = None;
             }
         }
         Ok(())
+    }
+
+    /// The actions of the store's policy `native` for the observed `slots` (an observation of
+    /// generation `generation`): it acts as its own evaluation stage does, which needs the
+    /// pool to run under its rollout spec and the policy to act from each rollout's first step.
+    pub fn native_act(
+        &mut self,
+        native: &Native,
+        generation: u64,
+        slots: &[usize],
+    ) -> Result<Vec<Action>> {
+        if generation != self.generation {
+            return Err(GymError::State(
+                "these observations are stale: act on the latest observation of the pool"
+                    .to_string(),
+            ));
+        }
+        if native.spec(&self.protocol) != *self.spec {
+            return Err(GymError::State(format!(
+                "`{}` runs under a rollout spec of its own: make it the pool's policy (osms.eval.evaluate does) to act on its rollouts",
+                native.name()
+            )));
+        }
+        let mut states = Vec::with_capacity(slots.len());
+        for &k in slots {
+            let slot = self
+                .slots
+                .get(k)
+                .and_then(Option::as_ref)
+                .filter(|s| s.observed.is_some());
+            let Some(slot) = slot else {
+                return Err(GymError::State(format!("slot {k} awaits no action")));
+            };
+            let key = (native.name().to_string(), slot.index);
+            let state = match self.native.remove(&key) {
+                Some(state) => state,
+                None if slot.step() == 0 => native.start(&self.protocol, slot.index),
+                None => {
+                    return Err(GymError::State(format!(
+                        "`{}` first saw condition {} at control step {}: a policy of the store acts from a rollout's first step",
+                        native.name(),
+                        slot.index,
+                        slot.step()
+                    )));
+                }
+            };
+            states.push((key, state));
+        }
+        let slots_ref = &self.slots;
+        let mut batch: Vec<_> = states
+            .iter_mut()
+            .zip(slots)
+            .map(|((_, state), &k)| {
+                let slot = slots_ref[k].as_ref().expect("checked above");
+                let last_phase = slot.episode().record().phase.last().copied();
+                (state, slot.view(), last_phase)
+            })
+            .collect();
+        let actions = native.act(&mut batch);
+        drop(batch);
+        self.native.extend(states);
+        Ok(actions)
     }
 
     /// Whether every rollout has finished.

@@ -4,15 +4,11 @@
 //! gymnasium environment, `osms.eval.evaluate` and `osms.policies` on it. Stepping and the
 //! store's policies run here with the GIL released.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
-use osms_gym::native::NativeEpisode;
 use osms_gym::{GymError, Native, Pool, Project, Protocol, SingleEpisode, StepInfo};
-use osms_sim::control::Action;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -106,10 +102,7 @@ impl PyProject {
     fn policy(&self, py: Python<'_>, name: &str) -> PyResult<PyNative> {
         let inner = self.inner.clone();
         let native = py.detach(|| Native::load(&inner, name)).map_err(to_py)?;
-        Ok(PyNative {
-            inner: native,
-            states: Mutex::new(BTreeMap::new()),
-        })
+        Ok(PyNative { inner: native })
     }
 }
 
@@ -172,16 +165,10 @@ impl PyProtocol {
     }
 }
 
-static NEXT_POOL: AtomicU64 = AtomicU64::new(1);
-
-/// The state a native policy keeps per rollout, by (pool, condition).
-type States = BTreeMap<(u64, usize), NativeEpisode>;
-
 /// A policy of the store as a Python callable over the observations of a [`PyPool`].
 #[pyclass(name = "NativePolicy", module = "osms._native", frozen)]
 struct PyNative {
     inner: Native,
-    states: Mutex<States>,
 }
 
 #[pymethods]
@@ -207,15 +194,10 @@ impl PyNative {
                     self.inner.name()
                 ))
             })?;
-        let (pool, id, generation, slots) = (
-            batch.pool.clone(),
-            batch.id,
-            batch.generation,
-            batch.slots.clone(),
-        );
+        let (pool, generation, slots) = (batch.pool.clone(), batch.generation, batch.slots.clone());
         drop(batch);
         let actions = py
-            .detach(|| act_native(&self.inner, &self.states, &pool, id, generation, &slots))
+            .detach(|| lock(&pool).native_act(&self.inner, generation, &slots))
             .map_err(to_py)?;
         let n = actions.len();
         let flat: Vec<f64> = actions.into_iter().flatten().collect();
@@ -227,64 +209,10 @@ impl PyNative {
     }
 }
 
-fn act_native(
-    native: &Native,
-    states: &Mutex<States>,
-    pool: &Mutex<Pool>,
-    id: u64,
-    generation: u64,
-    slots: &[usize],
-) -> Result<Vec<Action>, GymError> {
-    let pool = lock(pool);
-    if pool.generation() != generation {
-        return Err(GymError::State(
-            "these observations are stale: act on the latest `observe()` of the pool".to_string(),
-        ));
-    }
-    if native.spec(pool.protocol()) != *pool.spec() {
-        return Err(GymError::State(format!(
-            "`{}` runs under a rollout spec of its own: pass it to the pool as its policy (osms.eval.evaluate does) to act on its rollouts",
-            native.name()
-        )));
-    }
-    let mut states = lock(states);
-    let running: Vec<usize> = slots.iter().map(|&k| pool.condition(k)).collect();
-    // Rollouts of this pool that are no longer observed have finished.
-    states.retain(|(pool_id, c), _| *pool_id != id || running.contains(c));
-    let mut taken = Vec::with_capacity(slots.len());
-    for &k in slots {
-        let c = pool.condition(k);
-        let state = match states.remove(&(id, c)) {
-            Some(s) => s,
-            None if pool.step(k) == 0 => native.start(pool.protocol(), c),
-            None => {
-                return Err(GymError::State(format!(
-                    "`{}` first saw condition {c} at control step {}: a policy of the store acts from a rollout's first step",
-                    native.name(),
-                    pool.step(k)
-                )));
-            }
-        };
-        taken.push(state);
-    }
-    let mut batch: Vec<_> = taken
-        .iter_mut()
-        .zip(slots)
-        .map(|(s, &k)| (s, pool.view(k), pool.last_phase(k)))
-        .collect();
-    let actions = native.act(&mut batch);
-    drop(batch);
-    for (state, c) in taken.into_iter().zip(running) {
-        states.insert((id, c), state);
-    }
-    Ok(actions)
-}
-
 /// What a pool observed at one control step, for a native policy to read the rollouts' state.
 #[pyclass(name = "Batch", module = "osms._native", frozen)]
 struct PyBatch {
     pool: Arc<Mutex<Pool>>,
-    id: u64,
     generation: u64,
     slots: Vec<usize>,
 }
@@ -293,7 +221,6 @@ struct PyBatch {
 #[pyclass(name = "Pool", module = "osms._native")]
 struct PyPool {
     pool: Arc<Mutex<Pool>>,
-    id: u64,
     privileged: bool,
     /// The slots of the last observation, awaiting actions.
     observed: Vec<usize>,
@@ -324,7 +251,6 @@ impl PyPool {
         let pool = Pool::new(protocol, spec, reads, indices, n_envs).map_err(to_py)?;
         Ok(PyPool {
             pool: Arc::new(Mutex::new(pool)),
-            id: NEXT_POOL.fetch_add(1, Ordering::Relaxed),
             privileged,
             observed: Vec::new(),
         })
@@ -356,7 +282,6 @@ impl PyPool {
             "osms_batch",
             PyBatch {
                 pool: self.pool.clone(),
-                id: self.id,
                 generation,
                 slots: slots.clone(),
             },

@@ -175,6 +175,25 @@ try:
 except osms.OsmsError as e:
     errors["not_built"] = str(e)
     assert "osms make" in str(e), str(e)
+# A store policy on a pool that runs another policy's spec, or on observations from elsewhere.
+from osms._native import Pool
+
+proto = project.protocol("eval_teacher")
+pool = Pool(proto, [0, 1], 2)
+obs = pool.observe()
+teacher = osms.policies.load("teacher", project=project)
+try:
+    teacher(obs)
+    raise AssertionError("the teacher acted on a pool run under another spec")
+except osms.OsmsError as e:
+    errors["foreign_pool"] = str(e)
+    assert "rollout spec of its own" in str(e), str(e)
+try:
+    teacher({"agent_pos": obs["agent_pos"]})
+    raise AssertionError("the teacher acted on bare arrays")
+except osms.OsmsError as e:
+    errors["bare_arrays"] = str(e)
+    assert "osms_batch" in str(e), str(e)
 out["errors"] = errors
 assert store_digest() == before, "the store changed"
 assert store_digest(bookkeeping=False) == artifacts_before, "the store's artifacts changed"
