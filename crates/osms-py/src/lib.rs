@@ -145,6 +145,20 @@ impl PyProtocol {
         1.0 / self.inner.world.control_period_secs()
     }
 
+    /// The longest rollout in control steps (the success criteria's episode limit).
+    #[getter]
+    fn max_steps(&self) -> usize {
+        let period = self.inner.world.control_period_secs();
+        (self.inner.base.success.max_episode_secs / period).ceil() as usize + 1
+    }
+
+    /// The task of condition `index` as osms's LeRobot export names it ("catch the …").
+    fn task(&self, index: i64) -> PyResult<String> {
+        Ok(osms_export::task_name(
+            self.inner.condition(index).map_err(to_py)?.variant,
+        ))
+    }
+
     /// The variant (object family and size) of condition `index`.
     fn variant(&self, index: i64) -> PyResult<String> {
         Ok(self

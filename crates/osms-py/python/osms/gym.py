@@ -62,6 +62,7 @@ class CatchEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (len(names["action"]),), np.float32)
         self._next = 0
         self._last_obs = None
+        self.task = self.task_description = ""
 
     def _set_protocol(self, proto):
         self.protocol = proto
@@ -88,6 +89,8 @@ class CatchEnv(gym.Env):
         else:
             index = self._next % n
         obs = self._core.reset(index)
+        # LeRobot's evaluation reads these (language-conditioned policies get the task).
+        self.task = self.task_description = self.protocol.task(index)
         self._next = index + 1
         self._last_obs = obs
         return obs, self._core.info()

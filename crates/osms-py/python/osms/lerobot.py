@@ -1,0 +1,78 @@
+"""``osms/Catch-v0`` for LeRobot's ``lerobot-eval``: an ``EnvConfig`` registered as ``osms``.
+
+    lerobot-eval --env.discover_packages_path=osms.lerobot --env.type=osms \\
+        --env.conditions=dev --policy.path=PATH --eval.n_episodes=50 --eval.batch_size=10 \\
+        --seed=0 --output_dir=out/lerobot-eval
+
+LeRobot seeds episode ``k`` of an evaluation with ``seed + k``, and the environment runs
+condition ``(seed + k) mod n`` of the set, so ``--seed=0 --eval.n_episodes=N`` evaluates the
+set's first N conditions, each under osms's own protocol. The policy sees ``agent_pos`` as
+``observation.state`` (the deployable frame, the same 76 channels as the LeRobot export's
+``observation.state``) and answers 24 actions in [-1, 1]. Importing this module needs LeRobot;
+the rest of the package does not.
+"""
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+import osms  # noqa: F401  (registers osms/Catch-v0 with gymnasium)
+from osms._native import channels as _channels
+from osms._project import project as _project
+from osms._project import protocol as _protocol
+
+_N_STATE = len(_channels()["agent_pos"])
+_N_ENV = len(_channels()["environment_state"])
+_N_ACTION = len(_channels()["action"])
+
+
+@EnvConfig.register_subclass("osms")
+@dataclass
+class OsmsEnv(EnvConfig):
+    """The catching world under an osms evaluation protocol (see the module's doc)."""
+
+    task: str | None = "Catch-v0"
+    fps: int = 50
+    conditions: str = "dev"
+    protocol: str | None = None
+    profile: str | None = None
+    privileged: bool = False
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {
+            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(_N_ACTION,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(_N_STATE,)),
+        }
+    )
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {
+            ACTION: ACTION,
+            "agent_pos": OBS_STATE,
+            "environment_state": OBS_ENV_STATE,
+        }
+    )
+
+    def __post_init__(self):
+        if self.privileged:
+            self.features["environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(_N_ENV,))
+
+    @property
+    def package_name(self) -> str:
+        return "osms"
+
+    @property
+    def gym_id(self) -> str:
+        return f"osms/{self.task}"
+
+    @property
+    def gym_kwargs(self) -> dict:
+        proto = _protocol(_project(profile=self.profile), self.conditions, self.protocol)
+        return {
+            "conditions": self.conditions,
+            "protocol": self.protocol,
+            "profile": self.profile,
+            "privileged": self.privileged,
+            # The world ends every episode by its rules within this many steps; LeRobot reads it.
+            "max_episode_steps": proto.max_steps,
+        }
