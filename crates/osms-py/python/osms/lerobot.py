@@ -1,6 +1,6 @@
 """``osms/Catch-v0`` for LeRobot's ``lerobot-eval``: an ``EnvConfig`` registered as ``osms``.
 
-    lerobot-eval --env.discover_packages_path=osms.lerobot --env.type=osms \\
+    lerobot-eval --env.discover_packages_path=osms --env.type=osms \\
         --env.conditions=dev --policy.path=PATH --eval.n_episodes=50 --eval.batch_size=10 \\
         --seed=0 --output_dir=out/lerobot-eval
 
@@ -39,6 +39,8 @@ class OsmsEnv(EnvConfig):
     protocol: str | None = None
     profile: str | None = None
     privileged: bool = False
+    # lerobot-eval writes videos of the first episodes from rendered frames.
+    render_mode: str | None = "rgb_array"
     features: dict[str, PolicyFeature] = field(
         default_factory=lambda: {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(_N_ACTION,)),
@@ -73,6 +75,7 @@ class OsmsEnv(EnvConfig):
             "protocol": self.protocol,
             "profile": self.profile,
             "privileged": self.privileged,
+            "render_mode": self.render_mode,
             # The world ends every episode by its rules within this many steps; LeRobot reads it.
             "max_episode_steps": proto.max_steps,
         }
