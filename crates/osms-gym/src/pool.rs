@@ -290,19 +290,21 @@ impl Pool {
         self.slot(k).episode().record().phase.last().copied()
     }
 
+    /// Slot `k`, if it awaits an action.
+    fn awaiting(&self, k: usize) -> Result<&Slot> {
+        self.slots
+            .get(k)
+            .and_then(Option::as_ref)
+            .filter(|s| s.observed.is_some())
+            .ok_or_else(|| GymError::State(format!("slot {k} awaits no action")))
+    }
+
     /// Runs one action per observed slot (`(slot, action)`), in parallel; an action the world
     /// cannot run fails the call before any episode moves.
     pub fn act(&mut self, actions: Vec<(usize, Vec<f64>)>) -> Result<()> {
         let mut checked: Vec<Option<Action>> = vec![None; self.slots.len()];
         for (k, a) in actions {
-            let slot = self
-                .slots
-                .get(k)
-                .and_then(Option::as_ref)
-                .filter(|s| s.observed.is_some());
-            let Some(slot) = slot else {
-                return Err(GymError::State(format!("slot {k} awaits no action")));
-            };
+            let slot = self.awaiting(k)?;
             checked[k] = Some(check_action(&a, slot.index, slot.step())?);
         }
         if let Some(k) = self.slots.iter().enumerate().position(|(k, s)| {
@@ -356,24 +358,18 @@ impl Pool {
         }
         let mut states = Vec::with_capacity(slots.len());
         for &k in slots {
-            let slot = self
-                .slots
-                .get(k)
-                .and_then(Option::as_ref)
-                .filter(|s| s.observed.is_some());
-            let Some(slot) = slot else {
-                return Err(GymError::State(format!("slot {k} awaits no action")));
+            let (index, step) = {
+                let slot = self.awaiting(k)?;
+                (slot.index, slot.step())
             };
-            let key = (native.name().to_string(), slot.index);
+            let key = (native.name().to_string(), index);
             let state = match self.native.remove(&key) {
                 Some(state) => state,
-                None if slot.step() == 0 => native.start(&self.protocol, slot.index),
+                None if step == 0 => native.start(&self.protocol, index),
                 None => {
                     return Err(GymError::State(format!(
-                        "`{}` first saw condition {} at control step {}: a policy of the store acts from a rollout's first step",
+                        "`{}` first saw condition {index} at control step {step}: a policy of the store acts from a rollout's first step",
                         native.name(),
-                        slot.index,
-                        slot.step()
                     )));
                 }
             };

@@ -126,20 +126,25 @@ impl Project {
         seeds
     }
 
-    /// The stored bytes of `name`'s current build, and whether they are a manifest.
-    fn built(&self, name: &str) -> Result<(Vec<u8>, bool)> {
-        let (id, _) = self.instance(name)?;
+    /// Whether instance `id` is built and current, and if not why.
+    fn status(&self, id: InstanceId) -> Result<osms_make::InstanceStatus> {
         let display = self.plan.display(id);
-        let statuses = osms_make::status(
+        osms_make::status(
             &self.plan,
             &self.store,
             std::slice::from_ref(&display),
             &self.seeds_for(&display),
-        )?;
-        let status = statuses
-            .iter()
-            .find(|s| s.id == id)
-            .ok_or_else(|| GymError::Project(format!("no status for `{display}`")))?;
+        )?
+        .into_iter()
+        .find(|s| s.id == id)
+        .ok_or_else(|| GymError::Project(format!("no status for `{display}`")))
+    }
+
+    /// The stored bytes of `name`'s current build, and whether they are a manifest.
+    fn built(&self, name: &str) -> Result<(Vec<u8>, bool)> {
+        let (id, _) = self.instance(name)?;
+        let display = self.plan.display(id);
+        let status = self.status(id)?;
         match (status.state, status.content_hash) {
             (State::Cached, Some(hash)) => Ok((
                 self.store.get(&hash)?,
@@ -271,18 +276,8 @@ impl Project {
             if !CHEAP_KINDS.contains(&kind) {
                 continue;
             }
-            let display = self.plan.display(id);
-            let statuses = osms_make::status(
-                &self.plan,
-                &self.store,
-                std::slice::from_ref(&display),
-                &self.seeds_for(&display),
-            )?;
-            if statuses
-                .iter()
-                .any(|s| s.id == id && s.state != State::Cached)
-            {
-                targets.push(display);
+            if self.status(id)?.state != State::Cached {
+                targets.push(self.plan.display(id));
             }
         }
         if targets.is_empty() {
