@@ -551,3 +551,51 @@ pub fn rows_csv(rows: &[(usize, EvalRow)]) -> Result<String> {
         .csv()
         .map_err(|e| GymError::State(format!("cannot write the rows: {e}")))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn problem(action: &[f64]) -> Option<ActionProblem> {
+        match check_action(action, 6, 2) {
+            Ok(_) => None,
+            Err(GymError::Action {
+                condition: 6,
+                step: 2,
+                problem,
+            }) => Some(problem),
+            Err(e) => panic!("not an action error: {e}"),
+        }
+    }
+
+    #[test]
+    fn actions_the_world_cannot_run_are_named_by_channel() {
+        let mut a = vec![0.0; N_ACTION];
+        assert_eq!(problem(&a), None);
+        a[23] = 1.0;
+        a[0] = -1.0;
+        assert_eq!(problem(&a), None, "the bounds themselves are valid");
+        a[3] = f64::NAN;
+        assert_eq!(problem(&a), Some(ActionProblem::NotFinite { channel: 3 }));
+        a[3] = 0.0;
+        a[5] = 1.5;
+        assert_eq!(
+            problem(&a),
+            Some(ActionProblem::OutOfRange {
+                channel: 5,
+                value: 1.5
+            })
+        );
+        assert!(matches!(
+            problem(&a[..7]),
+            Some(ActionProblem::Shape { .. })
+        ));
+        let message = check_action(&[f64::INFINITY; N_ACTION], 6, 2)
+            .expect_err("infinite")
+            .to_string();
+        assert!(
+            message.contains("condition 6 at control step 2") && message.contains("channel 0"),
+            "{message}"
+        );
+    }
+}
