@@ -4,9 +4,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use osms_make::{
-    MakeOptions, MakeReport, NoProgress, Observer, Outcome, Pipeline, Plan, Progress, Registry,
-};
+use osms_make::{MakeOptions, MakeReport, Observer, Outcome, Pipeline, Plan, Registry};
 use osms_store::{Hash, Store};
 
 /// The engine test pipeline.
@@ -19,14 +17,7 @@ pub struct Project {
     pub registry: Registry,
 }
 
-/// An observer that shows nothing.
-pub struct Silent;
-impl Observer for Silent {
-    fn started(&self, _: &str, _: &str) -> Box<dyn Progress + '_> {
-        Box::new(NoProgress)
-    }
-    fn finished(&self, _: &osms_make::InstanceReport) {}
-}
+pub use osms_make::Silent;
 
 impl Project {
     pub fn new(pipeline_text: &str) -> Self {

@@ -16,13 +16,17 @@ use crate::table::{Cells, Column, Table};
 pub const CSV_FILE: &str = "rollouts.csv";
 pub const PARQUET_FILE: &str = "rollouts.parquet";
 
-/// A failure kind's column: `failure_` and its stored name (`failure_force_exceeded`).
-pub fn failure_column(f: Failure) -> String {
-    let key = serde_json::to_value(f)
+/// A failure kind's stored name (`force_exceeded`).
+pub fn failure_key(f: Failure) -> String {
+    serde_json::to_value(f)
         .ok()
         .and_then(|v| v.as_str().map(String::from))
-        .expect("a failure kind serialises as its snake_case name");
-    format!("failure_{key}")
+        .expect("a failure kind serialises as its snake_case name")
+}
+
+/// A failure kind's column: `failure_` and its stored name (`failure_force_exceeded`).
+pub fn failure_column(f: Failure) -> String {
+    format!("failure_{}", failure_key(f))
 }
 
 /// The table of an evaluation's rows, one per rollout, in row (= condition) order.

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use osms_core::rng::StreamRng;
 use osms_policy::artifacts::{StudentArtifact, Teacher};
-use osms_policy::catch::{ActorInputs, TeacherQuery};
+use osms_policy::catch::TeacherQuery;
 use osms_policy::student::Student;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::control::Action;
@@ -18,12 +18,8 @@ use crate::project::{Project, Protocol};
 /// A policy of the store.
 #[derive(Clone)]
 pub enum Native {
-    /// The scripted privileged catcher (`eval_scripted`'s), reading the world as the prior of
-    /// rung `inputs` of the teacher's actor-input ladder does.
-    Scripted {
-        catcher: Box<CatcherSpec>,
-        inputs: ActorInputs,
-    },
+    /// The scripted privileged catcher, as `eval_scripted` builds it.
+    Scripted { catcher: Box<CatcherSpec> },
     /// A frozen teacher, deterministic: the residual on its prior (`eval_teacher`'s).
     Teacher { name: String, teacher: Arc<Teacher> },
     /// A flow-matching student with its noise from the protocol's ("policy", i) stream
@@ -38,7 +34,6 @@ impl Native {
         if name == "scripted" {
             return Ok(Native::Scripted {
                 catcher: Box::default(),
-                inputs: ActorInputs::Privileged,
             });
         }
         let (_, kind) = project.instance(name)?;
@@ -70,7 +65,7 @@ impl Native {
     /// a student reads, or a teacher's own task under the protocol's domain randomisation.
     pub fn spec(&self, protocol: &Protocol) -> RolloutSpec {
         match self {
-            Native::Scripted { inputs, .. } => inputs.rollout(&protocol.base),
+            Native::Scripted { .. } => protocol.base.clone(),
             Native::Teacher { teacher, .. } => {
                 teacher
                     .task
@@ -89,13 +84,10 @@ impl Native {
     /// The policy's state at the start of rollout `index` of `protocol`.
     pub fn start(&self, protocol: &Protocol, index: usize) -> NativeEpisode {
         match self {
-            Native::Scripted { catcher, inputs } => {
-                NativeEpisode::Scripted(ScriptedCatcher::with_perception(
-                    (**catcher).clone(),
-                    protocol.base.control.clone(),
-                    inputs.perception(),
-                ))
-            }
+            Native::Scripted { catcher } => NativeEpisode::Scripted(ScriptedCatcher::new(
+                (**catcher).clone(),
+                protocol.base.control.clone(),
+            )),
             Native::Teacher { teacher, .. } => {
                 NativeEpisode::Teacher(TeacherEpisode::new(teacher.clone(), |t| {
                     TeacherQuery::new(&t.agent, &t.task)

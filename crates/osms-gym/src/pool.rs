@@ -117,6 +117,11 @@ impl Slot {
     fn step(&self) -> usize {
         self.episode().step_index()
     }
+
+    /// The phase the last control step ended in; none before the first.
+    fn last_phase(&self) -> Option<u8> {
+        self.episode().record().phase.last().copied()
+    }
 }
 
 /// Fails unless `action` is one the world runs: 24 finite channels in [−1, 1].
@@ -285,11 +290,6 @@ impl Pool {
         self.slot(k).step()
     }
 
-    /// The phase slot `k`'s last control step ended in; none before the first.
-    pub fn last_phase(&self, k: usize) -> Option<u8> {
-        self.slot(k).episode().record().phase.last().copied()
-    }
-
     /// Slot `k`, if it awaits an action.
     fn awaiting(&self, k: usize) -> Result<&Slot> {
         self.slots
@@ -381,8 +381,7 @@ impl Pool {
             .zip(slots)
             .map(|((_, state), &k)| {
                 let slot = slots_ref[k].as_ref().expect("checked above");
-                let last_phase = slot.episode().record().phase.last().copied();
-                (state, slot.view(), last_phase)
+                (state, slot.view(), slot.last_phase())
             })
             .collect();
         let actions = native.act(&mut batch);
@@ -524,12 +523,7 @@ impl SingleEpisode {
             failures: o
                 .failures
                 .iter()
-                .map(|f| {
-                    serde_json::to_value(f)
-                        .ok()
-                        .and_then(|v| v.as_str().map(String::from))
-                        .unwrap_or_default()
-                })
+                .map(|&f| osms_export::rollouts::failure_key(f))
                 .collect(),
         }
     }

@@ -24,15 +24,6 @@ pub const EVALUATION_KINDS: [&str; 4] =
 /// The stage kinds a protocol builds itself when missing: seconds of work, no training.
 const CHEAP_KINDS: [&str; 2] = ["world", "conditions"];
 
-/// A make that reports nothing (the builds it runs take seconds).
-struct Quiet;
-impl osms_make::Observer for Quiet {
-    fn started(&self, _: &str, _: &str) -> Box<dyn osms_make::Progress + '_> {
-        Box::new(osms_make::NoProgress)
-    }
-    fn finished(&self, _: &osms_make::InstanceReport) {}
-}
-
 /// A pipeline under one profile, with its store: where protocols and policies are read from.
 pub struct Project {
     pipeline_path: PathBuf,
@@ -43,7 +34,8 @@ pub struct Project {
 impl Project {
     /// Opens `pipeline` (else the pipeline.toml of the working directory or its nearest parent)
     /// under `profile` (else the pipeline's default), with `store` (else `store/` beside the
-    /// pipeline). The store must exist: this reads what `osms make` built, and builds nothing.
+    /// pipeline). The store must exist. Opening builds nothing; a [`Project::protocol`] builds
+    /// its world and condition set if they are missing, anything else is `osms make`'s.
     pub fn open(
         pipeline: Option<&Path>,
         store: Option<&Path>,
@@ -290,7 +282,7 @@ impl Project {
             stages: 1,
             dry_run: false,
         };
-        let report = osms_make::make(&self.plan, &self.store, &opts, &Quiet)?;
+        let report = osms_make::make(&self.plan, &self.store, &opts, &osms_make::Silent)?;
         let failed = report.instances.iter().find_map(|r| match &r.outcome {
             osms_make::Outcome::Failed { error } => Some((r.instance.as_str(), error.as_str())),
             _ => None,

@@ -100,6 +100,16 @@ pub trait Observer: Sync {
     fn finished(&self, report: &InstanceReport);
 }
 
+/// An observer that shows nothing: for makes run inside another program (the Python package
+/// building a condition set on first use) and for tests.
+pub struct Silent;
+impl Observer for Silent {
+    fn started(&self, _: &str, _: &str) -> Box<dyn Progress + '_> {
+        Box::new(crate::NoProgress)
+    }
+    fn finished(&self, _: &InstanceReport) {}
+}
+
 pub const OSMS_VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// Builds `opts.targets`, holding the store's lock for the make (none for a dry run).

@@ -23,7 +23,8 @@ pub use cpu::thread_secs as thread_cpu_secs;
 pub use error::{Error, Invalid, Location, Result};
 pub use estimate::{Estimate, InstanceEstimate, Measured, estimate, scales};
 pub use exec::{
-    InstanceReport, MakeOptions, MakeReport, Observer, Outcome, StoreObjects, make, make_holding,
+    InstanceReport, MakeOptions, MakeReport, Observer, Outcome, Silent, StoreObjects, make,
+    make_holding,
 };
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{

@@ -159,16 +159,6 @@ impl PyProtocol {
         ))
     }
 
-    /// The variant (object family and size) of condition `index`.
-    fn variant(&self, index: i64) -> PyResult<String> {
-        Ok(self
-            .inner
-            .condition(index)
-            .map_err(to_py)?
-            .variant
-            .to_string())
-    }
-
     fn __repr__(&self) -> String {
         format!(
             "Protocol({:?}: {} conditions of `{}`)",
