@@ -1,6 +1,8 @@
 //! The shipped `pipeline.toml` on the `tiny` profile with the shipped stage kinds: outputs that
 //! do not depend on threads or shards, and content hashes per platform class
-//! (`golden/outputs_pipeline_tiny@<class>.snap`, checked where the running class has one).
+//! (`golden/outputs_pipeline_tiny@<class>.snap`, checked where the running class has one); on
+//! the same store, the datasets' exports, the report, and the Python package against osms's own
+//! evaluations.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -199,6 +201,8 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     the_report_shows_its_sources(&first);
     datasets_export_replay_and_render(&first);
     a_sweep_rebuilds_only_its_seeds_and_the_aggregates(&first, &text);
+    // Last: it builds a condition set into a store of its own beside this one.
+    the_python_package_reproduces_osms_evaluations(&first);
     golden::check("outputs_pipeline_tiny", first.outputs);
 }
 
@@ -1819,4 +1823,78 @@ fn datasets_export_replay_and_render(made: &Made) {
     for v in osms_sim::ObjectVariant::all() {
         assert_eq!(lr["tasks"][format!("catch the {v}")], v.index(), "{v}");
     }
+}
+
+/// The Python package `osms` (crates/osms-py) against osms's own evaluations: the store's
+/// teacher, student and scripted catcher evaluated from Python give `osms export`'s rows bit
+/// for bit at 1, 3 and 16 rollouts at once; a NumPy policy's rows do not depend on batching
+/// and match the gymnasium environment's; gymnasium's checker passes; bad actions raise an
+/// error naming the condition and step and leave the store alone; a fresh store gets its
+/// condition set on first use (crates/osms-py/tests/check_package.py does the Python side;
+/// scripts/test builds the package into the test venv).
+fn the_python_package_reproduces_osms_evaluations(made: &Made) {
+    use osms_sim::artifacts::Evaluation;
+    let Some(python) = osms_tests::python::interpreter("the Python package's checks") else {
+        return;
+    };
+    // The reference rows: each evaluation's rollouts.csv as `osms export` writes it.
+    let reference = tempfile::tempdir().expect("reference dir");
+    let protocols = ["eval_teacher", "eval_student_il", "eval_scripted"];
+    for stage in protocols {
+        let evaluation: Evaluation = load_sharded(made, stage);
+        let files = osms_export::rollouts::files(&evaluation).expect("files");
+        let (_, csv) = files
+            .iter()
+            .find(|(name, _)| name == osms_export::rollouts::CSV_FILE)
+            .expect("a csv");
+        std::fs::write(reference.path().join(format!("{stage}.csv")), csv).expect("write csv");
+    }
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../crates/osms-py/tests/check_package.py");
+    let out = std::process::Command::new(&python)
+        .arg(&script)
+        .arg(made._dir.path().join("pipeline.toml"))
+        .arg(reference.path())
+        .env("OSMS_NO_PROGRESS", "1")
+        .output()
+        .expect("run python");
+    assert!(
+        out.status.success(),
+        "check_package.py failed:\n{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "check_package.py printed no JSON ({e}):\n{}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    });
+    // Nine identity checks (three policies × three batch sizes), each over the whole set.
+    let conditions = std::fs::read_to_string(reference.path().join("eval_teacher.csv"))
+        .expect("csv")
+        .lines()
+        .count()
+        - 1;
+    let identity = summary["identity"].as_object().expect("identity");
+    assert_eq!(identity.len(), 9, "{summary}");
+    assert!(
+        identity
+            .values()
+            .all(|n| n.as_u64() == Some(conditions as u64)),
+        "{summary}"
+    );
+    assert_eq!(summary["store_unchanged"], true);
+    assert_eq!(summary["reset_keyed"], true);
+    assert_eq!(summary["python_policy"]["env_rows_match"], true);
+    assert_eq!(summary["render"], serde_json::json!([480, 480, 3]));
+    assert!(
+        summary["dev_built_on_use"].as_u64().is_some_and(|n| n > 0),
+        "{summary}"
+    );
+    let warnings = summary["check_env_warnings"].as_array().expect("warnings");
+    assert!(
+        warnings.is_empty(),
+        "gymnasium's checker warned: {warnings:?}"
+    );
 }

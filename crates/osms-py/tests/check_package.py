@@ -1,6 +1,7 @@
 """Checks of the Python package osms against a project whose store holds the tiny profile's
-`eval_teacher`, `eval_student_il` and `eval_scripted` (tests/tests/python_package.rs builds it and
-writes each evaluation's `rollouts.csv` as `osms export` does into REFERENCE/<stage>.csv).
+default make, seed 0 current (tests/tests/pipeline.rs builds it and writes the `rollouts.csv` of
+`eval_teacher`, `eval_student_il` and `eval_scripted` as `osms export` does into
+REFERENCE/<stage>.csv).
 
     python check_package.py PIPELINE REFERENCE
 
@@ -170,7 +171,7 @@ except osms.OsmsError as e:
     errors["protocol"] = str(e)
     assert "evaluation stage" in str(e), str(e)
 try:
-    osms.policies.load("student_naive@0", project=project)
+    osms.policies.load("student_naive@7", project=project)
     raise AssertionError("a policy that was never built was loaded")
 except osms.OsmsError as e:
     errors["not_built"] = str(e)
@@ -210,12 +211,15 @@ with open(os.path.join(tmp, "rollouts.csv"), encoding="utf-8") as f:
     assert f.read() == result.csv
 out["eval_info"] = {"pc_success": info["overall"]["pc_success"], "groups": len(info["per_group"])}
 
-# 8. A condition set not built yet is built on first use, as `osms make dev` builds it (seconds):
-#    a fresh clone's `gymnasium.make("osms/Catch-v0")` needs nothing else.
-fresh = gymnasium.make("osms/Catch-v0", project=project)
+# 8. In an empty store, the world and the condition set are built on first use, as `osms make dev`
+#    builds them (seconds): a fresh clone's `gymnasium.make("osms/Catch-v0")` needs nothing else.
+empty = os.path.join(os.path.dirname(pipeline), "empty-store")
+os.makedirs(empty)
+fresh = gymnasium.make("osms/Catch-v0", project=osms.Project(pipeline, empty, "tiny"))
 obs, info = fresh.reset(seed=0)
 assert fresh.unwrapped.protocol.conditions == "dev", fresh.unwrapped.protocol
 assert obs["agent_pos"].shape == (76,)
+assert any(files for _, _, files in os.walk(os.path.join(empty, "objects"))), "nothing was built"
 out["dev_built_on_use"] = fresh.unwrapped.protocol.n_conditions
 
 print(json.dumps(out))
