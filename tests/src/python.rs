@@ -25,14 +25,23 @@ pub fn interpreter(check: &str) -> Option<PathBuf> {
 
 /// Runs `scripts/<script>` with `args` and parses the one JSON object it prints.
 pub fn run_script(python: &Path, script: &str, args: &[&str]) -> serde_json::Value {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../scripts")
-        .join(script);
+    run_file(
+        python,
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../scripts")
+            .join(script),
+        args,
+    )
+}
+
+/// Runs the Python file `path` with `args` and parses the one JSON object it prints.
+pub fn run_file(python: &Path, path: &Path, args: &[&str]) -> serde_json::Value {
+    let script = path.display();
     let out = Command::new(python)
-        .arg(&path)
+        .arg(path)
         .args(args)
         .output()
-        .unwrap_or_else(|e| panic!("run {}: {e}", path.display()));
+        .unwrap_or_else(|e| panic!("run {script}: {e}"));
     assert!(
         out.status.success(),
         "{script} {args:?} failed:\n{}",

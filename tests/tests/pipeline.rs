@@ -1849,27 +1849,15 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made) {
             .expect("a csv");
         std::fs::write(reference.path().join(format!("{stage}.csv")), csv).expect("write csv");
     }
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../crates/osms-py/tests/check_package.py");
-    let out = std::process::Command::new(&python)
-        .arg(&script)
-        .arg(made._dir.path().join("pipeline.toml"))
-        .arg(reference.path())
-        .env("OSMS_NO_PROGRESS", "1")
-        .output()
-        .expect("run python");
-    assert!(
-        out.status.success(),
-        "check_package.py failed:\n{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
+    let pipeline = made._dir.path().join("pipeline.toml");
+    let summary = osms_tests::python::run_file(
+        &python,
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../crates/osms-py/tests/check_package.py"),
+        &[
+            pipeline.to_str().expect("utf-8 path"),
+            reference.path().to_str().expect("utf-8 path"),
+        ],
     );
-    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!(
-            "check_package.py printed no JSON ({e}):\n{}",
-            String::from_utf8_lossy(&out.stdout)
-        )
-    });
     // Nine identity checks (three policies × three batch sizes), each over the whole set.
     let conditions = std::fs::read_to_string(reference.path().join("eval_teacher.csv"))
         .expect("csv")
