@@ -262,6 +262,19 @@ impl Bench<'_> {
 }
 
 fn main() {
+    // One core for every side, and the whole bench on the pool's thread: the bare replay is
+    // single-threaded, and so must be the student's batched products. Called from outside the
+    // pool, every product large enough for rayon would hand its work to the pool's thread and
+    // sleep until it is done; the evaluation stages call it on a worker (the make's items run
+    // on its pool), where it runs in place.
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a one-thread pool")
+        .install(run);
+}
+
+fn run() {
     let n = setting("OSMS_BENCH_CONDITIONS", 48);
     let rounds = setting("OSMS_BENCH_ROUNDS", 3).max(1);
     let runs = setting("OSMS_BENCH_RUNS", 3).max(1);
@@ -289,12 +302,6 @@ fn main() {
     {
         *b = 0.3;
     }
-    // One core for every side: the bare replay is single-threaded, and so must be the
-    // student's batched products.
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build_global()
-        .expect("a one-thread pool");
     let student = bench_student(&world, &spec, &agent);
     let student_spec = student.rollout_spec(&spec.rollout);
     let bench = Bench {
