@@ -6,6 +6,7 @@ use std::sync::Arc;
 use osms_core::rng::StreamRng;
 use osms_policy::artifacts::{StudentArtifact, Teacher};
 use osms_policy::catch::TeacherQuery;
+use osms_policy::flow::FlowSampler;
 use osms_policy::student::Student;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::control::Action;
@@ -23,9 +24,22 @@ pub enum Native {
     /// A frozen teacher, deterministic: the residual on its prior (`eval_teacher`'s).
     Teacher { name: String, teacher: Arc<Teacher> },
     /// A flow-matching student with its noise from the protocol's ("policy", i) stream
-    /// (`eval_student`'s).
-    Student { name: String, student: Arc<Student> },
+    /// (`eval_student`'s), its network prepared for sampling once (packed weights), as an
+    /// evaluation stage prepares it once per batch of rollouts.
+    Student {
+        name: String,
+        student: Arc<StudentSampler>,
+    },
 }
+
+self_cell!(
+    /// A student with its network prepared for sampling.
+    pub struct StudentSampler {
+        owner: Student,
+        #[covariant]
+        dependent: FlowSampler,
+    }
+);
 
 impl Native {
     /// The policy `name` names: `scripted`, or a built instance of a `teacher` or `student`
@@ -44,7 +58,10 @@ impl Native {
             }),
             "student" => Ok(Native::Student {
                 name: name.to_string(),
-                student: Arc::new(project.load::<StudentArtifact>(name)?.student),
+                student: Arc::new(StudentSampler::new(
+                    project.load::<StudentArtifact>(name)?.student,
+                    |s| s.net.sampler(),
+                )),
             }),
             other => Err(GymError::WrongKind {
                 name: name.to_string(),
@@ -72,7 +89,7 @@ impl Native {
                     .with_dr(&Some(protocol.base.dr.clone()))
                     .rollout
             }
-            Native::Student { student, .. } => student.rollout_spec(&protocol.base),
+            Native::Student { student, .. } => student.borrow_owner().rollout_spec(&protocol.base),
         }
     }
 
@@ -104,7 +121,7 @@ impl Native {
         batch: &mut [(&mut NativeEpisode, PolicyView<'_>, Option<u8>)],
     ) -> Vec<Action> {
         if let Native::Student { student, .. } = self {
-            let sampler = student.net.sampler();
+            let (sampler, student) = (student.borrow_dependent(), student.borrow_owner());
             let obs: Vec<Vec<f32>> = batch
                 .iter()
                 .map(|(_, v, _)| student.observation(v))
@@ -113,7 +130,7 @@ impl Native {
                 NativeEpisode::Student(rng) => rng,
                 _ => unreachable!("a student's episodes hold its noise streams"),
             });
-            return student.act_batch_with(&sampler, &obs, rngs);
+            return student.act_batch_with(sampler, &obs, rngs);
         }
         batch
             .iter_mut()
