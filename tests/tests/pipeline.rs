@@ -893,8 +893,9 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
     let other = rollout(&world, &spec, &sampling, condition.clone(), dr(), policy(1));
     assert_eq!(first, again, "same streams, same record");
     assert_ne!(first.intended, other.intended, "the policy's noise matters");
-    // Episodes stepped in lockstep, the policy acting on all of them at once, are the episodes
-    // run one by one: conditions of D_E, episodes of different lengths, noise that matters.
+    // Episodes stepped in lockstep, the policy acting on all running ones at once, are the
+    // episodes run one by one: conditions of D_E, episodes of different lengths, noise that
+    // matters.
     let items: Vec<_> = d_e
         .rollouts()
         .take(6)
@@ -913,6 +914,14 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
         lengths.len() > 1,
         "episodes of one length only: {lengths:?}"
     );
+    // Fewer slots than episodes: an ended episode's slot takes the next condition.
+    for slots in [1, 2, 4] {
+        assert_eq!(
+            osms_policy::student::rollouts_in_slots(&world, &spec, &sampling, items.clone(), slots),
+            alone,
+            "lockstep in {slots} slots = one by one"
+        );
+    }
     assert_eq!(
         osms_policy::student::rollouts(&world, &spec, &sampling, items),
         alone,

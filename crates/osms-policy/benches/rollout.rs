@@ -17,10 +17,11 @@
 //! time against it is the share of osms's own work.
 //!
 //! - **student**: an evaluation's pattern: a flow-matching student (the default network, briefly
-//!   trained on teacher rollouts: its cost per step does not depend on how well it acts) steps
-//!   [`ROLLOUT_BATCH`] rollouts in lockstep, one batched action per control step, as
-//!   `eval_student` does. The bare side replays each of the batch's rollouts from its start. Its
-//!   ratio is an evaluation's share of its MuJoCo floor (students read no contact force).
+//!   trained on teacher rollouts: its cost per step does not depend on how well it acts) runs
+//!   [`ROLLOUT_BATCH`] rollouts, `LOCKSTEP_SLOTS` of them stepped in lockstep with one batched
+//!   action per control step, as `eval_student` does. The bare side replays each of the batch's
+//!   rollouts from its start. Its ratio is an evaluation's share of its MuJoCo floor (students
+//!   read no contact force).
 //!
 //! Every rollout is timed on all sides back to back, in rotating order, `rounds` times; a
 //! rollout's time is its fastest round (interruptions only ever add time), and a pattern's ratio

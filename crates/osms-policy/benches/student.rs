@@ -24,8 +24,8 @@ use osms_policy::{Agent, PpoConfig, Task};
 use osms_sim::{World, WorldSpec};
 
 const EPISODES: u64 = 16;
-/// Episodes of the lockstep comparison (a multiple of every batch length it tries).
-const BATCH_EPISODES: usize = 32;
+/// Episodes of the lockstep comparison.
+const BATCH_EPISODES: usize = 64;
 /// Alternating rounds of the training-step comparison.
 const ROUNDS: usize = 4;
 
@@ -182,8 +182,8 @@ fn main() {
                     .sum()
             });
             // The evaluation stages' pattern: episodes stepped in lockstep, the flow network acting
-            // on all running ones at once, in batches of `len` episodes (1 = one by one, through
-            // the same lockstep code).
+            // on all running ones at once, `len` episodes at a time, an ended episode's slot
+            // taking the next (1 = one by one, through the same lockstep code).
             let lockstep: Vec<(usize, f64, Duration)> = [1, 4, 8, 16, 32]
                 .into_iter()
                 .map(|len| {
@@ -195,21 +195,16 @@ fn main() {
                         )
                     };
                     let rate = rate(&|| {
-                        (0..BATCH_EPISODES as u64)
-                            .collect::<Vec<_>>()
-                            .chunks(len)
-                            .map(|c| {
-                                student::rollouts(
-                                    &world,
-                                    &sspec,
-                                    &student,
-                                    c.iter().map(|&i| items(i)).collect(),
-                                )
-                                .iter()
-                                .map(|r| r.steps)
-                                .sum::<usize>()
-                            })
-                            .sum()
+                        student::rollouts_in_slots(
+                            &world,
+                            &sspec,
+                            &student,
+                            (0..BATCH_EPISODES as u64).map(items).collect(),
+                            len,
+                        )
+                        .iter()
+                        .map(|r| r.steps)
+                        .sum()
                     });
                     let rows: Vec<Vec<f32>> = (0..len).map(|_| normals(&mut r, c_len)).collect();
                     let mut streams: Vec<_> = (0..len as u64)
@@ -262,11 +257,11 @@ fn main() {
     );
     let one = lockstep[0].1;
     println!(
-        "  lockstep rollouts, {BATCH_EPISODES} episodes (the evaluations' pattern; ratio = env steps/s over batch length 1, the per-episode action time at that batch length):"
+        "  lockstep rollouts, {BATCH_EPISODES} episodes (the evaluations' pattern; ratio = env steps/s over one slot, the per-episode action time at that many rows):"
     );
     for (len, rate, t) in &lockstep {
         println!(
-            "    batch {len:>2}: {rate:6.0} env steps/s   ratio {:.2}   action {:7.1} us per episode",
+            "    slots {len:>2}: {rate:6.0} env steps/s   ratio {:.2}   action {:7.1} us per episode",
             rate / one,
             t.as_secs_f64() * 1e6
         );

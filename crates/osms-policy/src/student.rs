@@ -895,46 +895,80 @@ pub fn rollout(
     Episode::new(world, spec, condition, dr).run(&mut policy, &mut NoHooks)
 }
 
-/// How many student rollouts [`rollouts`] steps together in the evaluation stages: enough rows
-/// for the matrix kernels' tiled path to pay (`cargo bench -p osms-policy --bench student`
-/// measures the batch lengths), few enough that two threads still share out a
-/// development stream evenly.
-pub const ROLLOUT_BATCH: usize = 16;
+/// How many student rollouts an evaluation stage hands [`rollouts`] at once: a few times
+/// [`LOCKSTEP_SLOTS`], so that the batch stays full while episodes of different lengths end,
+/// few enough that two threads still share out a development stream evenly.
+pub const ROLLOUT_BATCH: usize = 64;
+
+/// How many student rollouts [`rollouts`] steps together: enough rows for the matrix kernels'
+/// tiled path to pay (`cargo bench -p osms-policy --bench student` measures the batch
+/// lengths).
+pub const LOCKSTEP_SLOTS: usize = 16;
 
 /// Student rollouts on many conditions, stepped in lockstep with the policy acting on every
 /// running episode at once (one matrix product per layer for the batch instead of one
-/// matrix-vector product per episode). `items` are (ω, DR stream, policy stream); rollout i is
-/// bit for bit [`rollout`] on item i.
+/// matrix-vector product per episode), [`LOCKSTEP_SLOTS`] episodes at a time: an episode that
+/// ends gives its slot to the next item, so the products keep their rows while the short
+/// episodes of a batch end before the long ones. `items` are (ω, DR stream, policy stream);
+/// rollout i is bit for bit [`rollout`] on item i.
 pub fn rollouts(
     world: &World,
     spec: &RolloutSpec,
     student: &Student,
     items: Vec<(TaskCondition, StreamRng, StreamRng)>,
 ) -> Vec<RolloutRecord> {
-    let mut episodes: Vec<(Episode<'_>, StreamRng)> = items
-        .into_iter()
-        .map(|(condition, dr, policy)| (Episode::new(world, spec, condition, dr), policy))
-        .collect();
+    rollouts_in_slots(world, spec, student, items, LOCKSTEP_SLOTS)
+}
+
+/// [`rollouts`] with at most `slots` episodes running at once (at least 1).
+pub fn rollouts_in_slots(
+    world: &World,
+    spec: &RolloutSpec,
+    student: &Student,
+    items: Vec<(TaskCondition, StreamRng, StreamRng)>,
+    slots: usize,
+) -> Vec<RolloutRecord> {
+    let mut records: Vec<Option<RolloutRecord>> = vec![None; items.len()];
+    let mut pending = items.into_iter().enumerate();
+    let mut running: Vec<(usize, Episode<'_>, StreamRng)> = Vec::new();
     let sampler = student.net.sampler();
     loop {
-        let (mut observed, mut obs, mut rngs) = (Vec::new(), Vec::new(), Vec::new());
-        for (i, (episode, rng)) in episodes.iter_mut().enumerate() {
+        // Every slot observes its next step; an episode that is over finishes and its slot
+        // takes the next item, so each running episode has observed once when this ends.
+        let (mut observed, mut obs) = (Vec::new(), Vec::new());
+        while observed.len() < running.len() || running.len() < slots.max(1) {
+            let k = observed.len();
+            if k == running.len() {
+                let Some((i, (condition, dr, policy))) = pending.next() else {
+                    break;
+                };
+                running.push((i, Episode::new(world, spec, condition, dr), policy));
+            }
             // A student reads no contact force (`StudentPolicy::reads_contact_force`).
-            if let Some(o) = episode.observe_step(false) {
-                obs.push(student.observation(&episode.view(&o)));
-                observed.push((i, o));
-                rngs.push(rng);
+            match running[k].1.observe_step(false) {
+                Some(o) => {
+                    obs.push(student.observation(&running[k].1.view(&o)));
+                    observed.push(o);
+                }
+                None => {
+                    let (i, episode, _) = running.swap_remove(k);
+                    records[i] = Some(episode.finish());
+                }
             }
         }
         if observed.is_empty() {
             break;
         }
+        let rngs = running.iter_mut().map(|(_, _, rng)| rng);
         let actions = student.act_batch_with(&sampler, &obs, rngs);
-        for ((i, o), action) in observed.into_iter().zip(actions) {
-            episodes[i].0.act_step(o, action, &mut NoHooks);
+        for ((slot, o), action) in running.iter_mut().zip(observed).zip(actions) {
+            slot.1.act_step(o, action, &mut NoHooks);
         }
     }
-    episodes.into_iter().map(|(e, _)| e.finish()).collect()
+    records
+        .into_iter()
+        .map(|r| r.expect("every item ran to its end"))
+        .collect()
 }
 
 /// A student rollout with the frozen teacher queried at every visited state.
