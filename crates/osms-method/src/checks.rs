@@ -2,7 +2,7 @@
 //! read together. Caps are sanity bounds far above every profile's value.
 
 use osms_core::check::{
-    Check, Checked, Invalid, count, nested, positive, signed, unit, widths, within,
+    Check, Checked, Invalid, count, each, nested, positive, signed, unit, widths, within,
 };
 
 use crate::candidates::SearchParams;
@@ -10,7 +10,8 @@ use crate::cvae::ManifoldParams;
 use crate::error_model::ErrorFitParams;
 use crate::ios::IosParams;
 use crate::project::ProjectionParams;
-use crate::stages::BaselineParams;
+use crate::error_model::ErrorVariant;
+use crate::stages::{BaselineParams, CalibrateParams, CalibrationParams};
 use crate::validate::ValidateParams;
 
 impl Check for ProjectionParams {
@@ -62,6 +63,52 @@ impl Check for ErrorFitParams {
         positive("kappa", self.kappa, 100.0)?;
         // The AR process needs |a| < 1 to have a stationary distribution.
         within("max_ar", self.max_ar, 0.0, 0.999_999)
+    }
+}
+
+impl Check for CalibrationParams {
+    fn check(&self) -> Checked {
+        if self.kappas.is_empty() {
+            return Err(Invalid::new(
+                "kappas",
+                "empty: give at least one κ (1 is the model as fitted)",
+            ));
+        }
+        each("kappas", &self.kappas, 0.0, 100.0)?;
+        count("draws", self.draws, 1, 10_000)?;
+        match &self.dr {
+            Some(dr) => nested("dr", dr),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Check for CalibrateParams {
+    fn check(&self) -> Checked {
+        if self.scales.len() < 2 || self.scales.windows(2).any(|w| w[0] >= w[1]) {
+            return Err(Invalid::new(
+                "scales",
+                "needs at least two scales in increasing order, e.g. [0.0, 0.5, 1.0]",
+            ));
+        }
+        each("scales", &self.scales, 0.0, 100.0)?;
+        count("draws", self.draws, 1, 10_000)?;
+        if matches!(
+            self.base,
+            ErrorVariant::Unperturbed | ErrorVariant::Calibrated
+        ) {
+            return Err(Invalid::new(
+                "base",
+                format!(
+                    "`{}` has no residual to scale; one of global_iid, phase_independent, phase_correlated, unit_gain, orthogonal",
+                    self.base.name()
+                ),
+            ));
+        }
+        match &self.dr {
+            Some(dr) => nested("dr", dr),
+            None => Ok(()),
+        }
     }
 }
 

@@ -5,12 +5,14 @@
 //!
 //! Rooms: library modules know nothing of the engine: [`cvae`] (the manifold), [`project`] (Eq. 3),
 //! [`geodesic`] (Eqs. 4–5), [`sobol`] and [`candidates`] (Eq. 6), [`error_model`] (Eq. 7: model,
-//! fit, perturber, Table III metrics), [`intervene`], [`validate`] and [`select`] (Eqs. 8–9,
+//! fit, perturber, Table III metrics) and [`calibrate`] (the models against π̄ in closed loop),
+//! [`intervene`], [`validate`] and [`select`] (Eqs. 8–9,
 //! Alg. 1), [`construct`] (D_* and the baselines' groups) and [`ios`] (Eq. 1); one small
 //! linear-algebra module serves them all. [`artifacts`] holds the stored types and
 //! [`stages`] one thin adapter per stage kind.
 
 pub mod artifacts;
+pub mod calibrate;
 pub mod candidates;
 mod checks;
 pub mod construct;

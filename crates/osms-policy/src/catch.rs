@@ -115,13 +115,21 @@ pub enum ActorInputs {
     /// differences), plus the ballistic fit and the prior's action, both functions of it.
     Deployable,
     /// `NoContact` plus the palm's touch readings of the last [`REALISABLE_HISTORY`] frames
-    /// (the deployable contact signal, `osms_sim::episode::PALM_TOUCH`). Declared last so the
-    /// other rungs keep their keys; on the ladder it sits between `NoContact` and `Deployable`.
+    /// (the deployable contact signal, `osms_sim::episode::PALM_TOUCH`). Declared after the
+    /// others so they keep their keys; on the ladder it sits between `NoContact` and
+    /// `Deployable`.
     Touch,
+    /// `NoContact` with the object read from the delay-aware flight estimate over every
+    /// observation so far (`osms_sim::flight`: the observation delay read off the first
+    /// frames, a ballistic least-squares fit, extrapolated to the present) instead of the
+    /// 8-frame fit, by the actor and the prior (issue 66). Declared last so the other rungs
+    /// keep their keys; on the ladder it sits beside `NoContact`.
+    Tracked,
 }
 
 /// Frames of deployable history the realisable rungs read: the students' default history.
 pub const REALISABLE_HISTORY: usize = 8;
+
 
 impl ActorInputs {
     pub fn is_privileged(&self) -> bool {
@@ -134,6 +142,8 @@ impl ActorInputs {
             nominal_radius: self >= ActorInputs::NoIdentity,
             estimated_object: (self >= ActorInputs::ObservedVelocity).then_some(REALISABLE_HISTORY),
             close_on_distance_only: self >= ActorInputs::NoContact,
+            hold_steps: 0,
+            tracked: self == ActorInputs::Tracked,
         }
     }
 
@@ -158,7 +168,7 @@ impl ActorInputs {
             ActorInputs::Privileged => OBS_LEN,
             ActorInputs::NoIdentity => IDENTITY + N_ACTION + 5,
             ActorInputs::ObservedVelocity => 48 + 3 + 9 + 2 + 6 + differences + N_ACTION + 5,
-            ActorInputs::NoContact => 48 + 3 + 9 + 6 + differences + N_ACTION,
+            ActorInputs::NoContact | ActorInputs::Tracked => 48 + 3 + 9 + 6 + differences + N_ACTION,
             ActorInputs::Deployable => h * DEPLOYABLE_LEN + 9 + differences + 6 + N_ACTION,
             ActorInputs::Touch => 48 + 3 + 9 + 6 + differences + h + N_ACTION,
         }
@@ -408,7 +418,10 @@ fn observation(
         ActorInputs::NoIdentity => {
             obs.extend(p(0..IDENTITY));
         }
-        ActorInputs::ObservedVelocity | ActorInputs::NoContact | ActorInputs::Touch => {
+        ActorInputs::ObservedVelocity
+        | ActorInputs::NoContact
+        | ActorInputs::Touch
+        | ActorInputs::Tracked => {
             obs.extend(p(0..48));
             obs.extend(p(48..51));
             obs.extend(p(PRIVILEGED_PALM..PRIVILEGED_PALM + 9));

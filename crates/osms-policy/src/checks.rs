@@ -211,6 +211,19 @@ impl Check for EvalStudentParams {
 impl Check for EvaluateParams {
     fn check(&self) -> Checked {
         nested("rollout", &self.rollout)?;
-        nested("catcher", &self.catcher)
+        nested("catcher", &self.catcher)?;
+        if let Some(frames) = self.prior_fit_frames {
+            if self.prior_inputs.perception().estimated_object.is_none() {
+                return Err(Invalid::new(
+                    "prior_fit_frames",
+                    format!(
+                        "prior_inputs = {:?} reads the observed velocity, not a fit (set prior_inputs to observed_velocity or a later rung, or leave prior_fit_frames out)",
+                        self.prior_inputs
+                    ),
+                ));
+            }
+            count("prior_fit_frames", frames, 2, 10_000)?;
+        }
+        Ok(())
     }
 }

@@ -110,6 +110,12 @@ pub struct Perception {
     /// Close the hand on the observed object's distance to the palm only, not on the
     /// simulator's contact count.
     pub close_on_distance_only: bool,
+    /// Hold the arm still for the episode's first this many control steps, while a fitted
+    /// flight still rests on one or two observations.
+    pub hold_steps: usize,
+    /// Read the object from the delay-aware flight estimate over every observation so far
+    /// ([`crate::flight`], [`PolicyView::tracked`]) instead of `estimated_object`'s window.
+    pub tracked: bool,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -157,22 +163,31 @@ impl ScriptedCatcher {
 
     /// The object as this catcher reads it at `view`.
     pub fn object(&self, view: &PolicyView<'_>) -> ObservedObject {
+        if self.perception.tracked {
+            return view.tracked();
+        }
         let Some(window) = self.perception.estimated_object else {
             return view.object;
         };
-        let n = window.min(view.history.len());
-        // Under an observation delay of d steps the first observation is seen d + 1 times (the
-        // delay line starts full of the first state), which a fit would read as an object
-        // at rest; the episode's first frame is left out while it is in the window.
-        let first_in_window = view.step < n && n > 2;
         let frames: Vec<&[f64]> = view
             .history
-            .range(view.history.len() - n..)
-            .skip(usize::from(first_in_window))
+            .range(fit_range(view.step, view.history.len(), window))
             .map(Vec::as_slice)
             .collect();
         estimate_object(&frames, view.world.control_period_secs())
     }
+}
+
+/// The frames a ballistic fit over `window` frames reads at control step `step`, as a range of
+/// the `available` newest frames at hand (the last of them is step `step`'s): the newest
+/// `window`, less the episode's first frame while it is among them. Under an observation delay
+/// of d steps the first observation is seen d + 1 times (the delay line starts full of the
+/// first state), which a fit would read as an object at rest. The students' fit input reads
+/// the same frames of their record ([`estimate_object`]).
+pub fn fit_range(step: usize, available: usize, window: usize) -> std::ops::Range<usize> {
+    let n = window.min(available);
+    let first_in_window = step < n && n > 2;
+    available - n + usize::from(first_in_window)..available
 }
 
 /// The mean radius (first size) of the object variants: the radius a catcher that cannot tell
@@ -396,7 +411,7 @@ impl Policy for ScriptedCatcher {
         let mut action = hold_action(&hand);
         // Once closing, the arm holds still: re-aiming at the object's predicted fall would
         // pull the palm out from under it.
-        if !self.closed {
+        if !self.closed && view.step >= self.perception.hold_steps {
             let max = self.control.arm_max_delta_rad;
             for k in 0..N_ARM {
                 action[k] = (dq[k] / max).clamp(-1.0, 1.0);

@@ -14,6 +14,7 @@ use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
 use crate::conditions::TaskCondition;
+use crate::flight::FlightTracker;
 use crate::control::{
     Action, ControlSpec, DrDraw, DrSpec, N_ACTION, N_ARM, N_HAND, hold_action, joint_ranges,
     targets,
@@ -100,6 +101,8 @@ pub struct PolicyView<'a> {
     pub deployable: &'a [f64],
     /// The last `history_steps` deployable frames, oldest first, ending with `deployable`.
     pub history: &'a VecDeque<Vec<f64>>,
+    /// The observed object positions of every frame so far ([`PolicyView::tracked`]).
+    pub tracker: &'a FlightTracker,
     pub privileged: &'a [f64],
     /// The object's observed position and velocity (the privileged frame's, delayed and noisy).
     pub object: ObservedObject,
@@ -120,6 +123,14 @@ pub struct PolicyView<'a> {
     /// contact and only if the policy [reads the contact force](Policy::reads_contact_force)
     /// (elsewhere they are left from the last physics step and do not match the contacts).
     pub data: &'a MjData<Box<MjModel>>,
+}
+
+impl PolicyView<'_> {
+    /// The deployable estimate of the object's flight now, from every observed position so far
+    /// ([`crate::flight`]): computed on demand, so a policy that does not read it pays nothing.
+    pub fn tracked(&self) -> ObservedObject {
+        self.tracker.estimate(self.world.control_period_secs())
+    }
 }
 
 pub trait Policy {
@@ -229,6 +240,9 @@ struct Controller {
     /// the observation delay's queue.
     pending_object: VecDeque<[f64; 13]>,
     history: VecDeque<Vec<f64>>,
+    /// Every frame's observed object position, for the deployable flight estimate
+    /// ([`PolicyView::tracked`]).
+    tracker: FlightTracker,
     /// The touch sensor's noise ([`TOUCH_STREAM`] of the rollout's seed).
     touch_rng: StreamRng,
 }
@@ -392,6 +406,7 @@ impl<'w> Episode<'w> {
             pending_actions: VecDeque::from(vec![hold; dr.actuation_delay_steps as usize]),
             pending_object: VecDeque::new(),
             history: VecDeque::new(),
+            tracker: FlightTracker::default(),
             touch_rng,
         };
         let record = RolloutRecord::empty(condition.clone(), dr.clone());
@@ -574,6 +589,8 @@ impl<'w> Episode<'w> {
         let mut slot = kept.unwrap_or_default();
         slot.clone_from(&frame.deployable);
         self.controller.history.push_back(slot);
+        let seen = &frame.deployable[OBSERVED_OBJECT..OBSERVED_OBJECT + 3];
+        self.controller.tracker.push([seen[0], seen[1], seen[2]]);
         Some(Observed(frame))
     }
 
@@ -585,6 +602,7 @@ impl<'w> Episode<'w> {
             time_secs: self.data.time(),
             deployable: &frame.deployable,
             history: &self.controller.history,
+            tracker: &self.controller.tracker,
             privileged: &frame.privileged,
             object: frame.observed,
             world: self.world,

@@ -15,6 +15,7 @@ pub mod control;
 pub mod episode;
 mod error;
 pub mod ffi;
+pub mod flight;
 pub mod metrics;
 pub mod mjcf;
 pub mod reach;

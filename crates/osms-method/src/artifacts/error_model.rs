@@ -8,7 +8,7 @@ use osms_make::Summarize;
 use osms_sim::{N_ARM, Phase};
 use serde::{Deserialize, Serialize};
 
-use crate::error_model::{ErrorFitParams, ErrorModel, Table3Metrics};
+use crate::error_model::{ErrorFitParams, ErrorModel, ErrorVariant, Table3Metrics};
 
 /// One model of Table III: its fit and its metrics on the pairs it was fitted on.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -38,11 +38,31 @@ pub struct ErrorModelArtifact {
     pub folds: Vec<FoldStats>,
     /// Pair steps per phase (online phase, in phase order).
     pub phase_steps: Vec<usize>,
+    /// How the `calibrated` model's residual scale was chosen, in an artifact of a
+    /// `calibrate_error_model` stage (`None` from `error_model`).
+    pub calibration: Option<ScaleSearch>,
+}
+
+/// The closed-loop search behind the `calibrated` model: the teacher's success under the base
+/// model at each residual scale (κ = 1) on the tuning fold's conditions, and the scale where it
+/// meets π̄'s success there.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScaleSearch {
+    pub base: ErrorVariant,
+    pub fold: u32,
+    pub conditions: usize,
+    pub draws: usize,
+    /// π̄'s success on the fold's conditions: the rate the scale is matched to.
+    pub target: f64,
+    /// (scale, success rate) over conditions × draws.
+    pub grid: Vec<(f64, f64)>,
+    pub scale: f64,
 }
 
 impl Artifact for ErrorModelArtifact {
     const TYPE_TAG: &'static str = "method.error_model";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: the unit-gain and orthogonal fits, and a calibrated model's scale search.
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
@@ -154,8 +174,9 @@ impl ErrorModelArtifact {
 impl Summarize for ErrorModelArtifact {
     fn summary(&self) -> serde_json::Value {
         serde_json::json!({
-            "variant": self.params.variant.name(),
-            "kappa": self.params.kappa,
+            "variant": self.model.variant.name(),
+            "kappa": self.model.kappa,
+            "calibration": self.calibration,
             "folds": self.folds,
             "phase_steps": Phase::ALL.iter().zip(&self.phase_steps)
                 .map(|(p, n)| (p.name(), *n)).collect::<std::collections::BTreeMap<_, _>>(),
@@ -177,9 +198,26 @@ impl Summarize for ErrorModelArtifact {
             "IL-student action-error models (paper 4.3, Eq. 7) fitted on {} pair steps of {} rollouts; validation applies `{}` with κ_ε = {}\n",
             steps,
             self.folds.iter().map(|f| f.rollouts).sum::<usize>(),
-            self.params.variant.name(),
-            self.params.kappa
+            self.model.variant.name(),
+            self.model.kappa
         );
+        if let Some(c) = &self.calibration {
+            let _ = writeln!(
+                out,
+                "`calibrated` is `{}` with its residual scaled by {:.3}: there the teacher under it (κ = 1) succeeds as often as π̄ on fold {}'s {} held-out conditions ({:.1} %, {} draws each). Success by scale: {}\n",
+                c.base.name(),
+                c.scale,
+                c.fold,
+                c.conditions,
+                100.0 * c.target,
+                c.draws,
+                c.grid
+                    .iter()
+                    .map(|(s, r)| format!("{s} → {:.1} %", 100.0 * r))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
         let _ = writeln!(
             out,
             "IL students π̄ on the D_E conditions held out from them:\n"

@@ -2,6 +2,7 @@
 //! of them. Types that are also the library's working values (the manifold [`Cvae`](crate::cvae::Cvae))
 //! are stored as they are; their store and show impls live here.
 
+mod calibration;
 mod candidate_table;
 mod candidates;
 mod construction_table;
@@ -10,9 +11,10 @@ mod ios_profile;
 mod manifold;
 mod validation;
 
+pub use calibration::{Calibration, CalibrationItem, Folds, RunOutcome, RunSpec, RunSummary};
 pub use candidate_table::CandidateTable;
 pub use candidates::{CandidateItem, CandidateSets, CandidateStats};
 pub use construction_table::{ConstructionRow, ConstructionTable, PAPER_TABLE2};
-pub use error_model::{ErrorModelArtifact, FoldStats, VariantFit};
+pub use error_model::{ErrorModelArtifact, FoldStats, ScaleSearch, VariantFit};
 pub use ios_profile::{IosProfile, IosRow};
 pub use validation::{ErrorStreams, Validation, ValidationStats};

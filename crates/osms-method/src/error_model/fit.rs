@@ -44,7 +44,15 @@ pub fn fit(
     let phases = match params.variant {
         ErrorVariant::Unperturbed => Vec::new(),
         ErrorVariant::GlobalIid => vec![fit_global(sequences, channels)?; N_PHASES],
-        ErrorVariant::PhaseIndependent | ErrorVariant::PhaseCorrelated => {
+        ErrorVariant::Calibrated => {
+            return Err(Error::InvalidFitParams(
+                "a calibrated model is not fitted on the pairs: `calibrate_error_model` scales the unit-gain fit in closed loop".into(),
+            ));
+        }
+        ErrorVariant::PhaseIndependent
+        | ErrorVariant::PhaseCorrelated
+        | ErrorVariant::UnitGain
+        | ErrorVariant::Orthogonal => {
             let mut pooled: Option<PhaseModel> = None;
             let mut out = Vec::with_capacity(N_PHASES);
             for phase in 0..N_PHASES {
@@ -194,17 +202,44 @@ impl Bivariate {
         self.cyy += dy * (y - self.my);
     }
 
-    /// Least-squares `(gain, bias, residual sum of squares)` of `y ≈ gain·x + bias`.
-    fn regress(&self) -> (f64, f64, f64) {
+    /// `(gain, bias, residual sum of squares)` of `y ≈ gain·x + bias`, the gain by `how`.
+    fn regress(&self, how: GainFit) -> (f64, f64, f64) {
         // A teacher channel that barely moves cannot tell gain from bias (see module docs).
-        let gain = if self.cxx > 1e-12 * self.n as f64 {
-            self.cxy / self.cxx
-        } else {
-            1.0
+        let moves = self.cxx > 1e-12 * self.n as f64;
+        let gain = match how {
+            GainFit::LeastSquares if moves => self.cxy / self.cxx,
+            // The major axis of the (x, y) scatter: the slope minimising the summed squared
+            // perpendicular distances, (s_yy − s_xx + √((s_yy − s_xx)² + 4 s_xy²)) / (2 s_xy).
+            GainFit::Orthogonal if moves && self.cxy.abs() > 1e-12 * self.n as f64 => {
+                let d = self.cyy - self.cxx;
+                (d + (d * d + 4.0 * self.cxy * self.cxy).sqrt()) / (2.0 * self.cxy)
+            }
+            _ => 1.0,
         };
         let bias = self.my - gain * self.mx;
         let rss = (self.cyy - 2.0 * gain * self.cxy + gain * gain * self.cxx).max(0.0);
         (gain, bias, rss)
+    }
+}
+
+/// How a channel's gain S_kk is estimated.
+#[derive(Clone, Copy)]
+enum GainFit {
+    /// Ordinary least squares of π̄'s action on the teacher's (the paper's).
+    LeastSquares,
+    /// Orthogonal regression: errors in both actions.
+    Orthogonal,
+    /// S = 1: μ is the mean deviation.
+    Unit,
+}
+
+impl GainFit {
+    fn of(variant: ErrorVariant) -> GainFit {
+        match variant {
+            ErrorVariant::UnitGain | ErrorVariant::Calibrated => GainFit::Unit,
+            ErrorVariant::Orthogonal => GainFit::Orthogonal,
+            _ => GainFit::LeastSquares,
+        }
     }
 }
 
@@ -297,7 +332,7 @@ fn fit_group(
         let mut bias = Vec::with_capacity(c);
         let mut total = 0.0;
         for a in &acc {
-            let (g, b, rss) = a.regress();
+            let (g, b, rss) = a.regress(GainFit::of(params.variant));
             gain.push(g);
             bias.push(b);
             total += rss;
@@ -332,7 +367,7 @@ fn fit_group(
 
     let mut ar = vec![0.0; c];
     let mut ar_pairs = 0usize;
-    if params.variant == ErrorVariant::PhaseCorrelated {
+    if params.variant.correlated() {
         // Only consecutive steps of the same phase within one sequence form a pair, so a
         // phase's dynamics are not mixed with the jump at a phase change.
         let mut num = vec![0.0; c];
@@ -805,5 +840,73 @@ mod tests {
         ));
         assert!(matches!(fit(&[], C, &params), Err(Error::NoSequences)));
         assert!(matches!(fit(&pairs, 0, &params), Err(Error::NoChannels)));
+    }
+
+    /// Errors in both variables: x = u + e₁, y = g u + b + e₂ with Var(u) = 1 and equal noise
+    /// variances σ². Least squares is attenuated to g / (1 + σ²); the major axis recovers g;
+    /// the unit gain is 1 with b = mean(y − x).
+    #[test]
+    fn the_gain_estimators_against_errors_in_both_variables() {
+        let (g, b, sigma) = (0.8f64, 0.1f64, 0.6f64);
+        let mut r = rng("eiv", 0);
+        let mut acc = Bivariate::default();
+        let (mut sx, mut sy, n) = (0.0, 0.0, 200_000);
+        for _ in 0..n {
+            let u = normal(&mut r);
+            let x = u + sigma * normal(&mut r);
+            let y = g * u + b + sigma * normal(&mut r);
+            acc.push(x, y);
+            sx += x;
+            sy += y;
+        }
+        let (ls, _, _) = acc.regress(GainFit::LeastSquares);
+        let attenuated = g / (1.0 + sigma * sigma);
+        assert!((ls - attenuated).abs() < 0.01, "least squares {ls} against {attenuated}");
+        let (tls, tls_bias, _) = acc.regress(GainFit::Orthogonal);
+        assert!((tls - g).abs() < 0.01, "orthogonal {tls} against {g}");
+        assert!((tls_bias - b).abs() < 0.01, "orthogonal bias {tls_bias}");
+        let (unit, unit_bias, rss) = acc.regress(GainFit::Unit);
+        assert_eq!(unit, 1.0);
+        assert!((unit_bias - (sy - sx) / n as f64).abs() < 1e-9);
+        assert!(rss > 0.0);
+    }
+
+    /// The unit-gain fit keeps S = I in every phase and still fits the AR dynamics; scaling
+    /// its residual scales Σ by the square and leaves the rest; a calibrated model is not
+    /// fitted on pairs.
+    #[test]
+    fn the_unit_gain_fit_keeps_s_at_one_and_a_scaled_residual_only_scales_sigma() {
+        let data = all_phases_data();
+        let model = fit(
+            &data.pairs(),
+            C,
+            &ErrorFitParams {
+                variant: ErrorVariant::UnitGain,
+                ..ErrorFitParams::default()
+            },
+        )
+        .expect("fit");
+        for p in &model.phases {
+            assert!(p.gain.iter().all(|&g| g == 1.0));
+            assert!(p.ar_pairs > 0 || p.pooled);
+        }
+        let calibrated = model.with_residual_scale(0.5, ErrorVariant::Calibrated);
+        for (a, b) in model.phases.iter().zip(&calibrated.phases) {
+            assert_eq!(a.gain, b.gain);
+            assert_eq!(a.ar, b.ar);
+            for (x, y) in a.stationary.iter().zip(&b.stationary) {
+                assert!((0.25 * x - y).abs() <= 1e-15 * x.abs().max(1.0));
+            }
+        }
+        assert!(calibrated.validate().is_ok());
+        let refused = fit(
+            &data.pairs(),
+            C,
+            &ErrorFitParams {
+                variant: ErrorVariant::Calibrated,
+                ..ErrorFitParams::default()
+            },
+        );
+        assert!(matches!(refused, Err(Error::InvalidFitParams(_))));
     }
 }

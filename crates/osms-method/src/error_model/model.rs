@@ -20,6 +20,18 @@ pub enum ErrorVariant {
     PhaseIndependent,
     /// The full model of Eq. 7.
     PhaseCorrelated,
+    /// Eq. 7's form with the gain fixed at 1 (S = I): the deviation a − ā is carried by μ and
+    /// the AR residual alone, fitted per phase as the full model's (issue 66). Least squares
+    /// shrinks S toward 0 wherever π̄'s action is only partly explained by the teacher's (an
+    /// attenuated slope), and Eq. 7 then shrinks every command.
+    UnitGain,
+    /// Eq. 7's form with S from orthogonal (total least-squares) regression, which does not
+    /// attenuate the slope when both actions vary (issue 66).
+    Orthogonal,
+    /// The unit-gain model with its residual scaled so that the frozen teacher, run under it
+    /// at κ = 1, succeeds as often as π̄ does on π̄'s own held-out conditions (closed-loop
+    /// calibration, `calibrate_error_model`; not fitted by `error_model` itself).
+    Calibrated,
 }
 
 impl ErrorVariant {
@@ -31,6 +43,17 @@ impl ErrorVariant {
         ErrorVariant::PhaseCorrelated,
     ];
 
+    /// Every model `error_model` fits on the pairs: Table III's four, then the fits beside
+    /// them (issue 66).
+    pub const FITTED: [ErrorVariant; 6] = [
+        ErrorVariant::Unperturbed,
+        ErrorVariant::GlobalIid,
+        ErrorVariant::PhaseIndependent,
+        ErrorVariant::PhaseCorrelated,
+        ErrorVariant::UnitGain,
+        ErrorVariant::Orthogonal,
+    ];
+
     /// The name params and tables use.
     pub fn name(self) -> &'static str {
         match self {
@@ -38,7 +61,21 @@ impl ErrorVariant {
             ErrorVariant::GlobalIid => "global_iid",
             ErrorVariant::PhaseIndependent => "phase_independent",
             ErrorVariant::PhaseCorrelated => "phase_correlated",
+            ErrorVariant::UnitGain => "unit_gain",
+            ErrorVariant::Orthogonal => "orthogonal",
+            ErrorVariant::Calibrated => "calibrated",
         }
+    }
+
+    /// Whether the residual follows an AR(1) process (else it is i.i.d.).
+    pub fn correlated(self) -> bool {
+        matches!(
+            self,
+            ErrorVariant::PhaseCorrelated
+                | ErrorVariant::UnitGain
+                | ErrorVariant::Orthogonal
+                | ErrorVariant::Calibrated
+        )
     }
 }
 
@@ -213,6 +250,33 @@ impl ErrorModel {
 
     pub(super) fn max_delay(&self) -> usize {
         self.phases.iter().map(|p| p.delay).max().unwrap_or(0)
+    }
+
+    /// This model with every phase's residual scaled by `scale` (L by `scale`, Σ by its
+    /// square; delay, gain, bias and AR coefficients unchanged), named `variant`.
+    pub fn with_residual_scale(&self, scale: f64, variant: ErrorVariant) -> ErrorModel {
+        let phases = self
+            .phases
+            .iter()
+            .map(|p| PhaseModel {
+                l: p.l.iter().map(|v| v * scale).collect(),
+                stationary: p.stationary.iter().map(|v| v * scale * scale).collect(),
+                ..p.clone()
+            })
+            .collect();
+        ErrorModel {
+            variant,
+            phases,
+            ..self.clone()
+        }
+    }
+
+    /// This model with κ_ε = `kappa`.
+    pub fn with_kappa(&self, kappa: f64) -> ErrorModel {
+        ErrorModel {
+            kappa,
+            ..self.clone()
+        }
     }
 }
 

@@ -1,5 +1,5 @@
 //! `error_model`: the IL-student action-error model (Eq. 7) fitted on the cross-fitted
-//! students' pairs, with the Table III comparison of all four variants.
+//! students' pairs, with the Table III comparison of all four variants and the fits beside them.
 
 use osms_make::{Ctx, Slot, Stage, StageError};
 use osms_policy::artifacts::ErrorPairs;
@@ -14,8 +14,9 @@ use crate::error_model::{ErrorFitParams, ErrorVariant, PairSequence, fit, table3
 pub struct ErrorModelStage;
 impl Stage for ErrorModelStage {
     const KIND: &'static str = "error_model";
-    // v2: Σ_φ matched to the residuals' variances (`StationaryFit::Residual`).
-    const CODE_VERSION: u32 = 2;
+    // v2: Σ_φ matched to the residuals' variances (`StationaryFit::Residual`); v3: the
+    // unit-gain and orthogonal fits beside Table III's four.
+    const CODE_VERSION: u32 = 3;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[Slot::gather::<ErrorPairs>("pairs")];
     const DOC: &'static str =
@@ -54,8 +55,8 @@ impl Stage for ErrorModelStage {
             .flat_map(|(_, pairs)| &pairs.rollouts)
             .map(PairSequence::from)
             .collect();
-        let mut variants = Vec::with_capacity(ErrorVariant::TABLE3.len());
-        for (i, &variant) in ErrorVariant::TABLE3.iter().enumerate() {
+        let mut variants = Vec::with_capacity(ErrorVariant::FITTED.len());
+        for (i, &variant) in ErrorVariant::FITTED.iter().enumerate() {
             let params = ErrorFitParams {
                 variant,
                 ..ctx.params.clone()
@@ -73,13 +74,20 @@ impl Stage for ErrorModelStage {
             .iter()
             .find(|v| v.model.variant == ctx.params.variant)
             .map(|v| v.model.clone())
-            .ok_or("params.variant is not one of the four models")?;
+            .ok_or_else(|| {
+                format!(
+                    "params.variant = `{}` is not fitted on the pairs\nhint: one of {}; a calibrated model comes from a `calibrate_error_model` stage",
+                    ctx.params.variant.name(),
+                    ErrorVariant::FITTED.map(ErrorVariant::name).join(", ")
+                )
+            })?;
         Ok(ErrorModelArtifact {
             params: ctx.params.clone(),
             model,
             variants,
             folds,
             phase_steps,
+            calibration: None,
         })
     }
 }

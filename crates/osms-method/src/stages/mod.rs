@@ -1,8 +1,10 @@
 //! The method's stage kinds, one file each: the manifold and the candidates (`manifold`,
-//! `candidates`, `candidate_table`), the error model (`error_model`), validation and D_*
+//! `candidates`, `candidate_table`), the error model (`error_model`) and its closed-loop
+//! calibration (`calibrate_error_model`, `error_calibration`), validation and D_*
 //! (`validate`, `dstar`), the baselines (`naive`, `normal`, `construction_table`) and the IOS
 //! profile (`ios_profile`).
 
+mod calibration;
 mod candidate_table;
 mod candidates;
 mod construction_table;
@@ -14,6 +16,7 @@ mod naive;
 mod normal;
 mod validate;
 
+pub use calibration::{CalibrateErrorModelStage, CalibrateParams, CalibrationParams, CalibrationStage};
 pub use candidate_table::CandidateTableStage;
 pub use candidates::CandidatesStage;
 pub use construction_table::ConstructionTableStage;
@@ -167,6 +170,8 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register_itemised(CandidatesStage)
         .register(CandidateTableStage)
         .register(ErrorModelStage)
+        .register(CalibrateErrorModelStage)
+        .register_itemised(CalibrationStage)
         .register_itemised(ValidateStage)
         .register_itemised(DstarStage)
         .register_itemised(NaiveStage)

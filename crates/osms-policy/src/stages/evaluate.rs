@@ -27,6 +27,48 @@ pub struct EvaluateParams {
     /// valid.
     #[serde(skip_serializing_if = "ActorInputs::is_privileged")]
     pub prior_inputs: ActorInputs,
+    /// The scripted catcher's ballistic fit reads this many frames instead of its rung's (a
+    /// probe of the fit's window for issue 66's `tracked` rung; needs a rung that fits the
+    /// flight, `observed_velocity` or later). Absent: the rung's own window; left out of the
+    /// encoded params then, so keys built before it stay valid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prior_fit_frames: Option<usize>,
+    /// The scripted catcher holds the arm still for the first this many control steps (a
+    /// probe for issue 66). Absent: its rung's own; left out of the encoded params then.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prior_hold_steps: Option<usize>,
+    /// The scripted catcher reads the object from the delay-aware flight estimate
+    /// (`osms_sim::flight`) whatever its rung (a probe for issue 66). Left out of the encoded
+    /// params when false.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub prior_tracked: bool,
+}
+
+impl EvaluateParams {
+    /// How the scripted catcher reads the world: its rung's perception, with the fit's window
+    /// replaced by `prior_fit_frames`.
+    pub fn prior_perception(&self) -> osms_sim::catcher::Perception {
+        let mut perception = self.prior_inputs.perception();
+        if let Some(frames) = self.prior_fit_frames {
+            perception.estimated_object = Some(frames);
+        }
+        if let Some(steps) = self.prior_hold_steps {
+            perception.hold_steps = steps;
+        }
+        if self.prior_tracked {
+            perception.tracked = true;
+        }
+        perception
+    }
+
+    /// The scripted catcher's rollout spec: `rollout`, keeping the frames its fit reads.
+    pub fn prior_rollout(&self) -> RolloutSpec {
+        let mut spec = self.prior_inputs.rollout(&self.rollout);
+        if let Some(frames) = self.prior_fit_frames {
+            spec.history_steps = spec.history_steps.max(frames);
+        }
+        spec
+    }
 }
 
 /// The policy an `evaluate` stage rolls out.
@@ -113,9 +155,9 @@ impl ItemStage for EvaluateStage {
                 let mut catcher = ScriptedCatcher::with_perception(
                     p.catcher.clone(),
                     p.rollout.control.clone(),
-                    p.prior_inputs.perception(),
+                    p.prior_perception(),
                 );
-                let spec = p.prior_inputs.rollout(&p.rollout);
+                let spec = p.prior_rollout();
                 Episode::new(world, &spec, condition, rng.clone()).run(&mut catcher, &mut NoHooks)
             }
             Evaluated::Teacher(t) => {

@@ -1,0 +1,389 @@
+//! The closed-loop calibration of the error models (issue 66): per held-out D_E condition, π̄'s
+//! own rollout beside the frozen teacher's rollouts under each model at each κ, and the report
+//! table "Does each model behave like π̄?".
+
+use std::fmt::Write;
+
+use osms_core::Artifact;
+use osms_core::stats::{Difference, paired_difference};
+use osms_core::table::{Cell, Column, Layout, Table, Unit, Value};
+use osms_make::Summarize;
+use osms_sim::artifacts::{EvalRow, Evaluation, TableLine};
+use osms_sim::{N_ARM, Phase};
+use serde::{Deserialize, Serialize};
+
+use crate::calibrate::DeviationStats;
+use crate::error_model::N_PHASES;
+
+/// One model at one κ, as every item runs it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunSpec {
+    /// The error model's variant name (`unperturbed`: the teacher's own rollout).
+    pub model: String,
+    /// κ_ε (1 for the unperturbed teacher).
+    pub kappa: f64,
+}
+
+impl RunSpec {
+    pub fn label(&self) -> String {
+        if self.model == "unperturbed" {
+            "teacher, unperturbed".into()
+        } else {
+            format!("{} at κ = {}", self.model, self.kappa)
+        }
+    }
+}
+
+/// What one run spec gave on one condition: its draws' rows and their pooled arm deviation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunOutcome {
+    pub rows: Vec<EvalRow>,
+    pub deviation: DeviationStats,
+}
+
+/// One held-out D_E condition of one fold.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationItem {
+    /// The fold whose π̄ held this condition out.
+    pub fold: u32,
+    /// The D_E item.
+    pub item: u32,
+    /// π̄'s own rollout (the `error_pairs` row) and its deviation from the teacher queried at
+    /// the states it visited.
+    pub student: EvalRow,
+    pub student_deviation: DeviationStats,
+    /// In [`Calibration::runs`] order.
+    pub runs: Vec<RunOutcome>,
+}
+
+/// The calibration of every model on every fold's held-out conditions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Calibration {
+    /// Draws per condition and run spec (common random numbers: draw q of a condition has
+    /// the same DR draws and innovations under every model and κ).
+    pub draws: usize,
+    pub runs: Vec<RunSpec>,
+    pub items: Vec<CalibrationItem>,
+}
+
+impl Artifact for Calibration {
+    const TYPE_TAG: &'static str = "method.calibration";
+    const SCHEMA_VERSION: u16 = 1;
+}
+
+impl osms_make::Sharded for Calibration {
+    type Item = CalibrationItem;
+    fn take_items(&mut self) -> Vec<CalibrationItem> {
+        std::mem::take(&mut self.items)
+    }
+    fn set_items(&mut self, items: Vec<CalibrationItem>) {
+        self.items = items;
+    }
+}
+
+/// A run spec (or π̄) on a set of conditions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunSummary {
+    pub label: String,
+    pub rollouts: usize,
+    pub success_rate: f64,
+    pub completion_rate: f64,
+    pub max_force_n: Option<f64>,
+    pub follow_through_m: Option<f64>,
+    pub contact_speed_mps: Option<f64>,
+    /// Failures per rollout, by kind (a rollout can fail several ways).
+    pub failures: Vec<(String, f64)>,
+    /// Success minus π̄'s, paired by condition (the per-condition mean over draws against π̄'s
+    /// one rollout), with its 95 % interval; `None` for π̄ itself.
+    pub calibration_error: Option<Difference>,
+}
+
+/// The failure kinds the table gives a column each.
+const FAILURE_COLUMNS: [&str; 4] = ["drop", "f_max too high", "l_max too short", "v_rel too high"];
+
+/// Which conditions a summary covers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Folds {
+    Both,
+    One(u32),
+}
+
+impl Calibration {
+    fn items_of(&self, folds: Folds) -> impl Iterator<Item = &CalibrationItem> {
+        self.items.iter().filter(move |i| match folds {
+            Folds::Both => true,
+            Folds::One(f) => i.fold == f,
+        })
+    }
+
+    /// The folds present, in order.
+    pub fn folds(&self) -> Vec<u32> {
+        let mut f: Vec<u32> = self.items.iter().map(|i| i.fold).collect();
+        f.sort_unstable();
+        f.dedup();
+        f
+    }
+
+    fn summary_of(label: String, rows: Vec<EvalRow>, error: Option<Difference>) -> RunSummary {
+        let n = rows.len();
+        let line: TableLine = Evaluation { rows }
+            .table()
+            .pop()
+            .expect("an evaluation's table ends with its `all` line");
+        let failures = line
+            .failures
+            .iter()
+            .map(|(k, v)| (k.clone(), *v as f64 / n.max(1) as f64))
+            .collect();
+        RunSummary {
+            label,
+            rollouts: n,
+            success_rate: line.success_rate,
+            completion_rate: line.completion_rate,
+            max_force_n: line.max_force_n,
+            follow_through_m: line.follow_through_m,
+            contact_speed_mps: line.contact_speed_mps,
+            failures,
+            calibration_error: error,
+        }
+    }
+
+    /// π̄'s rollouts on `folds`' conditions.
+    pub fn student_summary(&self, folds: Folds) -> RunSummary {
+        let rows = self.items_of(folds).map(|i| i.student.clone()).collect();
+        Self::summary_of("π̄ (its own rollouts)".into(), rows, None)
+    }
+
+    /// Run spec `r` on `folds`' conditions, with its calibration error against π̄.
+    pub fn run_summary(&self, r: usize, folds: Folds) -> RunSummary {
+        let items: Vec<&CalibrationItem> = self.items_of(folds).collect();
+        let success = |row: &EvalRow| f64::from(u8::from(row.outcome.success()));
+        let model: Vec<f64> = items
+            .iter()
+            .map(|i| {
+                let rows = &i.runs[r].rows;
+                rows.iter().map(success).sum::<f64>() / rows.len().max(1) as f64
+            })
+            .collect();
+        let student: Vec<f64> = items.iter().map(|i| success(&i.student)).collect();
+        let error = paired_difference(&[model], &[student]);
+        let rows = items
+            .iter()
+            .flat_map(|i| i.runs[r].rows.iter().cloned())
+            .collect();
+        Self::summary_of(self.runs[r].label(), rows, error)
+    }
+
+    /// The pooled arm deviation of π̄ (`None`) or of run spec `r` on `folds`' conditions.
+    pub fn deviation(&self, run: Option<usize>, folds: Folds) -> DeviationStats {
+        let mut total = DeviationStats::default();
+        for i in self.items_of(folds) {
+            total.add(match run {
+                None => &i.student_deviation,
+                Some(r) => &i.runs[r].deviation,
+            });
+        }
+        total
+    }
+
+    /// The run spec of `model` at `kappa`.
+    pub fn run_index(&self, model: &str, kappa: f64) -> Option<usize> {
+        self.runs
+            .iter()
+            .position(|r| r.model == model && (r.kappa == kappa || model == "unperturbed"))
+    }
+
+    /// "Does each model behave like π̄?": outcomes on both folds' conditions, and each run's
+    /// calibration error (success minus π̄'s, paired by condition) on both and on each fold.
+    pub fn table(&self) -> Table {
+        let folds = self.folds();
+        let mut columns = vec![
+            Column::new("success", Unit::Percent),
+            Column::new("− π̄ (95 % CI)", Unit::Text),
+        ];
+        for f in &folds {
+            columns.push(Column::new(format!("− π̄, fold {f}"), Unit::Text));
+        }
+        columns.extend([
+            Column::new("completion", Unit::Percent),
+            Column::new("f_max (N)", Unit::Number(1)),
+            Column::new("ℓ_max (m)", Unit::Number(3)),
+            Column::new("v_rel (m/s)", Unit::Number(2)),
+        ]);
+        for f in FAILURE_COLUMNS {
+            columns.push(Column::new(f, Unit::Percent));
+        }
+        columns.push(Column::new("rollouts", Unit::Count));
+        let mut t = Table::new(
+            "calibration",
+            "Does each model behave like π̄? The frozen teacher under each error model, on π̄'s held-out D_E conditions",
+            columns,
+        );
+        let ci = |d: &Option<Difference>| {
+            Cell::text(d.as_ref().map_or_else(
+                || "-".into(),
+                |d| {
+                    format!(
+                        "{:+.1} [{:+.1}, {:+.1}]",
+                        100.0 * d.estimate,
+                        100.0 * d.low,
+                        100.0 * d.high
+                    )
+                },
+            ))
+        };
+        let push = |t: &mut Table, s: RunSummary, per_fold: Vec<Option<Difference>>| {
+            let mut cells = vec![Cell::one(s.success_rate), ci(&s.calibration_error)];
+            cells.extend(per_fold.iter().map(ci));
+            cells.extend([
+                Cell::one(s.completion_rate),
+                Cell::opt(s.max_force_n),
+                Cell::opt(s.follow_through_m),
+                Cell::opt(s.contact_speed_mps),
+            ]);
+            for f in FAILURE_COLUMNS {
+                let rate = s.failures.iter().find(|(k, _)| k == f).map_or(0.0, |v| v.1);
+                cells.push(Cell::one(rate));
+            }
+            cells.push(Cell::new(Value::One(s.rollouts as f64), None));
+            t.push(s.label, cells);
+        };
+        push(
+            &mut t,
+            self.student_summary(Folds::Both),
+            folds.iter().map(|_| None).collect(),
+        );
+        for r in 0..self.runs.len() {
+            let per_fold = folds
+                .iter()
+                .map(|&f| self.run_summary(r, Folds::One(f)).calibration_error)
+                .collect();
+            push(&mut t, self.run_summary(r, Folds::Both), per_fold);
+        }
+        t.with_note(format!(
+            "Each model's rollouts: the frozen teacher with Eq. 7 applied to every channel of every step (as validation's perturbed rollouts), {} draws per condition with common random numbers across models and κ. − π̄: success minus π̄'s on the same conditions, the per-condition mean over draws paired with π̄'s rollout; a calibrated model has it near 0 at κ = 1. f_max, ℓ_max and v_rel are means over catch completions; failure columns are rates per rollout.",
+            self.draws
+        ))
+    }
+
+    /// The arm deviation a − ā per phase, as it occurs in closed loop, for π̄ and each run
+    /// spec at κ = 1: mean over the seven arm channels of |mean|, sd and lag-1 correlation.
+    pub fn deviation_table(&self) -> Table {
+        let mut columns = Vec::new();
+        for p in Phase::ALL.iter().take(N_PHASES) {
+            columns.push(Column::new(format!("{} sd", p.name()), Unit::Number(3)));
+            columns.push(Column::new(format!("{} ρ₁", p.name()), Unit::Number(2)));
+        }
+        let mut t = Table::new(
+            "calibration_deviation",
+            "The arm deviation a − ā in closed loop, per phase (mean over the arm channels)",
+            columns,
+        );
+        let mut row = |label: String, d: DeviationStats| {
+            let mut cells = Vec::new();
+            for p in 0..N_PHASES {
+                let s = d.phase_summary(p);
+                cells.push(Cell::opt(s.sd));
+                cells.push(Cell::opt(s.lag1));
+            }
+            t.push(label, cells);
+        };
+        row(
+            "π̄ (its own rollouts)".into(),
+            self.deviation(None, Folds::Both),
+        );
+        for (r, spec) in self.runs.iter().enumerate() {
+            if spec.model != "unperturbed" && spec.kappa == 1.0 {
+                row(spec.label(), self.deviation(Some(r), Folds::Both));
+            }
+        }
+        t.with_note(format!(
+            "ā is the teacher's command at the state reached; for π̄, a is its command and ā the teacher queried at π̄'s states (the error pairs). Sample sd and ρ₁ per (phase, arm channel) cell, averaged over the {N_ARM} arm channels; the phase is the one known online."
+        ))
+    }
+
+    /// One line per condition and run spec, for `osms export`.
+    pub fn csv(&self) -> String {
+        let mut out = String::from(
+            "fold,item,run,model,kappa,draws,successes,student_success,student_completion\n",
+        );
+        for i in &self.items {
+            for (r, spec) in self.runs.iter().enumerate() {
+                let rows = &i.runs[r].rows;
+                let _ = writeln!(
+                    out,
+                    "{},{},{},{},{},{},{},{},{}",
+                    i.fold,
+                    i.item,
+                    r,
+                    spec.model,
+                    spec.kappa,
+                    rows.len(),
+                    rows.iter().filter(|x| x.outcome.success()).count(),
+                    u8::from(i.student.outcome.success()),
+                    u8::from(i.student.outcome.completion()),
+                );
+            }
+        }
+        out
+    }
+}
+
+impl Summarize for Calibration {
+    /// Per run spec: success, completion and the calibration error (estimate and 95 %
+    /// interval, in points) on both folds and on each.
+    fn summary(&self) -> serde_json::Value {
+        let folds = self.folds();
+        let error = |d: Option<Difference>| {
+            d.map(|d| serde_json::json!([d.estimate, d.low, d.high]))
+        };
+        let student = self.student_summary(Folds::Both);
+        let runs: Vec<serde_json::Value> = (0..self.runs.len())
+            .map(|r| {
+                let all = self.run_summary(r, Folds::Both);
+                let per_fold: serde_json::Map<String, serde_json::Value> = folds
+                    .iter()
+                    .map(|&f| {
+                        (
+                            format!("fold_{f}"),
+                            error(self.run_summary(r, Folds::One(f)).calibration_error)
+                                .unwrap_or_default(),
+                        )
+                    })
+                    .collect();
+                serde_json::json!({
+                    "model": self.runs[r].model,
+                    "kappa": self.runs[r].kappa,
+                    "success_rate": all.success_rate,
+                    "completion_rate": all.completion_rate,
+                    "calibration_error": error(all.calibration_error),
+                    "calibration_error_by_fold": per_fold,
+                })
+            })
+            .collect();
+        serde_json::json!({
+            "conditions": self.items.len(),
+            "draws": self.draws,
+            "student_success_rate": student.success_rate,
+            "student_completion_rate": student.completion_rate,
+            "runs": runs,
+        })
+    }
+
+    fn text(&self) -> Option<String> {
+        Some(format!(
+            "{}\n\n{}\n\n{}\n\n{}",
+            self.table().title,
+            self.table().markdown_with(Layout::plain("rollouts of")),
+            self.deviation_table().title,
+            self.deviation_table().markdown_with(Layout::plain("rollouts of")),
+        ))
+    }
+
+    fn files(&self) -> Vec<(String, Vec<u8>)> {
+        let mut files = self.table().files();
+        files.extend(self.deviation_table().files());
+        files.push(("calibration.csv".into(), self.csv().into_bytes()));
+        files
+    }
+}

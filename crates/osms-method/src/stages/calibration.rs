@@ -1,0 +1,449 @@
+//! `error_calibration` and `calibrate_error_model`: the error models against π̄ in closed loop
+//! (issue 66). Both roll the frozen teacher out under a model on the D_E conditions each
+//! cross-fitted π̄ was held out from, and compare with π̄'s own rollouts there (`error_pairs`).
+
+use std::collections::BTreeMap;
+
+use osms_core::rng::StreamRng;
+use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, Stage, StageError};
+use osms_policy::artifacts::{Dataset, ErrorPairs, PairRollout, Teacher};
+use osms_sim::artifacts::WorldArtifact;
+use osms_sim::conditions::TaskCondition;
+use osms_sim::control::DrSpec;
+use osms_sim::{N_ACTION, World};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::artifacts::{
+    Calibration, CalibrationItem, ErrorModelArtifact, RunOutcome, RunSpec, ScaleSearch, VariantFit,
+};
+use crate::calibrate::{DeviationStats, interpolate_scale, student_side, teacher_under};
+use crate::error_model::{ErrorModel, ErrorVariant, PairSequence, table3_metrics};
+
+/// `error_calibration`'s settings. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CalibrationParams {
+    /// κ_ε each perturbed model runs at: 1 (the model as fitted, what calibration is judged
+    /// at) and validation's 1.5.
+    pub kappas: Vec<f64>,
+    /// Rollouts per condition and run (common random numbers across models and κ).
+    pub draws: usize,
+    /// The models run; empty: every model of the input, in its order.
+    pub models: Vec<ErrorVariant>,
+    /// Domain randomisation of the teacher's rollouts; absent: its training setting. π̄'s
+    /// rollouts (`error_pairs`) run under the pipeline's `dr = "paper"`.
+    pub dr: Option<DrSpec>,
+}
+
+impl Default for CalibrationParams {
+    fn default() -> Self {
+        CalibrationParams {
+            kappas: vec![1.0, 1.5],
+            draws: 4,
+            models: Vec::new(),
+            dr: None,
+        }
+    }
+}
+
+/// `calibrate_error_model`'s settings. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CalibrateParams {
+    /// The fitted model whose residual is scaled.
+    pub base: ErrorVariant,
+    /// Residual scales tried, increasing.
+    pub scales: Vec<f64>,
+    /// The fold on whose π̄'s held-out conditions the scale is chosen (the other folds only
+    /// confirm it, in `error_calibration`).
+    pub fold: u32,
+    /// Rollouts per condition and scale (common random numbers across scales).
+    pub draws: usize,
+    /// As [`CalibrationParams::dr`].
+    pub dr: Option<DrSpec>,
+}
+
+impl Default for CalibrateParams {
+    fn default() -> Self {
+        CalibrateParams {
+            base: ErrorVariant::UnitGain,
+            scales: vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0],
+            fold: 0,
+            draws: 4,
+            dr: None,
+        }
+    }
+}
+
+/// What both kinds read: the world, the teacher under the rollouts' DR, every fold's π̄
+/// rollouts (fold, pair) in fold order, the D_E conditions by item and the error models.
+pub struct Loaded {
+    world: World,
+    teacher: Teacher,
+    pairs: Vec<(u32, PairRollout)>,
+    conditions: BTreeMap<u32, TaskCondition>,
+    errors: ErrorModelArtifact,
+}
+
+const INPUTS: &[Slot] = &[
+    Slot::one::<WorldArtifact>("world"),
+    Slot::one::<Teacher>("teacher"),
+    Slot::one::<Dataset>("data").roles(&["d_e"]),
+    Slot::gather::<ErrorPairs>("pairs"),
+    Slot::one::<ErrorModelArtifact>("error_model"),
+];
+
+fn load<P>(ctx: &Ctx<'_, P>, dr: &Option<DrSpec>) -> Result<Loaded, StageError> {
+    let mut teacher: Teacher = ctx.input("teacher")?;
+    teacher.task = teacher.task.with_dr(dr);
+    teacher.task.rollout.record_privileged = false;
+    let mut conditions = BTreeMap::new();
+    for item in ctx.items::<Dataset>("data")? {
+        let r = item?.rollout;
+        conditions.insert(r.item, r.record.condition);
+    }
+    let mut pairs = Vec::new();
+    for (_, fold) in ctx.gathered_sharded::<ErrorPairs>("pairs")? {
+        let f = fold.fold.map_or(0, |(i, _)| i);
+        for p in fold.rollouts {
+            if !conditions.contains_key(&p.item) {
+                return Err(format!(
+                    "input `pairs`: fold {f}'s rollouts ran on D_E item {}, which input `data` does not hold\nhint: wire `data` to the D_E dataset the `error_pairs` stages read",
+                    p.item
+                )
+                .into());
+            }
+            pairs.push((f, p));
+        }
+    }
+    if pairs.is_empty() {
+        return Err("input `pairs`: no π̄ rollouts to compare with".into());
+    }
+    let errors: ErrorModelArtifact = ctx.input("error_model")?;
+    Ok(Loaded {
+        world: ctx.input::<WorldArtifact>("world")?.world()?,
+        teacher,
+        pairs,
+        conditions,
+        errors,
+    })
+}
+
+/// The DR and innovation streams of draw q on D_E item `item`: the same for every model, κ and
+/// scale (common random numbers).
+fn draw_streams<P>(ctx: &Ctx<'_, P>, item: u32, q: usize) -> (StreamRng, StreamRng) {
+    (
+        ctx.rng(&format!("dr-{q}"), u64::from(item)),
+        ctx.rng(&format!("errors-{q}"), u64::from(item)),
+    )
+}
+
+/// The prepared runs of `error_calibration`: each run spec with its model.
+pub struct Prepared {
+    loaded: Loaded,
+    runs: Vec<(RunSpec, ErrorModel)>,
+}
+
+/// The frozen teacher under every model at every κ on each held-out D_E condition of every
+/// fold, beside π̄'s own rollout there. Draw q of D_E item i takes its DR from stream
+/// ("dr-q", i) and its innovations from ("errors-q", i).
+pub struct CalibrationStage;
+impl ItemStage for CalibrationStage {
+    const KIND: &'static str = "error_calibration";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = INPUTS;
+    const DOC: &'static str = "closed-loop calibration of the error models: the teacher under each model against π̄ on π̄'s held-out D_E conditions";
+    type Params = CalibrationParams;
+    type Prepared = Prepared;
+    type Item = CalibrationItem;
+    type Output = Calibration;
+
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
+    fn numerics() -> Vec<Numerics> {
+        osms_policy::stages::numerics()
+    }
+
+    /// The pairs' rollouts, each run `draws` times per model and κ (the models not counted).
+    fn scale(params: &CalibrationParams, inputs: &[(&str, f64)]) -> Scale {
+        let n = Scale::input(inputs, "pairs");
+        Scale {
+            work: n * (params.draws * params.kappas.len()) as f64,
+            size: n,
+        }
+    }
+
+    fn prepare(&self, ctx: &Ctx<'_, CalibrationParams>) -> Result<Prepared, StageError> {
+        let p = ctx.params;
+        let loaded = load(ctx, &p.dr)?;
+        let fits: Vec<&VariantFit> = if p.models.is_empty() {
+            loaded.errors.variants.iter().collect()
+        } else {
+            p.models
+                .iter()
+                .map(|v| {
+                    loaded
+                        .errors
+                        .variants
+                        .iter()
+                        .find(|f| f.model.variant == *v)
+                        .ok_or_else(|| {
+                            format!(
+                                "params.models: input `error_model` has no `{}` model\nhint: it has {}",
+                                v.name(),
+                                loaded
+                                    .errors
+                                    .variants
+                                    .iter()
+                                    .map(|f| f.model.variant.name())
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            )
+                        })
+                })
+                .collect::<Result<_, _>>()?
+        };
+        let mut runs = Vec::new();
+        for fit in fits {
+            let name = fit.model.variant.name().to_string();
+            if fit.model.variant == ErrorVariant::Unperturbed {
+                runs.push((
+                    RunSpec {
+                        model: name,
+                        kappa: 1.0,
+                    },
+                    fit.model.clone(),
+                ));
+                continue;
+            }
+            for &kappa in &p.kappas {
+                runs.push((
+                    RunSpec {
+                        model: name.clone(),
+                        kappa,
+                    },
+                    fit.model.with_kappa(kappa),
+                ));
+            }
+        }
+        for (spec, model) in &runs {
+            model
+                .validate()
+                .map_err(|e| format!("input `error_model`, model `{}`: {e}", spec.model))?;
+            if model.channels != N_ACTION && model.variant != ErrorVariant::Unperturbed {
+                return Err(format!(
+                    "input `error_model`: model `{}` has {} channels, the teacher acts on {N_ACTION}",
+                    spec.model, model.channels
+                )
+                .into());
+            }
+        }
+        Ok(Prepared { loaded, runs })
+    }
+
+    fn n_items(&self, _: &Ctx<'_, CalibrationParams>, p: &Prepared) -> usize {
+        p.loaded.pairs.len()
+    }
+
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, CalibrationParams>,
+        p: &Prepared,
+        index: usize,
+        _: &mut StreamRng,
+    ) -> Result<CalibrationItem, StageError> {
+        let l = &p.loaded;
+        let (fold, pair) = &l.pairs[index];
+        let condition = &l.conditions[&pair.item];
+        let (student, student_deviation) = student_side(pair);
+        let runs = p
+            .runs
+            .iter()
+            .map(|(_, model)| {
+                let mut rows = Vec::with_capacity(ctx.params.draws);
+                let mut deviation = DeviationStats::default();
+                for q in 0..ctx.params.draws {
+                    let (dr, noise) = draw_streams(ctx, pair.item, q);
+                    let (row, d) = teacher_under(
+                        &l.world,
+                        &l.teacher.task,
+                        &l.teacher.agent,
+                        condition.clone(),
+                        dr,
+                        model,
+                        noise,
+                    );
+                    rows.push(row);
+                    deviation.add(&d);
+                }
+                RunOutcome { rows, deviation }
+            })
+            .collect();
+        Ok(CalibrationItem {
+            fold: *fold,
+            item: pair.item,
+            student,
+            student_deviation,
+            runs,
+        })
+    }
+
+    fn merge(
+        &self,
+        ctx: &Ctx<'_, CalibrationParams>,
+        p: Prepared,
+        items: Vec<CalibrationItem>,
+    ) -> Result<Calibration, StageError> {
+        Ok(Calibration {
+            draws: ctx.params.draws,
+            runs: p.runs.into_iter().map(|(s, _)| s).collect(),
+            items,
+        })
+    }
+}
+
+/// The base model's residual scaled so that the teacher under it at κ = 1 succeeds as often
+/// as π̄ on the tuning fold's held-out conditions: each scale of the grid is rolled out
+/// `draws` times per condition (draw q of D_E item i: DR from ("dr-q", i), innovations from
+/// ("errors-q", i), the same at every scale), and the scale is interpolated where the success
+/// rate crosses π̄'s. The output is the input's models plus `calibrated`, which validation
+/// then applies at the base's κ.
+pub struct CalibrateErrorModelStage;
+impl Stage for CalibrateErrorModelStage {
+    const KIND: &'static str = "calibrate_error_model";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = INPUTS;
+    const DOC: &'static str = "an error model's residual scaled so the teacher under it succeeds as often as π̄ in closed loop (the `calibrated` model)";
+    type Params = CalibrateParams;
+    type Output = ErrorModelArtifact;
+
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
+    fn numerics() -> Vec<Numerics> {
+        osms_policy::stages::numerics()
+    }
+
+    fn run(&self, ctx: &Ctx<'_, CalibrateParams>) -> Result<ErrorModelArtifact, StageError> {
+        let p = ctx.params;
+        let l = load(ctx, &p.dr)?;
+        let base = l
+            .errors
+            .variants
+            .iter()
+            .find(|f| f.model.variant == p.base)
+            .map(|f| f.model.with_kappa(1.0))
+            .ok_or_else(|| {
+                format!(
+                    "params.base = `{}`: input `error_model` has no such model\nhint: an `error_model` stage fits {}",
+                    p.base.name(),
+                    ErrorVariant::FITTED.map(ErrorVariant::name).join(", ")
+                )
+            })?;
+        let tune: Vec<&PairRollout> = l
+            .pairs
+            .iter()
+            .filter(|(f, _)| *f == p.fold)
+            .map(|(_, r)| r)
+            .collect();
+        if tune.is_empty() {
+            let folds: Vec<String> = l.pairs.iter().map(|(f, _)| f.to_string()).collect();
+            return Err(format!(
+                "params.fold = {}: input `pairs` has no rollouts of that fold\nhint: one of {}",
+                p.fold,
+                folds.join(", ")
+            )
+            .into());
+        }
+        let models: Vec<ErrorModel> = p
+            .scales
+            .iter()
+            .map(|&c| base.with_residual_scale(c, ErrorVariant::Calibrated))
+            .collect();
+        let progress = ctx.progress();
+        progress.set_total(tune.len() as u64);
+        // successes[i][s]: condition i's successes at scale s over the draws.
+        let successes: Vec<Vec<usize>> = tune
+            .par_iter()
+            .map(|pair| {
+                let condition = &l.conditions[&pair.item];
+                let row = models
+                    .iter()
+                    .map(|model| {
+                        (0..p.draws)
+                            .filter(|&q| {
+                                let (dr, noise) = draw_streams(ctx, pair.item, q);
+                                teacher_under(
+                                    &l.world,
+                                    &l.teacher.task,
+                                    &l.teacher.agent,
+                                    condition.clone(),
+                                    dr,
+                                    model,
+                                    noise,
+                                )
+                                .0
+                                .outcome
+                                .success()
+                            })
+                            .count()
+                    })
+                    .collect();
+                progress.inc(1);
+                row
+            })
+            .collect();
+        let rollouts = tune.len() * p.draws;
+        let grid: Vec<(f64, f64)> = p
+            .scales
+            .iter()
+            .enumerate()
+            .map(|(s, &c)| {
+                let n: usize = successes.iter().map(|r| r[s]).sum();
+                (c, n as f64 / rollouts as f64)
+            })
+            .collect();
+        let target =
+            tune.iter().filter(|r| r.eval.outcome.success()).count() as f64 / tune.len() as f64;
+        let scale = interpolate_scale(&grid, target).ok_or("params.scales is empty")?;
+        let kappa = l
+            .errors
+            .variants
+            .iter()
+            .find(|f| f.model.variant == p.base)
+            .map_or(1.5, |f| f.model.kappa);
+        let model = base
+            .with_residual_scale(scale, ErrorVariant::Calibrated)
+            .with_kappa(kappa);
+        let sequences: Vec<PairSequence<'_>> =
+            l.pairs.iter().map(|(_, r)| PairSequence::from(r)).collect();
+        let metrics = table3_metrics(
+            &model,
+            &sequences,
+            &mut ctx.rng("table3", l.errors.variants.len() as u64),
+        );
+        let mut errors = l.errors;
+        errors.variants.retain(|v| v.model.variant != ErrorVariant::Calibrated);
+        errors.variants.push(VariantFit {
+            model: model.clone(),
+            metrics,
+        });
+        errors.model = model;
+        errors.calibration = Some(ScaleSearch {
+            base: p.base,
+            fold: p.fold,
+            conditions: tune.len(),
+            draws: p.draws,
+            target,
+            grid,
+            scale,
+        });
+        Ok(errors)
+    }
+}
