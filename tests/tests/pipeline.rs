@@ -964,12 +964,14 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
         );
     }
     // The optional inputs too (palm features, the oracle's object velocity, the arm's targets,
-    // no previous actions): only the observation is compared, so the untrained shapes do not matter.
+    // the flight estimate, no previous actions): only the observation is compared, so the
+    // untrained shapes do not matter.
     let mut variant = student.clone();
     variant.params.palm = true;
     variant.params.object_differences = true;
     variant.params.oracle_object_velocity = true;
     variant.params.arm_target = true;
+    variant.params.tracked_object = true;
     variant.params.previous_actions = false;
     let mut views = Vec::new();
     struct Views<'s> {

@@ -27,6 +27,7 @@ use osms_nn::{Adam, AdamConfig, Matrix, Schedule};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::{ControlSpec, targets};
 use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
+use osms_sim::flight::track_with;
 use osms_sim::{
     Action, Episode, N_ACTION, N_ARM, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec,
     World,
@@ -104,6 +105,12 @@ pub struct StudentParams {
     /// the development stream: 7.9 % ± 7.3 success against 69.1 % ± 2.1 with increments
     /// (docs/students.md), so off.
     pub target_labels: bool,
+    /// Append the deployable flight estimate of the object now (position and velocity, 6
+    /// values; `osms_sim::flight`: the observation delay read off the first frames and a
+    /// ballistic fit over every observed position so far, what the `tracked` teacher rung
+    /// reads), computed with the nominal control period [`NOMINAL_CONTROL_PERIOD_SECS`] in
+    /// training and acting alike (issue 66).
+    pub tracked_object: bool,
     /// Decay of an exponential moving average of the weights, updated after every step and
     /// used as the trained network (0: none, the last step's weights).
     pub ema_decay: f32,
@@ -157,6 +164,7 @@ impl Default for StudentParams {
             oracle_object_velocity: false,
             arm_target: false,
             target_labels: false,
+            tracked_object: false,
             ema_decay: 0.0,
             phase_weights: [1.0; 5],
             network: StudentNetwork::Mlp,
@@ -193,6 +201,7 @@ impl StudentParams {
             + 3 * (self.history - 1) * usize::from(self.object_differences)
             + 3 * usize::from(self.oracle_object_velocity)
             + N_ARM * usize::from(self.arm_target)
+            + 6 * usize::from(self.tracked_object)
     }
 
     /// Width of an action chunk.
@@ -319,12 +328,22 @@ impl Demo {
         }
         let state = &self.state[n * DEMO_STATE_LEN..(n + 1) * DEMO_STATE_LEN];
         let object = &self.deployable[n * DEPLOYABLE_LEN + OBSERVED_OBJECT..][..3];
+        let tracked = if p.tracked_object {
+            let seen = |j: usize| {
+                let at = j * DEPLOYABLE_LEN + OBSERVED_OBJECT;
+                std::array::from_fn(|c| f64::from(self.deployable[at + c]))
+            };
+            tracked_features(track_with(n + 1, seen, NOMINAL_CONTROL_PERIOD_SECS))
+        } else {
+            [0.0; 6]
+        };
         let now = Current {
             palm_pos: &state[0..3],
             palm_vel: &state[3..6],
             object,
             object_vel: &state[6..9],
             arm_targets: &state[9..9 + N_ARM],
+            tracked: &tracked,
         };
         push_features(p, start, &now, out);
     }
@@ -782,12 +801,18 @@ impl Student {
         let object = f32s(&view.deployable[OBSERVED_OBJECT..]);
         let velocity = f32s(&view.data.qvel()[view.world.ids.object_dof..]);
         let targets = view.arm_targets.map(|v| v as f32);
+        let tracked = if p.tracked_object {
+            tracked_features(view.tracker.estimate(NOMINAL_CONTROL_PERIOD_SECS))
+        } else {
+            [0.0; 6]
+        };
         let now = Current {
             palm_pos: &palm_pos,
             palm_vel: &palm_vel,
             object: &object,
             object_vel: &velocity,
             arm_targets: &targets,
+            tracked: &tracked,
         };
         push_features(p, 0, &now, &mut out);
         out
@@ -804,6 +829,17 @@ struct Current<'a> {
     /// The object's true velocity (the oracle diagnostic only).
     object_vel: &'a [f32],
     arm_targets: &'a [f32],
+    /// The flight estimate's position and velocity.
+    tracked: &'a [f32; 6],
+}
+
+/// The control period the students' flight-estimate input assumes: the default world's
+/// (10 physics steps of 2 ms), in training and acting alike, so the two agree whatever world a
+/// rollout runs in.
+pub const NOMINAL_CONTROL_PERIOD_SECS: f64 = 0.02;
+
+fn tracked_features(o: osms_sim::episode::ObservedObject) -> [f32; 6] {
+    std::array::from_fn(|i| if i < 3 { o.pos[i] } else { o.vel[i - 3] } as f32)
 }
 
 /// The current step's features (see the module's doc), in the order training and acting share.
@@ -815,6 +851,7 @@ fn push_features(p: &StudentParams, frames: usize, now: &Current<'_>, out: &mut 
         object,
         object_vel,
         arm_targets,
+        tracked,
     } = *now;
     if p.palm {
         out.extend_from_slice(&palm_pos[..3]);
@@ -834,6 +871,9 @@ fn push_features(p: &StudentParams, frames: usize, now: &Current<'_>, out: &mut 
     }
     if p.arm_target {
         out.extend_from_slice(&arm_targets[..N_ARM]);
+    }
+    if p.tracked_object {
+        out.extend_from_slice(tracked);
     }
 }
 
@@ -1110,6 +1150,15 @@ mod tests {
                 20.0, 21.0, 22.0, 23.0, 24.0, 25.0, -17.0, -18.0, -19.0, 1.0, 1.0, 1.0, 26.0, 27.0,
                 28.0, 29.0, 30.0, 31.0, 32.0, 33.0, 34.0, 35.0
             ]
+        );
+    }
+
+    #[test]
+    fn the_nominal_control_period_is_the_default_worlds() {
+        let w = osms_sim::WorldSpec::default();
+        assert_eq!(
+            NOMINAL_CONTROL_PERIOD_SECS,
+            w.timestep_secs * f64::from(w.substeps)
         );
     }
 

@@ -42,6 +42,7 @@ fn rung_specs() -> Vec<(ActorInputs, CatchTaskSpec)> {
         ActorInputs::NoContact,
         ActorInputs::Touch,
         ActorInputs::Deployable,
+        ActorInputs::Tracked,
     ]
     .into_iter()
     .map(|rung| {

@@ -50,74 +50,99 @@ impl FlightTracker {
 /// The observation delay the leading frames of `seen` show (see the module's doc), or `None`
 /// while no frame has moved from the first.
 pub fn stall(seen: &[[f64; 3]]) -> Option<usize> {
-    let first = seen.first()?;
-    let moved = seen
-        .iter()
-        .take(MAX_DELAY_STEPS + 2)
-        .position(|p| distance(p, first) > STILL_M)?;
-    Some(moved - 1)
+    stall_with(seen.len(), |j| seen[j])
+}
+
+fn stall_with(frames: usize, seen: impl Fn(usize) -> [f64; 3]) -> Option<usize> {
+    if frames == 0 {
+        return None;
+    }
+    let first = seen(0);
+    (0..frames.min(MAX_DELAY_STEPS + 2))
+        .find(|&j| distance(&seen(j), &first) > STILL_M)
+        .map(|moved| moved - 1)
 }
 
 /// The object's position and velocity now, from the observed positions of frames 0 … k
 /// (`seen`, oldest first, `dt` seconds apart): see the module's doc.
 pub fn track(seen: &[[f64; 3]], dt: f64) -> ObservedObject {
-    let Some(&last) = seen.last() else {
+    track_with(seen.len(), |j| seen[j], dt)
+}
+
+/// [`track`] over `frames` frames read through `seen(j)`, which is asked only for the leading
+/// frames and the newest [`TRACKER_WINDOW`] (a record's frames need not be copied out).
+pub fn track_with(frames: usize, seen: impl Fn(usize) -> [f64; 3], dt: f64) -> ObservedObject {
+    if frames == 0 {
         return ObservedObject {
             pos: [0.0; 3],
             vel: [0.0; 3],
         };
-    };
-    let k = seen.len() - 1;
-    let delay = match stall(seen) {
+    }
+    let k = frames - 1;
+    let delay = match stall_with(frames, &seen) {
         Some(d) => d,
         // Every frame still shows the released object, or an object that has stayed put for
         // longer than any delay.
-        None if seen.len() <= MAX_DELAY_STEPS + 1 => {
-            let n = seen.len() as f64;
-            let mean = std::array::from_fn(|c| seen.iter().map(|p| p[c]).sum::<f64>() / n);
+        None if frames <= MAX_DELAY_STEPS + 1 => {
+            let n = frames as f64;
+            let mut mean = [0.0; 3];
+            for j in 0..frames {
+                let p = seen(j);
+                for c in 0..3 {
+                    mean[c] += p[c];
+                }
+            }
             return ObservedObject {
-                pos: mean,
+                pos: mean.map(|v| v / n),
                 vel: [0.0; 3],
             };
         }
         None => 0,
     };
     let first = (k + 1).saturating_sub(TRACKER_WINDOW);
+    // Frame j shows the state of max(j − d, 0) steps.
     let time = |j: usize| j.saturating_sub(delay) as f64 * dt;
-    let frames: Vec<(f64, [f64; 3])> = (first..=k).map(|j| (time(j), seen[j])).collect();
-    if frames.len() < 2 || frames.iter().all(|(t, _)| *t == frames[0].0) {
+    if time(first) == time(k) {
         return ObservedObject {
-            pos: last,
+            pos: seen(k),
             vel: [0.0; 3],
         };
     }
-    fit_ballistic(&frames, k as f64 * dt)
+    fit_ballistic((first..=k).map(|j| (time(j), seen(j))), k as f64 * dt)
 }
 
-/// The least-squares ballistic flight (gravity known) through `(time, position)` samples,
-/// evaluated at `at`: position and velocity.
-fn fit_ballistic(samples: &[(f64, [f64; 3])], at: f64) -> ObservedObject {
-    let n = samples.len() as f64;
-    let mean_t = samples.iter().map(|(t, _)| t).sum::<f64>() / n;
-    let s_tt: f64 = samples.iter().map(|(t, _)| (t - mean_t).powi(2)).sum();
+/// The least-squares ballistic flight (gravity known) through `(time, position)` samples
+/// (at least two distinct times), evaluated at `at`: position and velocity.
+fn fit_ballistic(samples: impl Iterator<Item = (f64, [f64; 3])> + Clone, at: f64) -> ObservedObject {
+    let (mut n, mut sum_t) = (0.0, 0.0);
+    for (t, _) in samples.clone() {
+        n += 1.0;
+        sum_t += t;
+    }
+    let mean_t = sum_t / n;
+    // Gravity is known: remove it, then the flight is a line in t.
+    let lifted = |t: f64, p: [f64; 3]| [p[0], p[1], p[2] + 0.5 * GRAVITY_MPS2 * t * t];
+    let mut mean_y = [0.0; 3];
+    for (t, p) in samples.clone() {
+        let y = lifted(t, p);
+        for c in 0..3 {
+            mean_y[c] += y[c];
+        }
+    }
+    let mean_y = mean_y.map(|v| v / n);
+    let (mut s_tt, mut s_ty) = (0.0, [0.0; 3]);
+    for (t, p) in samples {
+        let y = lifted(t, p);
+        s_tt += (t - mean_t).powi(2);
+        for c in 0..3 {
+            s_ty[c] += (t - mean_t) * (y[c] - mean_y[c]);
+        }
+    }
     let mut pos = [0.0; 3];
     let mut vel = [0.0; 3];
     for c in 0..3 {
-        // Gravity is known: remove it, then the flight is a line in t.
-        let y = |(t, p): &(f64, [f64; 3])| {
-            if c == 2 {
-                p[c] + 0.5 * GRAVITY_MPS2 * t * t
-            } else {
-                p[c]
-            }
-        };
-        let mean_y = samples.iter().map(y).sum::<f64>() / n;
-        let slope = samples
-            .iter()
-            .map(|s| (s.0 - mean_t) * (y(s) - mean_y))
-            .sum::<f64>()
-            / s_tt;
-        let line = mean_y + slope * (at - mean_t);
+        let slope = s_ty[c] / s_tt;
+        let line = mean_y[c] + slope * (at - mean_t);
         if c == 2 {
             pos[c] = line - 0.5 * GRAVITY_MPS2 * at * at;
             vel[c] = slope - GRAVITY_MPS2 * at;

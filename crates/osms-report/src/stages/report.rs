@@ -3,7 +3,7 @@
 use osms_core::NoParams;
 use osms_core::table::Table;
 use osms_make::{Ctx, Slot, Stage, StageError};
-use osms_method::artifacts::{CandidateTable, ConstructionTable, ErrorModelArtifact};
+use osms_method::artifacts::{Calibration, CandidateTable, ConstructionTable, ErrorModelArtifact};
 use osms_method::error_model::{PairSequence, table3_bootstrap};
 use osms_policy::artifacts::{ErrorPairs, TeacherTable};
 use osms_sim::artifacts::Evaluation;
@@ -22,8 +22,9 @@ impl Stage for ReportStage {
     const KIND: &'static str = "report";
     /// 2: the claims check decides by confidence intervals on the evaluations. 3: the
     /// claims encoded at report schema 2. 4: Table III's fit claims by a bootstrap over the
-    /// held-out D_E rollouts.
-    const CODE_VERSION: u32 = 4;
+    /// held-out D_E rollouts. 5: the closed-loop calibration of the error models beside
+    /// Table III.
+    const CODE_VERSION: u32 = 5;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<TeacherTable>("table1"),
@@ -44,6 +45,7 @@ impl Stage for ReportStage {
         Slot::gather::<Evaluation>("phase_independent"),
         Slot::one::<ErrorModelArtifact>("error_model"),
         Slot::gather::<ErrorPairs>("pairs"),
+        Slot::one::<Calibration>("calibration"),
     ];
     const DOC: &'static str =
         "the report: Tables I-III, construction and candidate tables, figures, claims check";
@@ -137,7 +139,15 @@ impl Stage for ReportStage {
                 "Candidate generators",
                 &ctx.input::<CandidateTable>("candidates")?,
             ),
-            tables: vec![table2, table3],
+            tables: {
+                let calibration: Calibration = ctx.sharded("calibration")?;
+                vec![
+                    table2,
+                    table3,
+                    calibration.table(),
+                    calibration.deviation_table(),
+                ]
+            },
             figures,
             claims,
         })
