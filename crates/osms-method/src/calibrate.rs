@@ -204,7 +204,7 @@ pub fn teacher_under(
     (row, stats)
 }
 
-/// The residual scale at which a success rate that falls with the scale reaches `target`, by
+/// The deviation scale at which a success rate that falls with the scale reaches `target`, by
 /// linear interpolation between the two grid points around it (`grid`: (scale, success) in
 /// increasing scale). Where the rate is not monotone, the first crossing from below the
 /// smallest scale is taken; outside the grid's range, the nearer end.

@@ -100,7 +100,7 @@ impl Check for CalibrateParams {
             return Err(Invalid::new(
                 "base",
                 format!(
-                    "`{}` has no residual to scale; one of global_iid, phase_independent, phase_correlated, unit_gain, orthogonal",
+                    "`{}` has no deviation to scale; one of global_iid, phase_independent, phase_correlated, unit_gain, orthogonal",
                     self.base.name()
                 ),
             ));

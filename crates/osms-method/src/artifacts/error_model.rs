@@ -38,13 +38,13 @@ pub struct ErrorModelArtifact {
     pub folds: Vec<FoldStats>,
     /// Pair steps per phase (online phase, in phase order).
     pub phase_steps: Vec<usize>,
-    /// How the `calibrated` model's residual scale was chosen, in an artifact of a
+    /// How the `calibrated` model's deviation scale was chosen, in an artifact of a
     /// `calibrate_error_model` stage (`None` from `error_model`).
     pub calibration: Option<ScaleSearch>,
 }
 
 /// The closed-loop search behind the `calibrated` model: the teacher's success under the base
-/// model at each residual scale (κ = 1) on the tuning fold's conditions, and the scale where it
+/// model at each deviation scale (κ = 1) on the tuning fold's conditions, and the scale where it
 /// meets π̄'s success there.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ScaleSearch {
@@ -204,7 +204,7 @@ impl Summarize for ErrorModelArtifact {
         if let Some(c) = &self.calibration {
             let _ = writeln!(
                 out,
-                "`calibrated` is `{}` with its residual scaled by {:.3}: there the teacher under it (κ = 1) succeeds as often as π̄ on fold {}'s {} held-out conditions ({:.1} %, {} draws each). Success by scale: {}\n",
+                "`calibrated` is `{}` with its deviation (bias and residual) scaled by {:.3}: there the teacher under it (κ = 1) succeeds as often as π̄ on fold {}'s {} held-out conditions ({:.1} %, {} draws each). Success by scale: {}\n",
                 c.base.name(),
                 c.scale,
                 c.fold,

@@ -872,10 +872,10 @@ mod tests {
     }
 
     /// The unit-gain fit keeps S = I in every phase and still fits the AR dynamics; scaling
-    /// its residual scales Σ by the square and leaves the rest; a calibrated model is not
-    /// fitted on pairs.
+    /// its deviation scales μ, and Σ by the square, and leaves the rest; a calibrated model is
+    /// not fitted on pairs.
     #[test]
-    fn the_unit_gain_fit_keeps_s_at_one_and_a_scaled_residual_only_scales_sigma() {
+    fn the_unit_gain_fit_keeps_s_at_one_and_a_scaled_deviation_scales_bias_and_sigma() {
         let data = all_phases_data();
         let model = fit(
             &data.pairs(),
@@ -890,10 +890,13 @@ mod tests {
             assert!(p.gain.iter().all(|&g| g == 1.0));
             assert!(p.ar_pairs > 0 || p.pooled);
         }
-        let calibrated = model.with_residual_scale(0.5, ErrorVariant::Calibrated);
+        let calibrated = model.with_deviation_scale(0.5, ErrorVariant::Calibrated);
         for (a, b) in model.phases.iter().zip(&calibrated.phases) {
             assert_eq!(a.gain, b.gain);
             assert_eq!(a.ar, b.ar);
+            for (x, y) in a.bias.iter().zip(&b.bias) {
+                assert_eq!(0.5 * x, *y);
+            }
             for (x, y) in a.stationary.iter().zip(&b.stationary) {
                 assert!((0.25 * x - y).abs() <= 1e-15 * x.abs().max(1.0));
             }

@@ -28,9 +28,10 @@ pub enum ErrorVariant {
     /// Eq. 7's form with S from orthogonal (total least-squares) regression, which does not
     /// attenuate the slope when both actions vary (issue 66).
     Orthogonal,
-    /// The unit-gain model with its residual scaled so that the frozen teacher, run under it
-    /// at κ = 1, succeeds as often as π̄ does on π̄'s own held-out conditions (closed-loop
-    /// calibration, `calibrate_error_model`; not fitted by `error_model` itself).
+    /// The unit-gain model with its deviation (bias and residual) scaled so that the frozen
+    /// teacher, run under it at κ = 1, succeeds as often as π̄ does on π̄'s own held-out
+    /// conditions (closed-loop calibration, `calibrate_error_model`; not fitted by
+    /// `error_model` itself).
     Calibrated,
 }
 
@@ -252,13 +253,15 @@ impl ErrorModel {
         self.phases.iter().map(|p| p.delay).max().unwrap_or(0)
     }
 
-    /// This model with every phase's residual scaled by `scale` (L by `scale`, Σ by its
-    /// square; delay, gain, bias and AR coefficients unchanged), named `variant`.
-    pub fn with_residual_scale(&self, scale: f64, variant: ErrorVariant) -> ErrorModel {
+    /// This model with every phase's modelled deviation beyond the gain scaled by `scale`: μ
+    /// and L by `scale`, Σ by its square (delay, gain and AR coefficients unchanged), named
+    /// `variant`. With unit gain the whole deviation ã − ā scales.
+    pub fn with_deviation_scale(&self, scale: f64, variant: ErrorVariant) -> ErrorModel {
         let phases = self
             .phases
             .iter()
             .map(|p| PhaseModel {
+                bias: p.bias.iter().map(|v| v * scale).collect(),
                 l: p.l.iter().map(|v| v * scale).collect(),
                 stationary: p.stationary.iter().map(|v| v * scale * scale).collect(),
                 ..p.clone()

@@ -51,9 +51,9 @@ impl Default for CalibrationParams {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CalibrateParams {
-    /// The fitted model whose residual is scaled.
+    /// The fitted model whose deviation (bias and residual) is scaled.
     pub base: ErrorVariant,
-    /// Residual scales tried, increasing.
+    /// Deviation scales tried, increasing.
     pub scales: Vec<f64>,
     /// The fold on whose π̄'s held-out conditions the scale is chosen (the other folds only
     /// confirm it, in `error_calibration`).
@@ -306,7 +306,8 @@ impl ItemStage for CalibrationStage {
     }
 }
 
-/// The base model's residual scaled so that the teacher under it at κ = 1 succeeds as often
+/// The base model's deviation (bias and residual) scaled so that the teacher under it at κ = 1
+/// succeeds as often
 /// as π̄ on the tuning fold's held-out conditions: each scale of the grid is rolled out
 /// `draws` times per condition (draw q of D_E item i: DR from ("dr-q", i), innovations from
 /// ("errors-q", i), the same at every scale), and the scale is interpolated where the success
@@ -318,7 +319,7 @@ impl Stage for CalibrateErrorModelStage {
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = INPUTS;
-    const DOC: &'static str = "an error model's residual scaled so the teacher under it succeeds as often as π̄ in closed loop (the `calibrated` model)";
+    const DOC: &'static str = "an error model's deviation scaled so the teacher under it succeeds as often as π̄ in closed loop (the `calibrated` model)";
     type Params = CalibrateParams;
     type Output = ErrorModelArtifact;
 
@@ -364,7 +365,7 @@ impl Stage for CalibrateErrorModelStage {
         let models: Vec<ErrorModel> = p
             .scales
             .iter()
-            .map(|&c| base.with_residual_scale(c, ErrorVariant::Calibrated))
+            .map(|&c| base.with_deviation_scale(c, ErrorVariant::Calibrated))
             .collect();
         let progress = ctx.progress();
         progress.set_total(tune.len() as u64);
@@ -419,7 +420,7 @@ impl Stage for CalibrateErrorModelStage {
             .find(|f| f.model.variant == p.base)
             .map_or(1.5, |f| f.model.kappa);
         let model = base
-            .with_residual_scale(scale, ErrorVariant::Calibrated)
+            .with_deviation_scale(scale, ErrorVariant::Calibrated)
             .with_kappa(kappa);
         let sequences: Vec<PairSequence<'_>> =
             l.pairs.iter().map(|(_, r)| PairSequence::from(r)).collect();

@@ -7,7 +7,8 @@ use osms_sim::artifacts::Evaluation;
 use crate::artifacts::{TeacherTable, TeacherTableRow};
 
 /// Table I's analog: the scripted prior, the catching-only teacher and the teacher on the
-/// same held-out conditions.
+/// same held-out conditions, and (wired as `privileged`) a teacher whose actor reads the
+/// privileged frame: what a realisable teacher costs (issue 66).
 pub struct TeacherTableStage;
 impl Stage for TeacherTableStage {
     const KIND: &'static str = "teacher_table";
@@ -17,6 +18,7 @@ impl Stage for TeacherTableStage {
         Slot::one::<Evaluation>("scripted"),
         Slot::one::<Evaluation>("catch_only"),
         Slot::one::<Evaluation>("teacher"),
+        Slot::one::<Evaluation>("privileged").optional(),
     ];
     const DOC: &'static str =
         "Table I analog: scripted prior, catching-only teacher and teacher on held-out conditions";
@@ -27,12 +29,17 @@ impl Stage for TeacherTableStage {
         let scripted: Evaluation = ctx.sharded("scripted")?;
         let catch_only: Evaluation = ctx.sharded("catch_only")?;
         let teacher: Evaluation = ctx.sharded("teacher")?;
-        Ok(TeacherTable {
-            rows: vec![
-                TeacherTableRow::of("scripted prior", &scripted),
-                TeacherTableRow::of("catching-only teacher", &catch_only),
-                TeacherTableRow::of("teacher", &teacher),
-            ],
-        })
+        let mut rows = vec![
+            TeacherTableRow::of("scripted prior", &scripted),
+            TeacherTableRow::of("catching-only teacher", &catch_only),
+            TeacherTableRow::of("teacher", &teacher),
+        ];
+        if ctx.has_input("privileged") {
+            rows.push(TeacherTableRow::of(
+                "privileged teacher (actor on the privileged frame)",
+                &ctx.sharded::<Evaluation>("privileged")?,
+            ));
+        }
+        Ok(TeacherTable { rows })
     }
 }
