@@ -88,7 +88,7 @@ impl Check for CalibrateParams {
         if self.scales.len() < 2 || self.scales.windows(2).any(|w| w[0] >= w[1]) {
             return Err(Invalid::new(
                 "scales",
-                "needs at least two scales in increasing order, e.g. [0.0, 0.5, 1.0]",
+                "expected at least two scales in increasing order, e.g. [0.0, 0.5, 1.0]",
             ));
         }
         each("scales", &self.scales, 0.0, 100.0)?;
@@ -100,7 +100,7 @@ impl Check for CalibrateParams {
             return Err(Invalid::new(
                 "base",
                 format!(
-                    "`{}` has no deviation to scale; one of global_iid, phase_independent, phase_correlated, unit_gain, orthogonal",
+                    "`{}` has no deviation to scale: expected one of global_iid, phase_independent, phase_correlated, unit_gain, orthogonal",
                     self.base.name()
                 ),
             ));

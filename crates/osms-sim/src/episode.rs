@@ -14,6 +14,7 @@ use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
 use crate::conditions::TaskCondition;
+pub use crate::flight::ObservedObject;
 use crate::flight::FlightTracker;
 use crate::control::{
     Action, ControlSpec, DrDraw, DrSpec, N_ACTION, N_ARM, N_HAND, hold_action, joint_ranges,
@@ -83,15 +84,6 @@ const TOUCH_STREAM: u64 = 1;
 pub const PRIVILEGED_PALM: usize = 48 + 13;
 /// Index of the admissible contact count in a privileged frame.
 pub const PRIVILEGED_CONTACT_COUNT: usize = 48 + 13 + 9 + 1;
-
-/// The object as a policy observes it: the state of `observation_delay_steps` control steps
-/// ago, the position with the observation noise. Privileged policies read the object through
-/// this, not through `data`, so the teacher's inputs carry the student's delay and noise.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ObservedObject {
-    pub pos: [f64; 3],
-    pub vel: [f64; 3],
-}
 
 /// What a policy sees at a control step. Privileged policies may also read `data`, but not
 /// for the object's state (see [`ObservedObject`]).

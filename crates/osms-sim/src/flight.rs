@@ -12,7 +12,15 @@
 //! present. Until a frame has moved it reports the object at rest where it was seen.
 
 use crate::conditions::GRAVITY_MPS2;
-use crate::episode::ObservedObject;
+
+/// The object as a policy observes it: the state of `observation_delay_steps` control steps
+/// ago, the position with the observation noise. Privileged policies read the object through
+/// this, not through `data`, so the teacher's inputs carry the student's delay and noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObservedObject {
+    pub pos: [f64; 3],
+    pub vel: [f64; 3],
+}
 
 /// Frames the fit reads: the newest this many (a throw lasts 10–25 control steps before
 /// contact, so this is the whole flight; after contact the estimate no longer describes a free
