@@ -135,6 +135,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     the_tiny_teacher_beats_the_scripted_prior(&first);
     a_damaged_dataset_shard_is_detected_and_rebuilt(&first);
     cross_fitting_never_scores_a_student_on_its_training_conditions(&first);
+    calibration_compares_pi_bar_and_the_models_on_common_draws(&first);
     teacher_queries_reproduce_the_teacher(&first);
     student_rollouts_are_deterministic_and_see_their_training_features(&first);
     interventions_replay_hand_back_and_share_random_numbers(&first);
@@ -763,6 +764,68 @@ fn cross_fitting_never_scores_a_student_on_its_training_conditions(made: &Made) 
     }
     scored.sort_unstable();
     assert_eq!(scored, items, "every D_E condition is scored exactly once");
+}
+
+/// `calibration` compares like with like: every held-out D_E condition of each fold once, π̄
+/// and every run spec `draws` times on it, draw q with the same DR draws for π̄ and under every
+/// model and κ; a run's calibration error is the mean per-condition difference of success.
+fn calibration_compares_pi_bar_and_the_models_on_common_draws(made: &Made) {
+    use osms_method::artifacts::{Calibration, Folds};
+    use osms_policy::artifacts::ErrorPairs;
+
+    let c: Calibration = load_sharded(made, "calibration");
+    assert!(c.draws >= 2, "tiny runs {} draws", c.draws);
+    let mut held: Vec<(u32, u32)> = Vec::new();
+    for f in 0..2u32 {
+        let pairs: ErrorPairs = load_sharded(made, &format!("error_pairs#{f}"));
+        held.extend(pairs.rollouts.iter().map(|r| (f, r.item)));
+    }
+    let mut items: Vec<(u32, u32)> = c.items.iter().map(|i| (i.fold, i.item)).collect();
+    held.sort_unstable();
+    items.sort_unstable();
+    assert_eq!(items, held, "the conditions `error_pairs` held out, each once");
+    let unperturbed = c.run_index("unperturbed", 1.0).expect("the unperturbed teacher runs");
+    let mut differ = 0;
+    for i in &c.items {
+        assert_eq!(i.student.rows.len(), c.draws, "item {}: π̄'s draws", i.item);
+        assert_eq!(i.runs.len(), c.runs.len());
+        for (r, run) in i.runs.iter().enumerate() {
+            assert_eq!(run.rows.len(), c.draws, "item {}, run {r}", i.item);
+            for (q, (m, s)) in run.rows.iter().zip(&i.student.rows).enumerate() {
+                assert_eq!(m.dr, s.dr, "item {}, run {r}, draw {q}: DR draws differ", i.item);
+                assert_eq!(
+                    (m.variant, m.lateral_offset_m),
+                    (s.variant, s.lateral_offset_m)
+                );
+            }
+        }
+        // The draws are draws: two of them on one condition do not share their DR.
+        differ += usize::from(i.student.rows[0].dr != i.student.rows[1].dr);
+        let teacher = &i.runs[unperturbed].rows;
+        assert!(teacher.iter().all(|r| r.steps > 0));
+    }
+    assert_eq!(differ, c.items.len(), "every condition's draws differ in DR");
+    let rate = |rows: &[osms_sim::artifacts::EvalRow]| {
+        rows.iter().filter(|r| r.outcome.success()).count() as f64 / rows.len() as f64
+    };
+    for r in 0..c.runs.len() {
+        let by_hand = c
+            .items
+            .iter()
+            .map(|i| rate(&i.runs[r].rows) - rate(&i.student.rows))
+            .sum::<f64>()
+            / c.items.len() as f64;
+        let error = c
+            .run_summary(r, Folds::Both)
+            .calibration_error
+            .expect("an interval over the conditions");
+        assert!(
+            (error.estimate - by_hand).abs() < 1e-12,
+            "run {r}: {} against {by_hand}",
+            error.estimate
+        );
+        assert!(error.low <= error.estimate && error.estimate <= error.high);
+    }
 }
 
 /// The DAgger diagnostic (not part of the report): one group per D_E condition π̄_0 trained on,

@@ -6,7 +6,6 @@
 
 use osms_core::rng::StreamRng;
 use osms_policy::Agent;
-use osms_policy::artifacts::PairRollout;
 use osms_policy::catch::CatchTaskSpec;
 use osms_sim::artifacts::EvalRow;
 use osms_sim::conditions::TaskCondition;
@@ -163,16 +162,6 @@ pub fn online_phases(recorded: &[u8]) -> Vec<u8> {
         .chain(recorded.iter().copied())
         .take(recorded.len())
         .collect()
-}
-
-/// π̄'s own rollout as the calibration compares it: its row and its deviation from the teacher
-/// queried at the states it visited.
-pub fn student_side(pair: &PairRollout) -> (EvalRow, DeviationStats) {
-    let mut stats = DeviationStats::default();
-    stats.push_rollout(&pair.student, &pair.teacher, &pair.phase);
-    let mut row = pair.eval.clone();
-    row.trace = None;
-    (row, stats)
 }
 
 /// The frozen teacher's rollout on ω under `model` on every channel of every step (Eq. 7 with

@@ -1,6 +1,6 @@
 //! The closed-loop calibration of the error models (issue 66): per held-out D_E condition, π̄'s
-//! own rollout beside the frozen teacher's rollouts under each model at each κ, and the report
-//! table "Does each model behave like π̄?".
+//! own rollouts beside the frozen teacher's rollouts under each model at each κ (draw q of
+//! each with the same DR draws), and the report table "Does each model behave like π̄?".
 
 use std::fmt::Write;
 
@@ -34,11 +34,20 @@ impl RunSpec {
     }
 }
 
-/// What one run spec gave on one condition: its draws' rows and their pooled arm deviation.
+/// What one run spec (or π̄) gave on one condition: its draws' rows and their pooled arm
+/// deviation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunOutcome {
     pub rows: Vec<EvalRow>,
     pub deviation: DeviationStats,
+}
+
+impl RunOutcome {
+    /// The share of the draws that succeeded (0 without draws).
+    pub fn success_rate(&self) -> f64 {
+        let n = self.rows.iter().filter(|r| r.outcome.success()).count();
+        n as f64 / self.rows.len().max(1) as f64
+    }
 }
 
 /// One held-out D_E condition of one fold.
@@ -48,10 +57,9 @@ pub struct CalibrationItem {
     pub fold: u32,
     /// The D_E item.
     pub item: u32,
-    /// π̄'s own rollout (the `error_pairs` row) and its deviation from the teacher queried at
-    /// the states it visited.
-    pub student: EvalRow,
-    pub student_deviation: DeviationStats,
+    /// π̄'s own rollouts (draw q with run draw q's DR stream) and its deviation from the
+    /// teacher queried at the states it visited.
+    pub student: RunOutcome,
     /// In [`Calibration::runs`] order.
     pub runs: Vec<RunOutcome>,
 }
@@ -59,8 +67,9 @@ pub struct CalibrationItem {
 /// The calibration of every model on every fold's held-out conditions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Calibration {
-    /// Draws per condition and run spec (common random numbers: draw q of a condition has
-    /// the same DR draws and innovations under every model and κ).
+    /// Draws per condition and run spec, and of π̄ (common random numbers: draw q of a
+    /// condition has the same DR draws under every model and κ and for π̄, and the same
+    /// innovations under every model and κ).
     pub draws: usize,
     pub runs: Vec<RunSpec>,
     pub items: Vec<CalibrationItem>,
@@ -68,7 +77,8 @@ pub struct Calibration {
 
 impl Artifact for Calibration {
     const TYPE_TAG: &'static str = "method.calibration";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: π̄'s side is `draws` rollouts per condition (a [`RunOutcome`]), not one row.
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl osms_make::Sharded for Calibration {
@@ -93,8 +103,8 @@ pub struct RunSummary {
     pub contact_speed_mps: Option<f64>,
     /// Failures per rollout, by kind (a rollout can fail several ways).
     pub failures: Vec<(String, f64)>,
-    /// Success minus π̄'s, paired by condition (the per-condition mean over draws against π̄'s
-    /// one rollout), with its 95 % interval; `None` for π̄ itself.
+    /// Success minus π̄'s, paired by condition (the per-condition means over draws), with its
+    /// 95 % interval; `None` for π̄ itself.
     pub calibration_error: Option<Difference>,
 }
 
@@ -150,22 +160,18 @@ impl Calibration {
 
     /// π̄'s rollouts on `folds`' conditions.
     pub fn student_summary(&self, folds: Folds) -> RunSummary {
-        let rows = self.items_of(folds).map(|i| i.student.clone()).collect();
+        let rows = self
+            .items_of(folds)
+            .flat_map(|i| i.student.rows.iter().cloned())
+            .collect();
         Self::summary_of("π̄ (its own rollouts)".into(), rows, None)
     }
 
     /// Run spec `r` on `folds`' conditions, with its calibration error against π̄.
     pub fn run_summary(&self, r: usize, folds: Folds) -> RunSummary {
         let items: Vec<&CalibrationItem> = self.items_of(folds).collect();
-        let success = |row: &EvalRow| f64::from(u8::from(row.outcome.success()));
-        let model: Vec<f64> = items
-            .iter()
-            .map(|i| {
-                let rows = &i.runs[r].rows;
-                rows.iter().map(success).sum::<f64>() / rows.len().max(1) as f64
-            })
-            .collect();
-        let student: Vec<f64> = items.iter().map(|i| success(&i.student)).collect();
+        let model: Vec<f64> = items.iter().map(|i| i.runs[r].success_rate()).collect();
+        let student: Vec<f64> = items.iter().map(|i| i.student.success_rate()).collect();
         let error = paired_difference(&[model], &[student]);
         let rows = items
             .iter()
@@ -179,7 +185,7 @@ impl Calibration {
         let mut total = DeviationStats::default();
         for i in self.items_of(folds) {
             total.add(match run {
-                None => &i.student_deviation,
+                None => &i.student.deviation,
                 Some(r) => &i.runs[r].deviation,
             });
         }
@@ -261,7 +267,7 @@ impl Calibration {
             push(&mut t, self.run_summary(r, Folds::Both), per_fold);
         }
         t.with_note(format!(
-            "Each model's rollouts: the frozen teacher with Eq. 7 applied to every channel of every step (as validation's perturbed rollouts), {} draws per condition with common random numbers across models and κ. − π̄: success minus π̄'s on the same conditions, the per-condition mean over draws paired with π̄'s rollout; a calibrated model has it near 0 at κ = 1. f_max, ℓ_max and v_rel are means over catch completions; failure columns are rates per rollout.",
+            "Each model's rollouts: the frozen teacher with Eq. 7 applied to every channel of every step (as validation's perturbed rollouts), {} draws per condition, and as many of π̄'s own, with common random numbers (draw q has the same DR draws for π̄ and under every model and κ). − π̄: success minus π̄'s on the same conditions, paired by condition (the per-condition means over the draws); a calibrated model has it near 0 at κ = 1. f_max, ℓ_max and v_rel are means over catch completions; failure columns are rates per rollout.",
             self.draws
         ))
     }
@@ -305,7 +311,7 @@ impl Calibration {
     /// One line per condition and run spec, for `osms export`.
     pub fn csv(&self) -> String {
         let mut out = String::from(
-            "fold,item,run,model,kappa,draws,successes,student_success,student_completion\n",
+            "fold,item,run,model,kappa,draws,successes,student_successes,student_completions\n",
         );
         for i in &self.items {
             for (r, spec) in self.runs.iter().enumerate() {
@@ -320,8 +326,8 @@ impl Calibration {
                     spec.kappa,
                     rows.len(),
                     rows.iter().filter(|x| x.outcome.success()).count(),
-                    u8::from(i.student.outcome.success()),
-                    u8::from(i.student.outcome.completion()),
+                    i.student.rows.iter().filter(|x| x.outcome.success()).count(),
+                    i.student.rows.iter().filter(|x| x.outcome.completion()).count(),
                 );
             }
         }

@@ -1,23 +1,25 @@
 //! `error_calibration` and `calibrate_error_model`: the error models against π̄ in closed loop
 //! (issue 66). Both roll the frozen teacher out under a model on the D_E conditions each
-//! cross-fitted π̄ was held out from, and compare with π̄'s own rollouts there (`error_pairs`).
+//! cross-fitted π̄ was held out from (those `error_pairs` ran it on), and compare with π̄'s own
+//! rollouts there, drawn with the same DR streams as the teacher's.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, Stage, StageError};
-use osms_policy::artifacts::{Dataset, ErrorPairs, PairRollout, Teacher};
-use osms_sim::artifacts::WorldArtifact;
+use osms_policy::artifacts::{Dataset, ErrorPairs, PairRollout, StudentArtifact, Teacher};
+use osms_policy::student::{Student, paired_rollout};
+use osms_sim::artifacts::{EvalRow, WorldArtifact};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::DrSpec;
-use osms_sim::{N_ACTION, World};
+use osms_sim::{N_ACTION, RolloutSpec, World};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{
     Calibration, CalibrationItem, ErrorModelArtifact, RunOutcome, RunSpec, ScaleSearch, VariantFit,
 };
-use crate::calibrate::{DeviationStats, interpolate_scale, student_side, teacher_under};
+use crate::calibrate::{DeviationStats, interpolate_scale, teacher_under};
 use crate::error_model::{ErrorModel, ErrorVariant, PairSequence, table3_metrics};
 
 /// `error_calibration`'s settings. Every default lives here.
@@ -31,8 +33,9 @@ pub struct CalibrationParams {
     pub draws: usize,
     /// The models run; empty: every model of the input, in its order.
     pub models: Vec<ErrorVariant>,
-    /// Domain randomisation of the teacher's rollouts; absent: its training setting. π̄'s
-    /// rollouts (`error_pairs`) run under the pipeline's `dr = "paper"`.
+    /// Domain randomisation of the teacher's and π̄'s rollouts; absent: the teacher's
+    /// training setting. Set it as `error_pairs`' (`"paper"`), so π̄ is compared where its
+    /// error pairs were recorded.
     pub dr: Option<DrSpec>,
 }
 
@@ -77,13 +80,15 @@ impl Default for CalibrateParams {
 }
 
 /// What both kinds read: the world, the teacher under the rollouts' DR, every fold's π̄
-/// rollouts (fold, pair) in fold order, the D_E conditions by item and the error models.
+/// rollouts (fold, pair) in fold order, the D_E conditions by item, the error models and each
+/// fold's π̄ with its rollout spec.
 pub struct Loaded {
     world: World,
     teacher: Teacher,
     pairs: Vec<(u32, PairRollout)>,
     conditions: BTreeMap<u32, TaskCondition>,
     errors: ErrorModelArtifact,
+    students: BTreeMap<u32, (Student, RolloutSpec)>,
 }
 
 const INPUTS: &[Slot] = &[
@@ -92,6 +97,7 @@ const INPUTS: &[Slot] = &[
     Slot::one::<Dataset>("data").roles(&["d_e"]),
     Slot::gather::<ErrorPairs>("pairs"),
     Slot::one::<ErrorModelArtifact>("error_model"),
+    Slot::gather::<StudentArtifact>("students"),
 ];
 
 fn load<P>(ctx: &Ctx<'_, P>, dr: &Option<DrSpec>) -> Result<Loaded, StageError> {
@@ -121,22 +127,75 @@ fn load<P>(ctx: &Ctx<'_, P>, dr: &Option<DrSpec>) -> Result<Loaded, StageError> 
         return Err("input `pairs`: no π̄ rollouts to compare with".into());
     }
     let errors: ErrorModelArtifact = ctx.input("error_model")?;
+    let mut students = BTreeMap::new();
+    for (_, s) in ctx.gathered::<StudentArtifact>("students")? {
+        let Some((f, _)) = s.fold else {
+            return Err("input `students`: a student that is not cross-fitted\nhint: wire `students` to the cross-fitted π̄ stage the `error_pairs` stages read (`student_il#*`)".into());
+        };
+        let trained: BTreeSet<u32> = s.items.iter().copied().collect();
+        if let Some((_, p)) = pairs
+            .iter()
+            .find(|(g, p)| *g == f && trained.contains(&p.item))
+        {
+            return Err(format!(
+                "input `students`: fold {f}'s student trained on D_E item {}, which fold {f}'s pairs hold out\nhint: wire `students` to the π̄ stage the `error_pairs` stages read",
+                p.item
+            )
+            .into());
+        }
+        let spec = s.student.rollout_spec(&teacher.task.rollout);
+        students.insert(f, (s.student, spec));
+    }
+    if let Some((f, _)) = pairs.iter().find(|(f, _)| !students.contains_key(f)) {
+        return Err(format!(
+            "input `students` has no student of fold {f}, whose pairs input `pairs` holds\nhint: wire `students` to the cross-fitted π̄ stage the `error_pairs` stages read (`student_il#*`)"
+        )
+        .into());
+    }
     Ok(Loaded {
         world: ctx.input::<WorldArtifact>("world")?.world()?,
         teacher,
         pairs,
         conditions,
         errors,
+        students,
     })
 }
 
 /// The DR and innovation streams of draw q on D_E item `item`: the same for every model, κ and
-/// scale (common random numbers).
+/// scale, and the DR stream the same for π̄ (common random numbers).
 fn draw_streams<P>(ctx: &Ctx<'_, P>, item: u32, q: usize) -> (StreamRng, StreamRng) {
     (
         ctx.rng(&format!("dr-{q}"), u64::from(item)),
         ctx.rng(&format!("errors-{q}"), u64::from(item)),
     )
+}
+
+/// π̄_f's own rollouts on D_E item `item`, `draws` of them: draw q with the DR stream of the
+/// teacher's draw q and its policy noise from ("policy-q", item), the teacher queried at every
+/// state π̄ reaches. Its rows (without the impact trace) and its arm deviation from the teacher.
+fn student_draws<P>(ctx: &Ctx<'_, P>, l: &Loaded, fold: u32, item: u32, draws: usize) -> RunOutcome {
+    let (student, spec) = &l.students[&fold];
+    let condition = &l.conditions[&item];
+    let mut rows = Vec::with_capacity(draws);
+    let mut deviation = DeviationStats::default();
+    for q in 0..draws {
+        let (dr, _) = draw_streams(ctx, item, q);
+        let paired = paired_rollout(
+            &l.world,
+            spec,
+            student,
+            (&l.teacher.agent, &l.teacher.task),
+            condition.clone(),
+            dr,
+            ctx.rng(&format!("policy-{q}"), u64::from(item)),
+        );
+        deviation.push_rollout(&paired.record.intended, &paired.teacher, &paired.phase);
+        let mut row = EvalRow::of(paired.record);
+        row.trace = None;
+        rows.push(row);
+    }
+    RunOutcome { rows, deviation }
 }
 
 /// The prepared runs of `error_calibration`: each run spec with its model.
@@ -146,12 +205,14 @@ pub struct Prepared {
 }
 
 /// The frozen teacher under every model at every κ on each held-out D_E condition of every
-/// fold, beside π̄'s own rollout there. Draw q of D_E item i takes its DR from stream
-/// ("dr-q", i) and its innovations from ("errors-q", i).
+/// fold, beside π̄'s own rollouts there. Draw q of D_E item i takes its DR from stream
+/// ("dr-q", i) and its innovations from ("errors-q", i); π̄'s draw q the same DR stream.
 pub struct CalibrationStage;
 impl ItemStage for CalibrationStage {
     const KIND: &'static str = "error_calibration";
-    const CODE_VERSION: u32 = 1;
+    /// 2: π̄ is rolled out `draws` times per condition with the teacher's DR streams, instead
+    /// of once (its `error_pairs` rollout, with DR draws of its own).
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = INPUTS;
     const DOC: &'static str = "closed-loop calibration of the error models: the teacher under each model against π̄ on π̄'s held-out D_E conditions";
@@ -168,11 +229,12 @@ impl ItemStage for CalibrationStage {
         osms_policy::stages::numerics()
     }
 
-    /// The pairs' rollouts, each run `draws` times per model and κ (the models not counted).
+    /// The pairs' rollouts, each run `draws` times per model and κ and by π̄ (the models not
+    /// counted).
     fn scale(params: &CalibrationParams, inputs: &[(&str, f64)]) -> Scale {
         let n = Scale::input(inputs, "pairs");
         Scale {
-            work: n * (params.draws * params.kappas.len()) as f64,
+            work: n * (params.draws * (params.kappas.len() + 1)) as f64,
             size: n,
         }
     }
@@ -259,7 +321,7 @@ impl ItemStage for CalibrationStage {
         let l = &p.loaded;
         let (fold, pair) = &l.pairs[index];
         let condition = &l.conditions[&pair.item];
-        let (student, student_deviation) = student_side(pair);
+        let student = student_draws(ctx, l, *fold, pair.item, ctx.params.draws);
         let runs = p
             .runs
             .iter()
@@ -287,7 +349,6 @@ impl ItemStage for CalibrationStage {
             fold: *fold,
             item: pair.item,
             student,
-            student_deviation,
             runs,
         })
     }
@@ -307,16 +368,17 @@ impl ItemStage for CalibrationStage {
 }
 
 /// The base model's deviation (bias and residual) scaled so that the teacher under it at κ = 1
-/// succeeds as often
-/// as π̄ on the tuning fold's held-out conditions: each scale of the grid is rolled out
-/// `draws` times per condition (draw q of D_E item i: DR from ("dr-q", i), innovations from
-/// ("errors-q", i), the same at every scale), and the scale is interpolated where the success
-/// rate crosses π̄'s. The output is the input's models plus `calibrated`, which validation
-/// then applies at the base's κ.
+/// succeeds as often as π̄ on the tuning fold's held-out conditions: each scale of the grid,
+/// and π̄ itself, is rolled out `draws` times per condition (draw q of D_E item i: DR from
+/// ("dr-q", i), innovations from ("errors-q", i), the same at every scale and for π̄), and the
+/// scale is interpolated where the success rate crosses π̄'s. The output is the input's
+/// models plus `calibrated`, which validation then applies at the base's κ.
 pub struct CalibrateErrorModelStage;
 impl Stage for CalibrateErrorModelStage {
     const KIND: &'static str = "calibrate_error_model";
-    const CODE_VERSION: u32 = 1;
+    /// 2: π̄'s success on the tuning fold is over `draws` rollouts per condition with the
+    /// teacher's DR streams, not its one `error_pairs` rollout.
+    const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = INPUTS;
     const DOC: &'static str = "an error model's deviation scaled so the teacher under it succeeds as often as π̄ in closed loop (the `calibrated` model)";
@@ -369,11 +431,13 @@ impl Stage for CalibrateErrorModelStage {
             .collect();
         let progress = ctx.progress();
         progress.set_total(tune.len() as u64);
-        // successes[i][s]: condition i's successes at scale s over the draws.
-        let successes: Vec<Vec<usize>> = tune
+        // successes[i][s]: condition i's successes at scale s over the draws; [i].1: π̄'s.
+        let successes: Vec<(Vec<usize>, usize)> = tune
             .par_iter()
             .map(|pair| {
                 let condition = &l.conditions[&pair.item];
+                let student = student_draws(ctx, &l, p.fold, pair.item, p.draws);
+                let own = student.rows.iter().filter(|r| r.outcome.success()).count();
                 let row = models
                     .iter()
                     .map(|model| {
@@ -397,7 +461,7 @@ impl Stage for CalibrateErrorModelStage {
                     })
                     .collect();
                 progress.inc(1);
-                row
+                (row, own)
             })
             .collect();
         let rollouts = tune.len() * p.draws;
@@ -406,12 +470,11 @@ impl Stage for CalibrateErrorModelStage {
             .iter()
             .enumerate()
             .map(|(s, &c)| {
-                let n: usize = successes.iter().map(|r| r[s]).sum();
+                let n: usize = successes.iter().map(|r| r.0[s]).sum();
                 (c, n as f64 / rollouts as f64)
             })
             .collect();
-        let target =
-            tune.iter().filter(|r| r.eval.outcome.success()).count() as f64 / tune.len() as f64;
+        let target = successes.iter().map(|r| r.1).sum::<usize>() as f64 / rollouts as f64;
         let scale = interpolate_scale(&grid, target).ok_or("params.scales is empty")?;
         let kappa = l
             .errors
