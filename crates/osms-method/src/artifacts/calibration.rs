@@ -109,7 +109,12 @@ pub struct RunSummary {
 }
 
 /// The failure kinds the table gives a column each.
-const FAILURE_COLUMNS: [&str; 4] = ["drop", "f_max too high", "l_max too short", "v_rel too high"];
+const FAILURE_COLUMNS: [&str; 4] = [
+    "drop",
+    "f_max too high",
+    "l_max too short",
+    "v_rel too high",
+];
 
 /// Which conditions a summary covers.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -326,8 +331,16 @@ impl Calibration {
                     spec.kappa,
                     rows.len(),
                     rows.iter().filter(|x| x.outcome.success()).count(),
-                    i.student.rows.iter().filter(|x| x.outcome.success()).count(),
-                    i.student.rows.iter().filter(|x| x.outcome.completion()).count(),
+                    i.student
+                        .rows
+                        .iter()
+                        .filter(|x| x.outcome.success())
+                        .count(),
+                    i.student
+                        .rows
+                        .iter()
+                        .filter(|x| x.outcome.completion())
+                        .count(),
                 );
             }
         }
@@ -340,9 +353,8 @@ impl Summarize for Calibration {
     /// interval, in points) on both folds and on each.
     fn summary(&self) -> serde_json::Value {
         let folds = self.folds();
-        let error = |d: Option<Difference>| {
-            d.map(|d| serde_json::json!([d.estimate, d.low, d.high]))
-        };
+        let error =
+            |d: Option<Difference>| d.map(|d| serde_json::json!([d.estimate, d.low, d.high]));
         let student = self.student_summary(Folds::Both);
         let runs: Vec<serde_json::Value> = (0..self.runs.len())
             .map(|r| {
@@ -382,7 +394,8 @@ impl Summarize for Calibration {
             self.table().title,
             self.table().markdown_with(Layout::plain("rollouts of")),
             self.deviation_table().title,
-            self.deviation_table().markdown_with(Layout::plain("rollouts of")),
+            self.deviation_table()
+                .markdown_with(Layout::plain("rollouts of")),
         ))
     }
 

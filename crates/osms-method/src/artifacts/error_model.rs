@@ -44,15 +44,26 @@ pub struct ErrorModelArtifact {
 }
 
 /// The closed-loop search behind the `calibrated` model: the teacher's success under the base
-/// model at each deviation scale (κ = 1) on the tuning fold's conditions, and the scale where it
-/// meets π̄'s success there.
+/// model at each deviation scale (κ = 1) on the tuning folds' conditions, and the scale where it
+/// meets π̄'s success there; and each fold's own search on its conditions alone.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ScaleSearch {
     pub base: ErrorVariant,
-    pub fold: u32,
-    pub conditions: usize,
+    /// The folds whose held-out conditions (each with its own π̄) the scale is matched on.
+    pub folds: Vec<u32>,
     pub draws: usize,
-    /// π̄'s success on the fold's conditions: the rate the scale is matched to.
+    /// The search over all of `folds`' conditions, the one the model takes.
+    pub pooled: FoldSearch,
+    /// The same search on each fold's conditions alone, in fold order: how far the scale one
+    /// π̄ picks is from another's (cross-fitting).
+    pub by_fold: Vec<(u32, FoldSearch)>,
+}
+
+/// A scale search on one set of conditions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FoldSearch {
+    pub conditions: usize,
+    /// π̄'s success on the conditions (over the draws): the rate the scale is matched to.
     pub target: f64,
     /// (scale, success rate) over conditions × draws.
     pub grid: Vec<(f64, f64)>,
@@ -61,8 +72,9 @@ pub struct ScaleSearch {
 
 impl Artifact for ErrorModelArtifact {
     const TYPE_TAG: &'static str = "method.error_model";
-    /// 2: the unit-gain and orthogonal fits, and a calibrated model's scale search.
-    const SCHEMA_VERSION: u16 = 2;
+    /// 2: the unit-gain and orthogonal fits, and a calibrated model's scale search. 3: the
+    /// scale search pools folds and keeps each fold's own.
+    const SCHEMA_VERSION: u16 = 3;
 }
 
 fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
@@ -202,21 +214,38 @@ impl Summarize for ErrorModelArtifact {
             self.model.kappa
         );
         if let Some(c) = &self.calibration {
-            let _ = writeln!(
-                out,
-                "`calibrated` is `{}` with its deviation (bias and residual) scaled by {:.3}: there the teacher under it (κ = 1) succeeds as often as π̄ on fold {}'s {} held-out conditions ({:.1} %, {} draws each). Success by scale: {}\n",
-                c.base.name(),
-                c.scale,
-                c.fold,
-                c.conditions,
-                100.0 * c.target,
-                c.draws,
-                c.grid
-                    .iter()
+            let grid = |g: &[(f64, f64)]| {
+                g.iter()
                     .map(|(s, r)| format!("{s} → {:.1} %", 100.0 * r))
                     .collect::<Vec<_>>()
                     .join(", ")
+            };
+            let folds: Vec<String> = c.folds.iter().map(u32::to_string).collect();
+            let _ = writeln!(
+                out,
+                "`calibrated` is `{}` with its deviation (bias and residual) scaled by {:.3}: there the teacher under it (κ = 1) succeeds as often as π̄ on the {} held-out conditions of fold{} {} ({:.1} %, {} draws each). Success by scale: {}\n",
+                c.base.name(),
+                c.pooled.scale,
+                c.pooled.conditions,
+                if c.folds.len() == 1 { "" } else { "s" },
+                folds.join(" and "),
+                100.0 * c.pooled.target,
+                c.draws,
+                grid(&c.pooled.grid)
             );
+            if c.by_fold.len() > 1 {
+                for (f, s) in &c.by_fold {
+                    let _ = writeln!(
+                        out,
+                        "- fold {f} alone ({} conditions, π̄_{f} {:.1} %) would pick {:.3}: {}",
+                        s.conditions,
+                        100.0 * s.target,
+                        s.scale,
+                        grid(&s.grid)
+                    );
+                }
+                let _ = writeln!(out);
+            }
         }
         let _ = writeln!(
             out,

@@ -15,6 +15,6 @@ pub use calibration::{Calibration, CalibrationItem, Folds, RunOutcome, RunSpec, 
 pub use candidate_table::CandidateTable;
 pub use candidates::{CandidateItem, CandidateSets, CandidateStats};
 pub use construction_table::{ConstructionRow, ConstructionTable, PAPER_TABLE2};
-pub use error_model::{ErrorModelArtifact, FoldStats, ScaleSearch, VariantFit};
+pub use error_model::{ErrorModelArtifact, FoldSearch, FoldStats, ScaleSearch, VariantFit};
 pub use ios_profile::{IosProfile, IosRow};
 pub use validation::{ErrorStreams, Validation, ValidationStats};

@@ -17,7 +17,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{
-    Calibration, CalibrationItem, ErrorModelArtifact, RunOutcome, RunSpec, ScaleSearch, VariantFit,
+    Calibration, CalibrationItem, ErrorModelArtifact, FoldSearch, RunOutcome, RunSpec, ScaleSearch,
+    VariantFit,
 };
 use crate::calibrate::{DeviationStats, interpolate_scale, teacher_under};
 use crate::error_model::{ErrorModel, ErrorVariant, PairSequence, table3_metrics};
@@ -58,9 +59,11 @@ pub struct CalibrateParams {
     pub base: ErrorVariant,
     /// Deviation scales tried, increasing.
     pub scales: Vec<f64>,
-    /// The fold on whose π̄'s held-out conditions the scale is chosen (the other folds only
-    /// confirm it, in `error_calibration`).
-    pub fold: u32,
+    /// The fold on whose π̄'s held-out conditions the scale is chosen (the other folds then
+    /// confirm it, in `error_calibration`); absent: every fold's conditions, each with its own
+    /// π̄, pooled (as Eq. 7 is fitted on every fold's pairs). Either way the artifact keeps
+    /// each fold's own search beside the one the model takes.
+    pub fold: Option<u32>,
     /// Rollouts per condition and scale (common random numbers across scales).
     pub draws: usize,
     /// As [`CalibrationParams::dr`].
@@ -71,8 +74,8 @@ impl Default for CalibrateParams {
     fn default() -> Self {
         CalibrateParams {
             base: ErrorVariant::UnitGain,
-            scales: vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0],
-            fold: 0,
+            scales: vec![0.6, 0.8, 1.0],
+            fold: None,
             draws: 4,
             dr: None,
         }
@@ -174,7 +177,13 @@ fn draw_streams<P>(ctx: &Ctx<'_, P>, item: u32, q: usize) -> (StreamRng, StreamR
 /// π̄_f's own rollouts on D_E item `item`, `draws` of them: draw q with the DR stream of the
 /// teacher's draw q and its policy noise from ("policy-q", item), the teacher queried at every
 /// state π̄ reaches. Its rows (without the impact trace) and its arm deviation from the teacher.
-fn student_draws<P>(ctx: &Ctx<'_, P>, l: &Loaded, fold: u32, item: u32, draws: usize) -> RunOutcome {
+fn student_draws<P>(
+    ctx: &Ctx<'_, P>,
+    l: &Loaded,
+    fold: u32,
+    item: u32,
+    draws: usize,
+) -> RunOutcome {
     let (student, spec) = &l.students[&fold];
     let condition = &l.conditions[&item];
     let mut rows = Vec::with_capacity(draws);
@@ -368,16 +377,17 @@ impl ItemStage for CalibrationStage {
 }
 
 /// The base model's deviation (bias and residual) scaled so that the teacher under it at κ = 1
-/// succeeds as often as π̄ on the tuning fold's held-out conditions: each scale of the grid,
-/// and π̄ itself, is rolled out `draws` times per condition (draw q of D_E item i: DR from
-/// ("dr-q", i), innovations from ("errors-q", i), the same at every scale and for π̄), and the
-/// scale is interpolated where the success rate crosses π̄'s. The output is the input's
-/// models plus `calibrated`, which validation then applies at the base's κ.
+/// succeeds as often as π̄ on the tuning folds' held-out conditions (each fold's with its own
+/// π̄): each scale of the grid, and π̄ itself, is rolled out `draws` times per condition (draw q
+/// of D_E item i: DR from ("dr-q", i), innovations from ("errors-q", i), the same at every
+/// scale and for π̄), and the scale is interpolated where the success rate crosses π̄'s. The
+/// output is the input's models plus `calibrated`, which validation then applies at the base's
+/// κ, and the search, pooled and per fold.
 pub struct CalibrateErrorModelStage;
 impl Stage for CalibrateErrorModelStage {
     const KIND: &'static str = "calibrate_error_model";
     /// 2: π̄'s success on the tuning fold is over `draws` rollouts per condition with the
-    /// teacher's DR streams, not its one `error_pairs` rollout.
+    /// teacher's DR streams, not its one `error_pairs` rollout; the folds may be pooled.
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = INPUTS;
@@ -409,17 +419,18 @@ impl Stage for CalibrateErrorModelStage {
                     ErrorVariant::FITTED.map(ErrorVariant::name).join(", ")
                 )
             })?;
-        let tune: Vec<&PairRollout> = l
+        let tune: Vec<(u32, &PairRollout)> = l
             .pairs
             .iter()
-            .filter(|(f, _)| *f == p.fold)
-            .map(|(_, r)| r)
+            .filter(|(f, _)| p.fold.is_none_or(|g| *f == g))
+            .map(|(f, r)| (*f, r))
             .collect();
         if tune.is_empty() {
-            let folds: Vec<String> = l.pairs.iter().map(|(f, _)| f.to_string()).collect();
+            let mut folds: Vec<String> = l.pairs.iter().map(|(f, _)| f.to_string()).collect();
+            folds.dedup();
             return Err(format!(
-                "params.fold = {}: input `pairs` has no rollouts of that fold\nhint: one of {}",
-                p.fold,
+                "params.fold = {}: input `pairs` has no rollouts of that fold\nhint: one of {}, or leave `fold` out to pool them",
+                p.fold.map_or_else(|| "-".into(), |f| f.to_string()),
                 folds.join(", ")
             )
             .into());
@@ -431,12 +442,12 @@ impl Stage for CalibrateErrorModelStage {
             .collect();
         let progress = ctx.progress();
         progress.set_total(tune.len() as u64);
-        // successes[i][s]: condition i's successes at scale s over the draws; [i].1: π̄'s.
-        let successes: Vec<(Vec<usize>, usize)> = tune
+        // Per condition: its fold, its successes at each scale over the draws, π̄'s.
+        let successes: Vec<(u32, Vec<usize>, usize)> = tune
             .par_iter()
-            .map(|pair| {
+            .map(|&(fold, pair)| {
                 let condition = &l.conditions[&pair.item];
-                let student = student_draws(ctx, &l, p.fold, pair.item, p.draws);
+                let student = student_draws(ctx, &l, fold, pair.item, p.draws);
                 let own = student.rows.iter().filter(|r| r.outcome.success()).count();
                 let row = models
                     .iter()
@@ -461,21 +472,41 @@ impl Stage for CalibrateErrorModelStage {
                     })
                     .collect();
                 progress.inc(1);
-                (row, own)
+                (fold, row, own)
             })
             .collect();
-        let rollouts = tune.len() * p.draws;
-        let grid: Vec<(f64, f64)> = p
-            .scales
+        let search = |of: &dyn Fn(u32) -> bool| -> Result<FoldSearch, StageError> {
+            let rows: Vec<&(u32, Vec<usize>, usize)> =
+                successes.iter().filter(|r| of(r.0)).collect();
+            let rollouts = (rows.len() * p.draws) as f64;
+            let grid: Vec<(f64, f64)> = p
+                .scales
+                .iter()
+                .enumerate()
+                .map(|(s, &c)| {
+                    (
+                        c,
+                        rows.iter().map(|r| r.1[s]).sum::<usize>() as f64 / rollouts,
+                    )
+                })
+                .collect();
+            let target = rows.iter().map(|r| r.2).sum::<usize>() as f64 / rollouts;
+            let scale = interpolate_scale(&grid, target).ok_or("params.scales is empty")?;
+            Ok(FoldSearch {
+                conditions: rows.len(),
+                target,
+                grid,
+                scale,
+            })
+        };
+        let mut folds: Vec<u32> = tune.iter().map(|(f, _)| *f).collect();
+        folds.dedup();
+        let pooled = search(&|_| true)?;
+        let by_fold = folds
             .iter()
-            .enumerate()
-            .map(|(s, &c)| {
-                let n: usize = successes.iter().map(|r| r.0[s]).sum();
-                (c, n as f64 / rollouts as f64)
-            })
-            .collect();
-        let target = successes.iter().map(|r| r.1).sum::<usize>() as f64 / rollouts as f64;
-        let scale = interpolate_scale(&grid, target).ok_or("params.scales is empty")?;
+            .map(|&f| Ok((f, search(&|g| g == f)?)))
+            .collect::<Result<Vec<_>, StageError>>()?;
+        let scale = pooled.scale;
         let kappa = l
             .errors
             .variants
@@ -493,7 +524,9 @@ impl Stage for CalibrateErrorModelStage {
             &mut ctx.rng("table3", l.errors.variants.len() as u64),
         );
         let mut errors = l.errors;
-        errors.variants.retain(|v| v.model.variant != ErrorVariant::Calibrated);
+        errors
+            .variants
+            .retain(|v| v.model.variant != ErrorVariant::Calibrated);
         errors.variants.push(VariantFit {
             model: model.clone(),
             metrics,
@@ -501,12 +534,10 @@ impl Stage for CalibrateErrorModelStage {
         errors.model = model;
         errors.calibration = Some(ScaleSearch {
             base: p.base,
-            fold: p.fold,
-            conditions: tune.len(),
+            folds,
             draws: p.draws,
-            target,
-            grid,
-            scale,
+            pooled,
+            by_fold,
         });
         Ok(errors)
     }

@@ -1,5 +1,5 @@
-//! The ablations of paper 6.4 (and the label ablation beyond it) as an artifact: their tables
-//! and claims.
+//! The ablations of paper 6.4 (and the label and validation-model ablations beyond it) as an
+//! artifact: their tables and claims.
 
 use std::fmt::Write;
 
@@ -26,8 +26,9 @@ impl Ablations {
     pub fn index(&self) -> String {
         let mut s = String::from(
             "# osms ablations\n\nThe ablations of paper 6.4 (`osms make ablations`), with the \
-             paper's values beside ours, and one beyond the paper (the labels of D_*'s \
-             perturbed survivors). `docs/report.md` explains how to read them.\n\n",
+             paper's values beside ours, and two beyond the paper (the labels of D_*'s \
+             perturbed survivors; validation's error model). `docs/report.md` explains how to \
+             read them.\n\n",
         );
         for t in &self.tables {
             s.push_str(&t.section());

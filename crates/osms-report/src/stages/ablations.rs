@@ -8,6 +8,7 @@ use osms_sim::artifacts::Evaluation;
 use super::seed_evals;
 use crate::ablations::{
     generator_claim, generators, labels, labels_claim, refine_repair, refine_repair_claim,
+    validation_model, validation_model_claim,
 };
 use crate::artifacts::Ablations;
 
@@ -16,12 +17,14 @@ const SETS: [&str; 4] = ["direct", "unconditional", "euclidean", "geodesic"];
 const CONSTRUCTIONS: [&str; 4] = ["filtering", "refine_only", "repair_only", "both"];
 /// D_* as the paper builds it (`both`), with ā labels, and without its perturbed survivors.
 const LABELS: [&str; 3] = ["both", "intended", "omitted"];
+/// D_* as osms validates it (under the calibrated model) and under the paper's least squares.
+const MODELS: [&str; 2] = ["both", "least_squares"];
 
 pub struct AblationsStage;
 impl Stage for AblationsStage {
     const KIND: &'static str = "ablations";
-    // 2: the claims decided by intervals. 3: the label ablation.
-    const CODE_VERSION: u32 = 3;
+    // 2: the claims decided by intervals. 3: the label ablation. 4: validation's error model.
+    const CODE_VERSION: u32 = 4;
     const USES_RNG: bool = false;
     const INPUTS: &'static [Slot] = &[
         Slot::one::<DemoSet>("filtering_demos"),
@@ -44,8 +47,10 @@ impl Stage for AblationsStage {
         Slot::one::<DemoSet>("omitted_demos"),
         Slot::gather::<Evaluation>("intended"),
         Slot::gather::<Evaluation>("omitted"),
+        Slot::one::<DemoSet>("least_squares_demos"),
+        Slot::gather::<Evaluation>("least_squares"),
     ];
-    const DOC: &'static str = "the ablations of paper 6.4 (refinement/repair, candidate generation) and D_*'s labels, with their claims";
+    const DOC: &'static str = "the ablations of paper 6.4 (refinement/repair, candidate generation), D_*'s labels and validation's error model, with their claims";
     type Params = NoParams;
     type Output = Ablations;
 
@@ -53,16 +58,19 @@ impl Stage for AblationsStage {
         let c = Rows::load(ctx, CONSTRUCTIONS)?;
         let g = Rows::load(ctx, SETS)?;
         let l = Rows::load(ctx, LABELS)?;
+        let m = Rows::load(ctx, MODELS)?;
         Ok(Ablations {
             tables: vec![
                 refine_repair(c.sets(), c.students()),
                 generators(g.sets(), g.students()),
                 labels(l.sets(), l.students()),
+                validation_model(m.sets(), m.students()),
             ],
             claims: vec![
                 refine_repair_claim(c.students()),
                 generator_claim(g.sets(), g.students()),
                 labels_claim(l.students()),
+                validation_model_claim(m.students()),
             ],
         })
     }
