@@ -23,6 +23,26 @@ pub fn interpreter(check: &str) -> Option<PathBuf> {
     }
 }
 
+/// The interpreter of a fresh venv holding the Python package as a wheel (scripts/test installs
+/// it there: `OSMS_TEST_WHEEL_PYTHON`), or `None` after logging a visible skip; under `CI` a
+/// missing one fails the test.
+pub fn wheel_interpreter(check: &str) -> Option<PathBuf> {
+    match std::env::var_os("OSMS_TEST_WHEEL_PYTHON").filter(|v| !v.is_empty()) {
+        Some(p) => Some(PathBuf::from(p)),
+        None => {
+            let mode = crate::golden::Mode::from_env();
+            assert!(
+                !mode.ci,
+                "{check} needs OSMS_TEST_WHEEL_PYTHON under CI (scripts/test installs the wheel)"
+            );
+            let line = format!("{check}: OSMS_TEST_WHEEL_PYTHON is not set (run scripts/test)");
+            eprintln!("skipped: {line}");
+            mode.log_skip(&line);
+            None
+        }
+    }
+}
+
 /// Runs `scripts/<script>` with `args` and parses the one JSON object it prints.
 pub fn run_script(python: &Path, script: &str, args: &[&str]) -> serde_json::Value {
     run_file(
@@ -37,9 +57,11 @@ pub fn run_script(python: &Path, script: &str, args: &[&str]) -> serde_json::Val
 /// Runs the Python file `path` with `args` and parses the one JSON object it prints.
 pub fn run_file(python: &Path, path: &Path, args: &[&str]) -> serde_json::Value {
     let script = path.display();
+    // `python -O` (PYTHONOPTIMIZE) would skip any `assert` a script still carries.
     let out = Command::new(python)
         .arg(path)
         .args(args)
+        .env_remove("PYTHONOPTIMIZE")
         .output()
         .unwrap_or_else(|e| panic!("run {script}: {e}"));
     assert!(

@@ -203,7 +203,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     datasets_export_replay_and_render(&first);
     a_sweep_rebuilds_only_its_seeds_and_the_aggregates(&first, &text);
     // Last: it builds a condition set into a store of its own beside this one.
-    the_python_package_reproduces_osms_evaluations(&first);
+    the_python_package_reproduces_osms_evaluations(&first, &text);
     golden::check("outputs_pipeline_tiny", first.outputs);
 }
 
@@ -1945,23 +1945,82 @@ fn datasets_export_replay_and_render(made: &Made) {
     }
 }
 
+/// The stages the Python package's identity check adds to the tiny pipeline: a student acting
+/// with noise and the scripted catcher with other gains and inputs than the defaults, each with
+/// its evaluation (protocol), so that the store's policies are checked for every param their
+/// stages read.
+const PYTHON_IDENTITY_STAGES: &str = r#"
+[stages.student_noisy]
+kind = "student"
+seed = 0
+inputs = { data = "d_e" }
+params = { steps = 40, batch = 32, hidden = [32, 32], log_every = 10, noise_scale = 1.0 }
+
+[stages.eval_student_noisy]
+kind = "eval_student"
+seed = 0
+inputs = { world = "world", conditions = "heldout", student = "student_noisy" }
+params = { rollout = { dr = "paper" } }
+
+[stages.eval_scripted_tuned]
+kind = "evaluate"
+seed = 0
+inputs = { world = "world", conditions = "heldout" }
+params = { rollout = { dr = "paper" }, catcher = { gain = 0.35 }, prior_inputs = "tracked" }
+"#;
+
 /// The Python package `osms` (crates/osms-py) against osms's own evaluations: the store's
-/// teacher, student and scripted catcher evaluated from Python give `osms export`'s rows bit
-/// for bit at 1, 3 and 16 rollouts at once; a NumPy policy's rows do not depend on batching
-/// and match the gymnasium environment's; gymnasium's checker passes; bad actions raise an
-/// error naming the condition and step and leave the store alone; a fresh store gets its
-/// condition set on first use (crates/osms-py/tests/check_package.py does the Python side;
-/// scripts/test builds the package into the test venv).
-fn the_python_package_reproduces_osms_evaluations(made: &Made) {
+/// teacher, students (with and without noise) and scripted catcher (default and tuned)
+/// evaluated from Python give `osms export`'s rows bit for bit at 1, 3 and 16 rollouts at once;
+/// a NumPy policy's rows do not depend on batching and match the gymnasium environment's;
+/// gymnasium's checker passes; bad actions and arguments raise errors naming what would do and
+/// leave the pool and the store alone; a fresh store gets its condition set on first use and
+/// evaluates `heldout` without a teacher (crates/osms-py/tests/check_package.py does the Python
+/// side and exits non-zero on any failed check; scripts/test builds the package into the test
+/// venv).
+fn the_python_package_reproduces_osms_evaluations(made: &Made, text: &str) {
     use osms_sim::artifacts::Evaluation;
     let Some(python) = osms_tests::python::interpreter("the Python package's checks") else {
         return;
     };
+    // The identity check's own stages, built into the same store beside the pipeline.
+    let pipeline = made._dir.path().join("python.toml");
+    std::fs::write(&pipeline, format!("{text}{PYTHON_IDENTITY_STAGES}")).expect("write");
+    let plan = Plan::new(
+        &Pipeline::load(&pipeline, Some("tiny")).expect("load"),
+        &osms::registry(),
+    )
+    .expect("plan");
+    let added = ["eval_student_noisy", "eval_scripted_tuned"];
+    let opts = MakeOptions {
+        targets: added.iter().map(|s| s.to_string()).collect(),
+        seeds: vec![0],
+        jobs: 2,
+        stages: 1,
+        dry_run: false,
+    };
+    let report = osms_make::make(&plan, &made.store, &opts, &Silent).expect("make");
+    assert!(report.failed().is_empty(), "{:?}", report.failed());
+    let built = hashes(&report);
     // The reference rows: each evaluation's rollouts.csv as `osms export` writes it.
     let reference = tempfile::tempdir().expect("reference dir");
-    let protocols = ["eval_teacher", "eval_student_il", "eval_scripted"];
+    let protocols = [
+        "eval_teacher",
+        "eval_student_il",
+        "eval_student_noisy",
+        "eval_scripted",
+        "eval_scripted_tuned",
+    ];
     for stage in protocols {
-        let evaluation: Evaluation = load_sharded(made, stage);
+        let hash = built
+            .get(stage)
+            .or_else(|| made.hashes.get(stage))
+            .unwrap_or_else(|| panic!("{stage} built"));
+        let evaluation: Evaluation = osms_make::assemble(
+            &made.store.get(hash).expect("object"),
+            &osms_make::StoreObjects(&made.store),
+        )
+        .expect("assemble");
         let files = osms_export::rollouts::files(&evaluation).expect("files");
         let (_, csv) = files
             .iter()
@@ -1969,35 +2028,80 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made) {
             .expect("a csv");
         std::fs::write(reference.path().join(format!("{stage}.csv")), csv).expect("write csv");
     }
-    let pipeline = made._dir.path().join("pipeline.toml");
-    let summary = osms_tests::python::run_file(
-        &python,
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../crates/osms-py/tests/check_package.py"),
-        &[
-            pipeline.to_str().expect("utf-8 path"),
-            reference.path().to_str().expect("utf-8 path"),
-        ],
+    // The tuned catcher and the noisy student are other policies than the defaults: their rows
+    // differ from the default stages' on the same conditions.
+    let read = |stage: &str| {
+        std::fs::read_to_string(reference.path().join(format!("{stage}.csv"))).expect("csv")
+    };
+    assert_ne!(read("eval_scripted_tuned"), read("eval_scripted"));
+    assert_ne!(read("eval_student_noisy"), read("eval_student_il"));
+    let checkout = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .canonicalize()
+        .expect("checkout");
+    let mut runs = vec![("editable install", python)];
+    runs.extend(
+        osms_tests::python::wheel_interpreter("the Python package's checks from its wheel")
+            .map(|p| ("wheel in a fresh venv", p)),
     );
-    // Nine identity checks (three policies × three batch sizes), each over the whole set.
-    let conditions = std::fs::read_to_string(reference.path().join("eval_teacher.csv"))
-        .expect("csv")
-        .lines()
-        .count()
-        - 1;
+    for (install, python) in runs {
+        let summary = osms_tests::python::run_file(
+            &python,
+            &checkout.join("crates/osms-py/tests/check_package.py"),
+            &[
+                pipeline.to_str().expect("utf-8 path"),
+                reference.path().to_str().expect("utf-8 path"),
+            ],
+        );
+        check_python_summary(&summary, &read("eval_teacher"));
+        let (package, mujoco) = (
+            summary["package"].as_str().expect("package path"),
+            summary["mujoco"].as_str().expect("mujoco path"),
+        );
+        if install == "editable install" {
+            assert!(
+                package.starts_with(checkout.join("crates/osms-py/python").to_str().expect("utf-8")),
+                "{install}: {package}"
+            );
+            assert!(
+                mujoco.starts_with(checkout.join(".mujoco").to_str().expect("utf-8")),
+                "{install}: {mujoco}"
+            );
+        } else {
+            // The wheel's package and the MuJoCo library it carries, nothing of the checkout.
+            let venv = python
+                .parent()
+                .and_then(Path::parent)
+                .expect("venv")
+                .canonicalize()
+                .expect("venv");
+            let venv = venv.to_str().expect("utf-8 path");
+            assert!(package.starts_with(venv), "{install}: {package}");
+            assert!(mujoco.starts_with(venv), "{install}: {mujoco}");
+        }
+    }
+}
+
+/// What every run of check_package.py must have measured (it exits non-zero itself on a failed
+/// check; these are the counts and values it reports).
+fn check_python_summary(summary: &serde_json::Value, teacher_csv: &str) {
+    // Fifteen identity checks (five policies × three batch sizes), each over the whole set.
+    let conditions = teacher_csv.lines().count() - 1;
     let identity = summary["identity"].as_object().expect("identity");
-    assert_eq!(identity.len(), 9, "{summary}");
+    assert_eq!(identity.len(), 15, "{summary}");
     assert!(
         identity
             .values()
             .all(|n| n.as_u64() == Some(conditions as u64)),
         "{summary}"
     );
-    assert_eq!(summary["store_unchanged"], true);
-    assert_eq!(summary["reset_keyed"], true);
-    assert_eq!(summary["python_policy"]["env_rows_match"], true);
     assert_eq!(summary["render"], serde_json::json!([480, 480, 3]));
     assert!(
         summary["dev_built_on_use"].as_u64().is_some_and(|n| n > 0),
+        "{summary}"
+    );
+    assert!(
+        summary["refused_then_clean"].as_u64().is_some_and(|n| n >= 4),
         "{summary}"
     );
     let warnings = summary["check_env_warnings"].as_array().expect("warnings");
@@ -2005,4 +2109,15 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made) {
         warnings.is_empty(),
         "gymnasium's checker warned: {warnings:?}"
     );
+    // One definition: the package's version and Wilson interval are the Rust crates'.
+    assert_eq!(summary["version"], env!("CARGO_PKG_VERSION"));
+    let z = osms_core::stats::normal_quantile(0.975);
+    for (x, n) in [(0, 40), (7, 40), (40, 40)] {
+        let (low, high) = osms_core::stats::wilson_bounds(x, n, z).expect("n > 0");
+        assert_eq!(
+            summary["wilson"][format!("{x}/{n}")],
+            serde_json::json!([low, high]),
+            "{summary}"
+        );
+    }
 }

@@ -360,6 +360,19 @@ pub fn wilson(x: usize, n: usize, z: f64) -> (f64, f64) {
     (centre - half, centre + half)
 }
 
+/// The Wilson score interval of `x` out of `n` as a reader expects it printed: clamped to
+/// [0, 1], and exactly 0 (1) at its lower (upper) end when `x` is 0 (`n`), where
+/// [`wilson`]'s two terms cancel only up to rounding. `None` for `n` = 0 or `x` > `n`.
+pub fn wilson_bounds(x: usize, n: usize, z: f64) -> Option<(f64, f64)> {
+    if n == 0 || x > n {
+        return None;
+    }
+    let (low, high) = wilson(x, n, z);
+    let low = if x == 0 { 0.0 } else { low.clamp(0.0, 1.0) };
+    let high = if x == n { 1.0 } else { high.clamp(0.0, 1.0) };
+    Some((low, high))
+}
+
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
@@ -458,6 +471,21 @@ fn beta_fraction(x: f64, a: f64, b: f64) -> f64 {
 mod tests {
     use super::*;
     use crate::rng::{normal, stream, uniform01};
+
+    #[test]
+    fn wilson_bounds_are_exact_at_the_ends_and_agree_inside() {
+        let z = 1.959963984540054;
+        // x = 0: the upper end is z² / (n + z²) in closed form, the lower exactly 0.
+        let (low, high) = wilson_bounds(0, 40, z).expect("n > 0");
+        assert_eq!(low, 0.0);
+        assert!((high - z * z / (40.0 + z * z)).abs() < 1e-15, "{high}");
+        let (low, high) = wilson_bounds(40, 40, z).expect("n > 0");
+        assert_eq!(high, 1.0);
+        assert!((low - 40.0 / (40.0 + z * z)).abs() < 1e-15, "{low}");
+        assert_eq!(wilson_bounds(7, 40, z), Some(wilson(7, 40, z)));
+        assert_eq!(wilson_bounds(0, 0, z), None);
+        assert_eq!(wilson_bounds(5, 4, z), None);
+    }
 
     #[test]
     fn sample_sd_divides_by_n_minus_one() {

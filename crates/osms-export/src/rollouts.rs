@@ -112,6 +112,24 @@ pub fn column_names() -> Vec<String> {
     table(&[]).columns.into_iter().map(|c| c.name).collect()
 }
 
+/// The column names with their cell types (`int`, `float`, `bool`, `text`), in order: how a
+/// reader of `rollouts.csv` parses each column.
+pub fn column_types() -> Vec<(String, &'static str)> {
+    table(&[])
+        .columns
+        .into_iter()
+        .map(|c| {
+            let kind = match c.cells {
+                Cells::Int(_) => "int",
+                Cells::Float(_) => "float",
+                Cells::Bool(_) => "bool",
+                Cells::Text(_) => "text",
+            };
+            (c.name, kind)
+        })
+        .collect()
+}
+
 /// `rollouts.csv` and `rollouts.parquet` of an evaluation.
 pub fn files(evaluation: &Evaluation) -> Result<Vec<(String, Vec<u8>)>, Error> {
     let t = table(&evaluation.rows);

@@ -10,9 +10,11 @@ pub enum GymError {
     /// The pipeline, its profile or the store cannot be read.
     #[error("{0}")]
     Project(String),
-    #[error("`{name}` is not a stage of {pipeline}\nhint: its stages are {known}")]
+    #[error("`{name}` is not {what} of {pipeline}\nhint: valid here: {known}")]
     UnknownStage {
         name: String,
+        /// What was expected: `a stage`, `a condition set`, `an evaluation stage`.
+        what: &'static str,
         pipeline: String,
         known: String,
     },
@@ -48,6 +50,9 @@ pub enum GymError {
         step: usize,
         problem: ActionProblem,
     },
+    /// An argument outside what the call accepts (`n_envs`, an empty list of conditions).
+    #[error("{0}")]
+    Argument(String),
     /// A call that does not fit the object's state (a step after the end, a stale batch).
     #[error("{0}")]
     State(String),

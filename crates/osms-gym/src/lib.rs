@@ -17,6 +17,6 @@ pub mod pool;
 pub mod project;
 
 pub use error::{ActionProblem, GymError, Result};
-pub use native::Native;
+pub use native::{Native, NativeKind};
 pub use pool::{Pool, SingleEpisode, StepInfo, check_action, rows_csv};
-pub use project::{Project, Protocol};
+pub use project::{Project, Protocol, ScriptedSetup};

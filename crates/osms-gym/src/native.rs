@@ -2,13 +2,14 @@
 //! student, each exactly as its evaluation stage rolls it out.
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use osms_core::rng::StreamRng;
 use osms_policy::artifacts::{StudentArtifact, Teacher};
 use osms_policy::catch::TeacherQuery;
 use osms_policy::flow::FlowSampler;
 use osms_policy::student::Student;
-use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
+use osms_sim::catcher::ScriptedCatcher;
 use osms_sim::control::Action;
 use osms_sim::{Policy, PolicyView, RolloutSpec};
 use self_cell::self_cell;
@@ -16,11 +17,21 @@ use self_cell::self_cell;
 use crate::error::{GymError, Result};
 use crate::project::{Project, Protocol};
 
-/// A policy of the store.
+/// A policy of the store, loaded once: its per-rollout state in a pool is keyed by this load
+/// ([`Native::id`]), never by its name, so two loads (of one stage, or of same-named stages of
+/// two profiles) never share a rollout's state.
 #[derive(Clone)]
-pub enum Native {
-    /// The scripted privileged catcher, as `eval_scripted` builds it.
-    Scripted { catcher: Box<CatcherSpec> },
+pub struct Native {
+    id: u64,
+    kind: NativeKind,
+}
+
+/// Which policy of the store.
+#[derive(Clone)]
+pub enum NativeKind {
+    /// The scripted privileged catcher, as the protocol's stage sets it up (its gains, how it
+    /// reads the world and its rollout spec: [`crate::ScriptedSetup`]).
+    Scripted,
     /// A frozen teacher, deterministic: the residual on its prior (`eval_teacher`'s).
     Teacher { name: String, teacher: Arc<Teacher> },
     /// A flow-matching student with its noise from the protocol's ("policy", i) stream
@@ -45,18 +56,35 @@ impl Native {
     /// The policy `name` names: `scripted`, or a built instance of a `teacher` or `student`
     /// stage (`teacher`, `student_naive@0`, `student_il#1`).
     pub fn load(project: &Project, name: &str) -> Result<Native> {
+        static LOADS: AtomicU64 = AtomicU64::new(0);
+        let kind = Self::load_kind(project, name)?;
+        Ok(Native {
+            id: LOADS.fetch_add(1, Ordering::Relaxed),
+            kind,
+        })
+    }
+
+    fn load_kind(project: &Project, name: &str) -> Result<NativeKind> {
         if name == "scripted" {
-            return Ok(Native::Scripted {
-                catcher: Box::default(),
+            return Ok(NativeKind::Scripted);
+        }
+        if !project.has_stage(name) {
+            let mut known = vec!["scripted".to_string()];
+            known.extend(project.stages_of(&["teacher", "student"]));
+            return Err(GymError::UnknownStage {
+                name: name.to_string(),
+                what: "a policy",
+                pipeline: project.pipeline_path().display().to_string(),
+                known: known.join(", "),
             });
         }
         let (_, kind) = project.instance(name)?;
         match kind {
-            "teacher" => Ok(Native::Teacher {
+            "teacher" => Ok(NativeKind::Teacher {
                 name: name.to_string(),
                 teacher: Arc::new(project.load::<Teacher>(name)?),
             }),
-            "student" => Ok(Native::Student {
+            "student" => Ok(NativeKind::Student {
                 name: name.to_string(),
                 student: Arc::new(StudentSampler::new(
                     project.load::<StudentArtifact>(name)?.student,
@@ -71,46 +99,54 @@ impl Native {
         }
     }
 
+    /// This load's identity (unique in the process).
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+
     pub fn name(&self) -> &str {
-        match self {
-            Native::Scripted { .. } => "scripted",
-            Native::Teacher { name, .. } | Native::Student { name, .. } => name,
+        match &self.kind {
+            NativeKind::Scripted => "scripted",
+            NativeKind::Teacher { name, .. } | NativeKind::Student { name, .. } => name,
         }
     }
 
     /// The rollout spec this policy runs under in `protocol`: the protocol's, with the history
     /// a student reads, or a teacher's own task under the protocol's domain randomisation.
     pub fn spec(&self, protocol: &Protocol) -> RolloutSpec {
-        match self {
-            Native::Scripted { .. } => protocol.base.clone(),
-            Native::Teacher { teacher, .. } => {
+        match &self.kind {
+            NativeKind::Scripted => protocol.scripted.rollout.clone(),
+            NativeKind::Teacher { teacher, .. } => {
                 teacher
                     .task
                     .with_dr(&Some(protocol.base.dr.clone()))
                     .rollout
             }
-            Native::Student { student, .. } => student.borrow_owner().rollout_spec(&protocol.base),
+            NativeKind::Student { student, .. } => {
+                student.borrow_owner().rollout_spec(&protocol.base)
+            }
         }
     }
 
     /// Whether the policy reads the admissible contact force (the teacher's privileged frame).
     pub fn reads_contact_force(&self) -> bool {
-        matches!(self, Native::Teacher { .. })
+        matches!(self.kind, NativeKind::Teacher { .. })
     }
 
     /// The policy's state at the start of rollout `index` of `protocol`.
     pub fn start(&self, protocol: &Protocol, index: usize) -> NativeEpisode {
-        match self {
-            Native::Scripted { catcher } => NativeEpisode::Scripted(ScriptedCatcher::new(
-                (**catcher).clone(),
+        match &self.kind {
+            NativeKind::Scripted => NativeEpisode::Scripted(ScriptedCatcher::with_perception(
+                protocol.scripted.catcher.clone(),
                 protocol.base.control.clone(),
+                protocol.scripted.perception,
             )),
-            Native::Teacher { teacher, .. } => {
+            NativeKind::Teacher { teacher, .. } => {
                 NativeEpisode::Teacher(TeacherEpisode::new(teacher.clone(), |t| {
                     TeacherQuery::new(&t.agent, &t.task)
                 }))
             }
-            Native::Student { .. } => NativeEpisode::Student(protocol.policy_rng(index)),
+            NativeKind::Student { .. } => NativeEpisode::Student(protocol.policy_rng(index)),
         }
     }
 
@@ -120,7 +156,7 @@ impl Native {
         &self,
         batch: &mut [(&mut NativeEpisode, PolicyView<'_>, Option<u8>)],
     ) -> Vec<Action> {
-        if let Native::Student { student, .. } = self {
+        if let NativeKind::Student { student, .. } = &self.kind {
             let (sampler, student) = (student.borrow_dependent(), student.borrow_owner());
             let obs: Vec<Vec<f32>> = batch
                 .iter()

@@ -170,9 +170,9 @@ pub struct Pool {
     position: Vec<usize>,
     /// Counts observations: a batch is answered at the generation it was observed in.
     generation: u64,
-    /// The store's policies' state in each running rollout, by (policy, condition): it lives
-    /// and ends with the rollout.
-    native: std::collections::BTreeMap<(String, usize), NativeEpisode>,
+    /// The store's policies' state in each running rollout, by (policy load, condition), with
+    /// the generation it last acted in: it lives and ends with the rollout.
+    native: std::collections::BTreeMap<(u64, usize), (NativeEpisode, u64)>,
 }
 
 impl Pool {
@@ -186,7 +186,16 @@ impl Pool {
         n_envs: usize,
     ) -> Result<Pool> {
         if n_envs == 0 {
-            return Err(GymError::State("n_envs must be at least 1".to_string()));
+            return Err(GymError::Argument(
+                "n_envs must be at least 1 (rollouts stepped at once)".to_string(),
+            ));
+        }
+        if indices.is_empty() {
+            return Err(GymError::Argument(format!(
+                "no conditions to run: the list of condition indices is empty (`{}` has {} conditions; leave indices out to run them all)",
+                protocol.conditions_name,
+                protocol.conditions.len()
+            )));
         }
         let mut checked = Vec::with_capacity(indices.len());
         let mut seen = vec![false; protocol.conditions.len()];
@@ -337,7 +346,9 @@ impl Pool {
 
     /// The actions of the store's policy `native` for the observed `slots` (an observation of
     /// generation `generation`): it acts as its own evaluation stage does, which needs the
-    /// pool to run under its rollout spec and the policy to act from each rollout's first step.
+    /// pool to run under its rollout spec, the policy to act from each rollout's first step and
+    /// once per observation (a second call on one batch would advance a student's noise
+    /// stream). A refused call changes nothing.
     pub fn native_act(
         &mut self,
         native: &Native,
@@ -356,37 +367,57 @@ impl Pool {
                 native.name()
             )));
         }
-        let mut states = Vec::with_capacity(slots.len());
+        let mut keys = Vec::with_capacity(slots.len());
         for &k in slots {
             let (index, step) = {
                 let slot = self.awaiting(k)?;
                 (slot.index, slot.step())
             };
-            let key = (native.name().to_string(), index);
-            let state = match self.native.remove(&key) {
-                Some(state) => state,
-                None if step == 0 => native.start(&self.protocol, index),
+            let key = (native.id(), index);
+            match self.native.get(&key) {
+                Some((_, acted)) if *acted == generation => {
+                    return Err(GymError::State(format!(
+                        "`{}` already acted on this observation (condition {index}, control step {step}): a policy of the store answers each observation once, as its rollouts do",
+                        native.name(),
+                    )));
+                }
+                Some(_) => {}
+                None if step == 0 => {}
                 None => {
                     return Err(GymError::State(format!(
                         "`{}` first saw condition {index} at control step {step}: a policy of the store acts from a rollout's first step",
                         native.name(),
                     )));
                 }
-            };
-            states.push((key, state));
+            }
+            keys.push((key, k));
         }
+        let mut states: Vec<((u64, usize), NativeEpisode)> = keys
+            .iter()
+            .map(|&(key, _)| {
+                let state = match self.native.remove(&key) {
+                    Some((state, _)) => state,
+                    None => native.start(&self.protocol, key.1),
+                };
+                (key, state)
+            })
+            .collect();
         let slots_ref = &self.slots;
         let mut batch: Vec<_> = states
             .iter_mut()
-            .zip(slots)
-            .map(|((_, state), &k)| {
+            .zip(&keys)
+            .map(|((_, state), &(_, k))| {
                 let slot = slots_ref[k].as_ref().expect("checked above");
                 (state, slot.view(), slot.last_phase())
             })
             .collect();
         let actions = native.act(&mut batch);
         drop(batch);
-        self.native.extend(states);
+        self.native.extend(
+            states
+                .into_iter()
+                .map(|(key, state)| (key, (state, generation))),
+        );
         Ok(actions)
     }
 

@@ -7,9 +7,9 @@ use std::sync::Arc;
 use osms_core::Artifact;
 use osms_core::rng::{self, StreamRng};
 use osms_make::{InstanceId, Pipeline, Plan, Sharded, State, StoreObjects};
-use osms_policy::artifacts::Teacher;
-use osms_policy::stages::{EvalStudentParams, EvalTeacherParams, EvaluateParams};
+use osms_policy::stages::{EvalStudentParams, EvalTeacherParams, EvaluateParams, TeacherParams};
 use osms_sim::artifacts::{Conditions, WorldArtifact};
+use osms_sim::catcher::{CatcherSpec, Perception};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::stages::EvalParams;
 use osms_sim::{RolloutSpec, World};
@@ -79,12 +79,19 @@ impl Project {
         self.store.root()
     }
 
+    /// Whether `name`'s stage (`stage`, `stage@seed`, `stage#fold`) is in the pipeline.
+    pub fn has_stage(&self, name: &str) -> bool {
+        let stage = name.split(['@', '#']).next().unwrap_or(name);
+        self.plan.stage_index(stage).is_some()
+    }
+
     /// The instance `name` names (`stage`, `stage@seed`, `stage#fold`), and its kind.
     pub fn instance(&self, name: &str) -> Result<(InstanceId, &str)> {
         let stage = name.split(['@', '#']).next().unwrap_or(name);
         let Some(index) = self.plan.stage_index(stage) else {
             return Err(GymError::UnknownStage {
                 name: name.to_string(),
+                what: "a stage",
                 pipeline: self.pipeline_path.display().to_string(),
                 known: self.plan.stage_names().join(", "),
             });
@@ -191,9 +198,18 @@ impl Project {
 
     /// The protocol of evaluation stage `name` (an instance of kind `eval_teacher`,
     /// `eval_student`, `eval_scripted` or `evaluate`): its world, conditions, rollout spec and
-    /// random streams. The stage itself need not be built; its world and conditions (and, for
-    /// `eval_teacher`, the teacher whose task sets the rollout spec) must be.
+    /// random streams. The stage itself need not be built, nor any policy it rolls out (an
+    /// `eval_teacher`'s rollout spec is its teacher's task, which the teacher stage's params
+    /// fix before any training); its world and conditions are built here if missing.
     pub fn protocol(&self, name: &str) -> Result<Protocol> {
+        if !self.has_stage(name) {
+            return Err(GymError::UnknownStage {
+                name: name.to_string(),
+                what: "an evaluation stage",
+                pipeline: self.pipeline_path.display().to_string(),
+                known: self.evaluation_stages().join(", "),
+            });
+        }
         let (id, kind) = self.instance(name)?;
         if !EVALUATION_KINDS.contains(&kind) {
             return Err(GymError::WrongKind {
@@ -208,31 +224,44 @@ impl Project {
         }
         let stage = &self.plan.stages[id.stage];
         let params = stage.params.json.clone();
-        let bad = |e: serde_json::Error| GymError::Decode {
-            instance: name.to_string(),
-            message: format!("params: {e}"),
+        let bad = |instance: &str| {
+            let instance = instance.to_string();
+            move |e: serde_json::Error| GymError::Decode {
+                instance,
+                message: format!("params: {e}"),
+            }
         };
         let input = |slot: &str| {
             self.input(id, slot)
                 .ok_or_else(|| GymError::Project(format!("stage `{name}` has no `{slot}` input")))
         };
-        let base = match kind {
+        let (base, scripted) = match kind {
             "eval_teacher" => {
-                let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad)?;
-                let teacher: Teacher = self.load(&input("teacher")?)?;
-                teacher.task.with_dr(&p.dr).rollout
+                let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad(name))?;
+                let base = self.teacher_task(&input("teacher")?)?.with_dr(&p.dr).rollout;
+                (base.clone(), ScriptedSetup::default_on(base))
             }
             "eval_student" => {
-                let p: EvalStudentParams = serde_json::from_value(params).map_err(bad)?;
-                p.rollout
+                let p: EvalStudentParams = serde_json::from_value(params).map_err(bad(name))?;
+                (p.rollout.clone(), ScriptedSetup::default_on(p.rollout))
             }
             "eval_scripted" => {
-                let p: EvalParams = serde_json::from_value(params).map_err(bad)?;
-                p.rollout
+                let p: EvalParams = serde_json::from_value(params).map_err(bad(name))?;
+                let scripted = ScriptedSetup {
+                    catcher: p.catcher,
+                    perception: Perception::default(),
+                    rollout: p.rollout.clone(),
+                };
+                (p.rollout, scripted)
             }
             _ => {
-                let p: EvaluateParams = serde_json::from_value(params).map_err(bad)?;
-                p.rollout
+                let p: EvaluateParams = serde_json::from_value(params).map_err(bad(name))?;
+                let scripted = ScriptedSetup {
+                    catcher: p.catcher.clone(),
+                    perception: p.prior_perception(),
+                    rollout: p.prior_rollout(),
+                };
+                (p.rollout, scripted)
             }
         };
         let conditions_name = input("conditions")?;
@@ -253,9 +282,30 @@ impl Project {
             conditions_name,
             conditions: Arc::new(conditions.items),
             base,
+            scripted,
             seed: self.plan.effective_seed(id),
             stream: self.plan.stream_name(id),
         })
+    }
+
+    /// The task a teacher instance trains on, stored realised in its artifact: read from its
+    /// stage's params, so that no training is needed to know how its evaluations roll out.
+    fn teacher_task(&self, teacher: &str) -> Result<osms_policy::catch::CatchTaskSpec> {
+        let (id, kind) = self.instance(teacher)?;
+        if kind != "teacher" {
+            return Err(GymError::WrongKind {
+                name: teacher.to_string(),
+                kind: kind.to_string(),
+                expected: "an `eval_teacher` stage's `teacher` input is a `teacher` stage"
+                    .to_string(),
+            });
+        }
+        let p: TeacherParams = serde_json::from_value(self.plan.stages[id.stage].params.json.clone())
+            .map_err(|e| GymError::Decode {
+                instance: teacher.to_string(),
+                message: format!("params: {e}"),
+            })?;
+        Ok(p.task.realised())
     }
 
     /// Builds those of `names` that are the world or a condition set and not built yet (seconds,
@@ -297,18 +347,38 @@ impl Project {
 
     /// The evaluation stages of the pipeline, in its order.
     pub fn evaluation_stages(&self) -> Vec<String> {
+        self.stages_of(&EVALUATION_KINDS)
+    }
+
+    /// The pipeline's stages of the kinds in `kinds`, in its order.
+    pub fn stages_of(&self, kinds: &[&str]) -> Vec<String> {
         self.plan
             .stages
             .iter()
-            .filter(|s| EVALUATION_KINDS.contains(&s.info.name))
+            .filter(|s| kinds.contains(&s.info.name))
             .map(|s| s.name.clone())
             .collect()
+    }
+
+    /// The pipeline's condition sets (stages of kind `conditions`), in its order.
+    pub fn condition_sets(&self) -> Vec<String> {
+        self.stages_of(&["conditions"])
     }
 
     /// The protocol osms uses by default for condition set `conditions` (`dev`, `heldout`): the
     /// first evaluation stage on it that rolls out a teacher, else the first on it.
     pub fn default_protocol(&self, conditions: &str) -> Result<String> {
-        let (set, _) = self.instance(conditions)?;
+        let set = match self.instance(conditions) {
+            Ok((set, "conditions")) => set,
+            _ => {
+                return Err(GymError::UnknownStage {
+                    name: conditions.to_string(),
+                    what: "a condition set",
+                    pipeline: self.pipeline_path.display().to_string(),
+                    known: self.condition_sets().join(", "),
+                });
+            }
+        };
         let on_set: Vec<&osms_make::PlannedStage> = self
             .plan
             .stages
@@ -348,10 +418,32 @@ pub struct Protocol {
     pub conditions: Arc<Vec<TaskCondition>>,
     /// The rollout spec a policy without needs of its own runs under (history: the policy's).
     pub base: RolloutSpec,
+    /// How the scripted catcher runs under this protocol, as the stage's params say.
+    pub scripted: ScriptedSetup,
     /// The seed of the stage's streams; `None` when the stage draws nothing (no DR).
     pub seed: Option<u64>,
     /// The name the stage's streams go by (the stage, with `#fold` for folds).
     pub stream: String,
+}
+
+/// The scripted catcher of a protocol: its gains, how it reads the world and the rollout
+/// spec it runs under (`eval_scripted`'s `catcher`; an `evaluate` stage's `catcher` and
+/// `prior_*` params; the defaults under any other kind, with the protocol's own spec).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScriptedSetup {
+    pub catcher: CatcherSpec,
+    pub perception: Perception,
+    pub rollout: RolloutSpec,
+}
+
+impl ScriptedSetup {
+    fn default_on(rollout: RolloutSpec) -> Self {
+        ScriptedSetup {
+            catcher: CatcherSpec::default(),
+            perception: Perception::default(),
+            rollout,
+        }
+    }
 }
 
 impl Protocol {

@@ -30,6 +30,7 @@ create_exception!(
 fn to_py(e: GymError) -> PyErr {
     match e {
         GymError::Action { .. } => ActionError::new_err(e.to_string()),
+        GymError::Argument(_) => PyValueError::new_err(e.to_string()),
         other => OsmsError::new_err(other.to_string()),
     }
 }
@@ -96,6 +97,11 @@ impl PyProject {
     /// The pipeline's evaluation stages, in order.
     fn evaluation_stages(&self) -> Vec<String> {
         self.inner.evaluation_stages()
+    }
+
+    /// The pipeline's condition sets, in order.
+    fn condition_sets(&self) -> Vec<String> {
+        self.inner.condition_sets()
     }
 
     /// A policy of the store: `scripted`, or a built `teacher` or `student` instance.
@@ -240,10 +246,18 @@ impl PyPool {
     fn new(
         protocol: &PyProtocol,
         indices: Vec<i64>,
-        n_envs: usize,
+        n_envs: i64,
         policy: Option<PyRef<'_, PyNative>>,
         privileged: bool,
     ) -> PyResult<Self> {
+        let n_envs = usize::try_from(n_envs)
+            .ok()
+            .filter(|&n| n >= 1)
+            .ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "n_envs is {n_envs}; it must be at least 1 (rollouts stepped at once)"
+                ))
+            })?;
         let protocol = protocol.inner.clone();
         let (spec, reads) = match &policy {
             Some(p) => (
@@ -295,33 +309,44 @@ impl PyPool {
     }
 
     /// Runs one action per observed rollout (`actions`: n × 24, float64, in observation order),
-    /// GIL released. An action the world cannot run raises ActionError and moves nothing.
-    fn act(&mut self, py: Python<'_>, actions: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
-        let view = actions.as_array();
-        let shape = view.shape().to_vec();
+    /// GIL released. An action the world cannot run raises ActionError and moves nothing: the
+    /// observation still awaits its actions.
+    fn act(&mut self, py: Python<'_>, actions: &Bound<'_, PyAny>) -> PyResult<()> {
         let n = self.observed.len();
         if n == 0 {
             return Err(OsmsError::new_err(
                 "no observation awaits actions: call observe() first",
             ));
         }
-        if shape != [n, osms_sim::N_ACTION] {
+        let shape_error = |got: String| {
             let pool = lock(&self.pool);
             let (condition, step) = (
                 pool.condition(self.observed[0]),
                 pool.step(self.observed[0]),
             );
-            return Err(to_py(GymError::Action {
+            to_py(GymError::Action {
                 condition,
                 step,
                 problem: osms_gym::ActionProblem::Shape {
                     expected: format!(
-                        "({n}, {}): one row per observed rollout",
+                        "a float64 array of shape ({n}, {}): one row per observed rollout",
                         osms_sim::N_ACTION
                     ),
-                    got: format!("{shape:?}"),
+                    got,
                 },
-            }));
+            })
+        };
+        let Ok(array) = actions.extract::<PyReadonlyArray2<'_, f64>>() else {
+            let got = match actions.getattr("shape") {
+                Ok(shape) => format!("{} of shape {}", type_name(actions), shape),
+                Err(_) => type_name(actions),
+            };
+            return Err(shape_error(got));
+        };
+        let view = array.as_array();
+        let shape = view.shape().to_vec();
+        if shape != [n, osms_sim::N_ACTION] {
+            return Err(shape_error(format!("{shape:?}")));
         }
         let rows: Vec<(usize, Vec<f64>)> = self
             .observed
@@ -346,6 +371,15 @@ impl PyPool {
         let pool = lock(&self.pool);
         osms_gym::rows_csv(&pool.rows().map_err(to_py)?).map_err(to_py)
     }
+}
+
+/// A Python value's type name, for an error message (`NoneType`, `list`, `numpy.ndarray`).
+fn type_name(value: &Bound<'_, PyAny>) -> String {
+    value
+        .get_type()
+        .name()
+        .map(|n| n.to_string())
+        .unwrap_or_else(|_| "an object".to_string())
 }
 
 /// The rollout spec of a policy outside osms: the protocol's, showing one frame (a policy keeps
@@ -575,6 +609,40 @@ fn row_columns() -> Vec<String> {
     osms_export::rollouts::column_names()
 }
 
+/// The columns of `rollouts.csv` with their cell types (`int`, `float`, `bool`, `text`), in
+/// order: how `osms.eval.Evaluation` parses them.
+#[pyfunction]
+fn row_column_types() -> Vec<(String, &'static str)> {
+    osms_export::rollouts::column_types()
+}
+
+/// The Wilson score interval of `successes` out of `n` (95 % by default) as (low, high),
+/// exactly 0 (1) at the lower (upper) end for 0 (`n`) successes; (nan, nan) for `n` = 0.
+/// The same interval osms's own tables print.
+#[pyfunction]
+#[pyo3(signature = (successes, n, z=None))]
+fn wilson(successes: i64, n: i64, z: Option<f64>) -> PyResult<(f64, f64)> {
+    let (Ok(x), Ok(total)) = (usize::try_from(successes), usize::try_from(n)) else {
+        return Err(PyValueError::new_err(format!(
+            "wilson({successes}, {n}): counts are not negative"
+        )));
+    };
+    if x > total {
+        return Err(PyValueError::new_err(format!(
+            "wilson({successes}, {n}): more successes than trials"
+        )));
+    }
+    let z = z.unwrap_or_else(|| osms_core::stats::normal_quantile(0.975));
+    Ok(osms_core::stats::wilson_bounds(x, total, z).unwrap_or((f64::NAN, f64::NAN)))
+}
+
+/// The keys of osms's robomimic export's observations with their widths, in the deployable
+/// frame's order (`agent_pos` split into them).
+#[pyfunction]
+fn robomimic_keys() -> Vec<(&'static str, usize)> {
+    osms_export::robomimic::OBS_KEYS.to_vec()
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     osms_sim::ffi::route_mujoco_logs_at_startup();
@@ -586,9 +654,21 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyEnv>()?;
     m.add_function(wrap_pyfunction!(channels, m)?)?;
     m.add_function(wrap_pyfunction!(row_columns, m)?)?;
+    m.add_function(wrap_pyfunction!(row_column_types, m)?)?;
+    m.add_function(wrap_pyfunction!(wilson, m)?)?;
+    m.add_function(wrap_pyfunction!(robomimic_keys, m)?)?;
     m.add_function(wrap_pyfunction!(bench_constant, m)?)?;
     m.add("OsmsError", m.py().get_type::<OsmsError>())?;
     m.add("ActionError", m.py().get_type::<ActionError>())?;
     m.add("N_ACTION", osms_sim::N_ACTION)?;
+    m.add("DEPLOYABLE_LEN", osms_sim::episode::DEPLOYABLE_LEN)?;
+    m.add("PRIVILEGED_LEN", osms_sim::episode::PRIVILEGED_LEN)?;
+    // The default world's control rate; a protocol's own is `Protocol.control_hz`.
+    let world = osms_sim::WorldSpec::default();
+    m.add(
+        "DEFAULT_CONTROL_HZ",
+        1.0 / (world.timestep_secs * f64::from(world.substeps)),
+    )?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

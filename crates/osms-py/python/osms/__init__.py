@@ -8,27 +8,35 @@ passed as ``pipeline=``), a profile and the store beside it that ``./osms make``
 """
 
 from osms._native import (
+    DEFAULT_CONTROL_HZ,
+    DEPLOYABLE_LEN,
     N_ACTION,
+    PRIVILEGED_LEN,
     ActionError,
     NativePolicy,
     OsmsError,
     Project,
     Protocol,
+    __version__,
     channels,
     row_columns,
 )
 
-from osms import eval, policies  # noqa: E402  (submodules need the names above)
+from osms import eval, policies  # noqa: E402,A004  (submodules need the names above)
 
+# `eval` stays out: `from osms import *` must not replace the builtin `eval`.
 __all__ = [
+    "DEFAULT_CONTROL_HZ",
+    "DEPLOYABLE_LEN",
     "N_ACTION",
+    "PRIVILEGED_LEN",
     "ActionError",
     "NativePolicy",
     "OsmsError",
     "Project",
     "Protocol",
+    "__version__",
     "channels",
-    "eval",
     "policies",
     "row_columns",
 ]

@@ -3,69 +3,121 @@
 :func:`evaluate` steps many rollouts in Rust (the GIL released while MuJoCo runs) and calls the
 policy once per control step with the batch of running rollouts' observations. Rollout ``i`` is
 the protocol's rollout on condition ``i``: its domain randomisation comes from the protocol
-stage's stream for that condition, so the rows do not depend on ``n_envs``, on batching or on
-the order rollouts finish, and the store's own policies reproduce ``osms export``'s rows bit
-for bit.
+stage's stream for that condition, and the store's own policies reproduce ``osms export``'s
+rows bit for bit. A policy's rows do not depend on ``n_envs`` when its action for a rollout
+depends only on that rollout's observations, bit for bit: true of the store's policies and of
+row-wise NumPy code, not of code whose arithmetic depends on the batch (a BLAS matrix product
+may sum a row in another order when the batch is larger, which moves the last bits of an
+action and so, in a chaotic catch, possibly a row).
 
 A policy is any callable ``policy(obs) -> actions``:
 
 ``obs`` (a dict)
     ``agent_pos``: ``(n, 76)`` float32, the deployable frame a student sees (channel names:
-    ``osms.channels()["agent_pos"]``); ``environment_state``: ``(n, 85)`` float32, the
+    ``osms.channels()["agent_pos"]``); ``environment_state``: ``(n, 84)`` float32, the
     privileged frame, only with ``privileged=True``; ``condition`` and ``step``: ``(n,)``
     int64, which condition each row is and its control step (0 starts a rollout: reset any
     per-rollout memory there); ``osms_batch``: what the store's policies read.
 ``actions``
-    ``(n, 24)`` in [-1, 1], any float dtype (float32 is converted exactly), in the world's
-    channel order (``osms.channels()["action"]``), one row per observation row.
+    ``(n, 24)`` real numbers in [-1, 1], any integer or float dtype (float32 converts
+    exactly), in the world's channel order (``osms.channels()["action"]``), one row per
+    observation row; a ``(24,)`` row when one rollout runs. Anything else raises
+    :class:`osms.ActionError`.
 """
 
 import csv
 import io
 import json
-import math
+import operator
 import os
 import time
 
 import numpy as np
 
-from osms._native import ActionError, NativePolicy, Pool
+from osms._native import N_ACTION, ActionError, NativePolicy, Pool, row_column_types
+from osms._native import wilson as _wilson
 from osms._project import project as _project
 from osms._project import protocol as _protocol
 
-# The columns of rollouts.csv that are integers and booleans (the rest are floats or text).
-_INT_COLUMNS = {
-    "condition",
-    "variant_index",
-    "dr_observation_delay_steps",
-    "dr_actuation_delay_steps",
-    "event_step",
-    "steps",
-}
+# How each column of rollouts.csv parses (int, float, bool, text): osms-export's own table.
+_COLUMN_TYPES = dict(row_column_types())
 
 
-def wilson(successes, n, z=1.959963984540054):
-    """The Wilson score interval of a proportion (95 % by default), as (low, high)."""
-    if n == 0:
-        return (float("nan"), float("nan"))
-    p = successes / n
-    denominator = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denominator
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denominator
-    return (max(0.0, centre - half), min(1.0, centre + half))
+def wilson(successes, n, z=None):
+    """The Wilson score interval of ``successes`` out of ``n`` (95 % unless ``z`` is given), as
+    ``(low, high)``: exactly 0 (1) at the lower (upper) end for 0 (``n``) successes, ``(nan,
+    nan)`` for ``n = 0``. osms's own tables use the same function (it is the Rust crates')."""
+    return _wilson(operator.index(successes), operator.index(n), z)
 
 
 def _cell(column, text):
     if text == "":
         return None
-    if column in _INT_COLUMNS:
+    kind = _COLUMN_TYPES.get(column, "text")
+    if kind == "int":
         return int(text)
-    if text in ("true", "false"):
+    if kind == "bool":
         return text == "true"
-    try:
+    if kind == "float":
         return float(text)
-    except ValueError:
-        return text
+    return text
+
+
+def as_actions(raw, obs):
+    """The policy's answer ``raw`` to the observation batch ``obs`` as the ``(n, 24)`` float64
+    array the world runs, or :class:`osms.ActionError` naming the condition, the control step
+    and what was expected. Values are checked (finite, in [-1, 1]) per rollout by the world."""
+    n = obs["agent_pos"].shape[0]
+    expected = f"({n}, {N_ACTION})" + (f" or ({N_ACTION},)" if n == 1 else "")
+
+    def refuse(problem):
+        where = f"condition {int(obs['condition'][0])} at control step {int(obs['step'][0])}"
+        return ActionError(
+            f"the policy's actions for {where} {problem}; expected real numbers in [-1, 1] "
+            f"of shape {expected}: one row per observed rollout"
+        )
+
+    if raw is None:
+        raise refuse("are None (does the policy return its actions?)")
+    try:
+        with np.errstate(all="ignore"):
+            actions = np.asarray(raw)
+    except (TypeError, ValueError) as e:
+        raise refuse(f"are not an array ({e})") from None
+    if actions.dtype.kind not in "iuf":
+        raise refuse(f"are not real numbers (dtype {actions.dtype})")
+    if actions.shape == (N_ACTION,) and n == 1:
+        actions = actions[None, :]
+    if actions.shape != (n, N_ACTION):
+        raise refuse(f"have shape {actions.shape}")
+    return np.ascontiguousarray(actions, dtype=np.float64)
+
+
+def _indices(indices, proto):
+    if indices is None:
+        return list(range(proto.n_conditions))
+    if isinstance(indices, (str, bytes)):
+        raise ValueError(f"indices is {indices!r}; expected condition indices such as [0, 3, 7] or range(100)")
+    try:
+        chosen = [operator.index(i) for i in indices]
+    except TypeError as e:
+        raise ValueError(f"indices must be integers (condition indices of `{proto.conditions}`): {e}") from None
+    if not chosen:
+        raise ValueError(
+            f"indices is empty: no conditions to run (`{proto.conditions}` has "
+            f"{proto.n_conditions}; leave indices out to run them all)"
+        )
+    return chosen
+
+
+def _n_envs(n_envs):
+    try:
+        n = operator.index(n_envs)
+    except TypeError:
+        raise ValueError(f"n_envs is {n_envs!r}; expected an integer of at least 1") from None
+    if n < 1:
+        raise ValueError(f"n_envs is {n}; it must be at least 1 (rollouts stepped at once)")
+    return n
 
 
 class Evaluation:
@@ -174,41 +226,51 @@ def evaluate(
     project=None,
     out=None,
 ):
-    """Rolls ``policy`` out on the condition set ``conditions`` (``dev``, ``heldout``) under
-    osms's default protocol for it, or under the evaluation stage ``protocol``
-    (``eval_teacher``, ``eval_naive@1``, ``dev_student_il``); all conditions, or those in
-    ``indices``. ``n_envs`` rollouts run at once. Returns an :class:`Evaluation`; with
-    ``out``, also writes its ``rollouts.csv`` and ``eval_info.json`` there.
+    """Rolls ``policy`` out on a condition set under one of osms's evaluation protocols and
+    returns an :class:`Evaluation` (its rows and rates).
 
-    Raises :class:`osms.ActionError` (naming the condition and control step) for an action of
-    the wrong shape, not finite or outside [-1, 1]; nothing is written then, and the store is
-    only ever read.
+    ``policy``
+        A callable from a batch of observations to a batch of actions (see the module's
+        doc), or a store policy from :func:`osms.policies.load`.
+    ``conditions``
+        The condition set (``"dev"``, ``"heldout"``), under osms's default protocol for it:
+        the first evaluation stage on it that rolls out a teacher (``dev_teacher``,
+        ``eval_teacher``). No policy needs to be built for it.
+    ``protocol``
+        An evaluation stage instead (``"eval_teacher"``, ``"eval_naive@1"``,
+        ``"dev_student_il"``): its condition set, rollout spec and random streams.
+    ``indices``
+        The conditions to run (indices into the set), all of them if ``None``; rows come
+        back in this order.
+    ``n_envs``
+        Rollouts stepped at once (at least 1).
+    ``privileged``
+        Also observe the privileged frame (``environment_state``).
+    ``profile``, ``pipeline``, ``store``, ``project``
+        Which osms project (default: the ``pipeline.toml`` of the working directory or a
+        parent, its default profile, the store beside it).
+    ``out``
+        A directory to write ``rollouts.csv`` and LeRobot's ``eval_info.json`` into.
+
+    Raises :class:`osms.ActionError` (naming the condition and control step) for an action
+    that is not a real-valued array of the right shape, not finite, or outside [-1, 1];
+    ``ValueError`` for bad arguments; :class:`osms.OsmsError` for a project, set, protocol
+    or policy osms cannot use (the message lists the valid ones). Nothing is written then,
+    and the store's artifacts are only ever read.
     """
     proj = _project(pipeline, store, profile, project)
     proto = _protocol(proj, conditions, protocol)
-    if indices is None:
-        indices = range(proto.n_conditions)
-    indices = [int(i) for i in indices]
+    chosen = _indices(indices, proto)
+    envs = _n_envs(n_envs)
     native = policy if isinstance(policy, NativePolicy) else None
     name = native.name if native is not None else getattr(policy, "__name__", type(policy).__name__)
     started = time.perf_counter()
-    pool = Pool(proto, indices, int(n_envs), native, bool(privileged))
+    pool = Pool(proto, chosen, envs, native, bool(privileged))
     while True:
         obs = pool.observe()
         if obs is None:
             break
-        n = obs["agent_pos"].shape[0]
-        raw = policy(obs)
-        try:
-            actions = np.asarray(raw, dtype=np.float64)
-        except (TypeError, ValueError) as e:
-            raise ActionError(
-                f"the policy's actions for condition {obs['condition'][0]} at control step "
-                f"{obs['step'][0]} are not numbers: {e}"
-            ) from None
-        if actions.ndim == 1 and n == 1 and actions.shape[0] == 24:
-            actions = actions[None, :]
-        pool.act(np.ascontiguousarray(actions))
+        pool.act(as_actions(policy(obs), obs))
     wall = time.perf_counter() - started
     result = Evaluation(pool.rows_csv(), proto.name, name, wall)
     if out is not None:

@@ -7,32 +7,44 @@ picks condition ``i``; ``reset(seed=s)`` picks condition ``s mod n``; with neith
 condition after the last one (0 first).
 """
 
+import threading
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from osms._native import DEFAULT_CONTROL_HZ, DEPLOYABLE_LEN, N_ACTION, PRIVILEGED_LEN
+from osms._native import ActionError, OsmsError
 from osms._native import Env as _Env
 from osms._native import channels as _channels
 from osms._project import project as _project
 from osms._project import protocol as _protocol
 
-_DEPLOYABLE = len(_channels()["agent_pos"])
-_PRIVILEGED = len(_channels()["environment_state"])
+# LeRobot (>= 0.5) marks the reset that starts a new rollout with this option, to tell it
+# from gymnasium's automatic resets; here every reset starts the condition it names anyway.
+LEROBOT_NEW_ROLLOUT = "lerobot_new_rollout"
+_RESET_OPTIONS = ("conditions", "protocol", "index", LEROBOT_NEW_ROLLOUT)
 
 
 class CatchEnv(gym.Env):
     """The catching world (an xArm7 with a 17-DoF hand catching thrown objects).
 
     Observation: a dict with ``agent_pos`` (the 76-channel deployable frame a student sees,
-    float32) and, with ``privileged=True``, ``environment_state`` (the 85-channel privileged
+    float32) and, with ``privileged=True``, ``environment_state`` (the 84-channel privileged
     frame). Action: 24 values in [-1, 1] (7 arm target increments, 17 hand targets; names in
-    ``env.unwrapped.channels["action"]``). An episode ends by the world's rules (the catch is
+    ``env.unwrapped.channels["action"]``); anything else raises :class:`osms.ActionError`
+    and leaves the episode where it was. An episode ends by the world's rules (the catch is
     decided, or the object is lost): ``terminated`` then, never ``truncated``. The reward is
     1 at the end of a successful catch, else 0. ``info``: ``is_success``, ``completion``,
     ``v_rel_mps``, ``f_max_n``, ``l_max_m``, ``failures``, ``condition``, ``steps``.
+
+    ``conditions`` (``"dev"``, ``"heldout"``) runs under osms's default protocol for the set,
+    ``protocol`` (an evaluation stage, ``"eval_teacher"``) under that one. An environment
+    holds MuJoCo's renderer, bound to the thread that made it: use it from that thread (one
+    environment per thread, as gymnasium's vector environments do).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(DEFAULT_CONTROL_HZ))}
 
     def __init__(
         self,
@@ -50,16 +62,17 @@ class CatchEnv(gym.Env):
                 f"render_mode {render_mode!r} is not supported; use one of {self.metadata['render_modes']}"
             )
         self.render_mode = render_mode
+        self._thread = threading.get_ident()
         self._project = _project(pipeline, store, profile, project)
         self._privileged = bool(privileged)
         self._set_protocol(_protocol(self._project, conditions, protocol))
         names = _channels()
         self.channels = names if privileged else {k: v for k, v in names.items() if k != "environment_state"}
-        spaces_ = {"agent_pos": spaces.Box(-np.inf, np.inf, (_DEPLOYABLE,), np.float32)}
+        spaces_ = {"agent_pos": spaces.Box(-np.inf, np.inf, (DEPLOYABLE_LEN,), np.float32)}
         if self._privileged:
-            spaces_["environment_state"] = spaces.Box(-np.inf, np.inf, (_PRIVILEGED,), np.float32)
+            spaces_["environment_state"] = spaces.Box(-np.inf, np.inf, (PRIVILEGED_LEN,), np.float32)
         self.observation_space = spaces.Dict(spaces_)
-        self.action_space = spaces.Box(-1.0, 1.0, (len(names["action"]),), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (N_ACTION,), np.float32)
         self._next = 0
         self._last_obs = None
         self.task = self.task_description = ""
@@ -69,19 +82,30 @@ class CatchEnv(gym.Env):
         self.metadata = dict(self.metadata, render_fps=int(round(proto.control_hz)))
         self._core = _Env(proto, self._privileged)
 
+    def _same_thread(self, call):
+        if threading.get_ident() != self._thread:
+            raise OsmsError(
+                f"CatchEnv.{call}() from another thread than the one that made the environment: "
+                "its MuJoCo renderer is bound to that thread; make one environment per thread"
+            )
+
     def reset(self, *, seed=None, options=None):
+        """Starts a condition: ``options={"index": i}``, else ``seed mod n``, else the next
+        one. ``options`` may also switch ``conditions`` or ``protocol``; LeRobot's
+        ``lerobot_new_rollout`` is accepted (every reset is a new rollout here)."""
+        self._same_thread("reset")
         super().reset(seed=seed)
         options = dict(options or {})
-        unknown = set(options) - {"conditions", "protocol", "index"}
+        unknown = set(options) - set(_RESET_OPTIONS)
         if unknown:
-            raise ValueError(
-                f"unknown reset options {sorted(unknown)}; known: conditions, protocol, index"
-            )
+            raise ValueError(f"unknown reset options {sorted(unknown)}; known: {', '.join(_RESET_OPTIONS)}")
         if "conditions" in options or "protocol" in options:
             self._set_protocol(
                 _protocol(self._project, options.get("conditions", "dev"), options.get("protocol"))
             )
         n = self.protocol.n_conditions
+        if n == 0:
+            raise OsmsError(f"the condition set `{self.protocol.conditions}` of `{self.protocol.name}` is empty")
         if options.get("index") is not None:
             index = int(options["index"])
         elif seed is not None:
@@ -96,8 +120,8 @@ class CatchEnv(gym.Env):
         return obs, self._core.info()
 
     def step(self, action):
-        action = np.asarray(action, dtype=np.float64).reshape(-1)
-        obs, info = self._core.step(action)
+        self._same_thread("step")
+        obs, info = self._core.step(_as_action(action, self._core.info()))
         terminated = bool(info["done"])
         if terminated:
             obs = self._last_obs
@@ -107,6 +131,7 @@ class CatchEnv(gym.Env):
         return obs, reward, terminated, False, info
 
     def render(self):
+        self._same_thread("render")
         if self.render_mode is None:
             gym.logger.warn("render() without a render_mode: pass render_mode='rgb_array'")
             return None
@@ -114,4 +139,28 @@ class CatchEnv(gym.Env):
 
     def row_csv(self):
         """The ended episode's row of ``rollouts.csv`` (with its header), else None."""
+        self._same_thread("row_csv")
         return self._core.row_csv()
+
+
+def _as_action(action, info):
+    """One rollout's action as the (24,) float64 array the world runs, or ActionError."""
+
+    def refuse(problem):
+        return ActionError(
+            f"the policy's action for condition {info['condition']} at control step {info['steps']} "
+            f"{problem}; expected {N_ACTION} real numbers in [-1, 1], shape ({N_ACTION},)"
+        )
+
+    if action is None:
+        raise refuse("is None (does the policy return its action?)")
+    try:
+        with np.errstate(all="ignore"):
+            a = np.asarray(action)
+    except (TypeError, ValueError) as e:
+        raise refuse(f"is not an array ({e})") from None
+    if a.dtype.kind not in "iuf":
+        raise refuse(f"is not real numbers (dtype {a.dtype})")
+    if a.shape != (N_ACTION,):
+        raise refuse(f"has shape {a.shape}")
+    return np.ascontiguousarray(a, dtype=np.float64)

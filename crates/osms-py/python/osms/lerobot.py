@@ -19,13 +19,9 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 import osms  # noqa: F401  (registers osms/Catch-v0 with gymnasium)
-from osms._native import channels as _channels
+from osms._native import DEFAULT_CONTROL_HZ, DEPLOYABLE_LEN, N_ACTION, PRIVILEGED_LEN
 from osms._project import project as _project
 from osms._project import protocol as _protocol
-
-_N_STATE = len(_channels()["agent_pos"])
-_N_ENV = len(_channels()["environment_state"])
-_N_ACTION = len(_channels()["action"])
 
 
 @EnvConfig.register_subclass("osms")
@@ -34,7 +30,7 @@ class OsmsEnv(EnvConfig):
     """The catching world under an osms evaluation protocol (see the module's doc)."""
 
     task: str | None = "Catch-v0"
-    fps: int = 50
+    fps: int = int(round(DEFAULT_CONTROL_HZ))
     conditions: str = "dev"
     protocol: str | None = None
     profile: str | None = None
@@ -43,8 +39,8 @@ class OsmsEnv(EnvConfig):
     render_mode: str | None = "rgb_array"
     features: dict[str, PolicyFeature] = field(
         default_factory=lambda: {
-            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(_N_ACTION,)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(_N_STATE,)),
+            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(N_ACTION,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(DEPLOYABLE_LEN,)),
         }
     )
     features_map: dict[str, str] = field(
@@ -57,7 +53,7 @@ class OsmsEnv(EnvConfig):
 
     def __post_init__(self):
         if self.privileged:
-            self.features["environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(_N_ENV,))
+            self.features["environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(PRIVILEGED_LEN,))
 
     @property
     def package_name(self) -> str:

@@ -11,24 +11,27 @@ on ``osms export-dataset … --format robomimic`` runs as it is, e.g. with robom
     ob, reward, done, info = env.step(action)
 
 ``reset()`` runs the next condition (0 first); ``reset_to({"index": i})`` condition ``i``.
-Importing this module needs robomimic; the rest of the package does not.
+``OsmsEnv`` needs robomimic; the module itself imports without it, so that a plugin loader
+importing every submodule of ``osms`` (LeRobot's ``--env.discover_packages_path=osms``) does
+not need robomimic.
 """
 
 import numpy as np
-from robomimic.envs.env_base import EnvBase
 
+try:
+    from robomimic.envs.env_base import EnvBase
+except ImportError as _missing:  # OsmsEnv says so when it is used
+    _ROBOMIMIC_MISSING = _missing
+    EnvBase = object
+else:
+    _ROBOMIMIC_MISSING = None
+
+from osms._native import N_ACTION, robomimic_keys
 from osms.gym import CatchEnv
 
-# The robomimic export's observation keys, in the deployable frame's order, with their widths.
-KEYS = [
-    ("arm_qpos", 7),
-    ("arm_qvel", 7),
-    ("hand_qpos", 17),
-    ("hand_qvel", 17),
-    ("object_pos", 3),
-    ("palm_touch", 1),
-    ("prev_action", 24),
-]
+# The robomimic export's observation keys, in the deployable frame's order, with their widths
+# (osms-export's own list).
+KEYS = [tuple(k) for k in robomimic_keys()]
 
 
 def split(agent_pos):
@@ -45,6 +48,10 @@ class OsmsEnv(EnvBase):
 
     def __init__(self, env_name="osms/Catch-v0", render=False, render_offscreen=False,
                  use_image_obs=False, postprocess_visual_obs=True, **kwargs):
+        if _ROBOMIMIC_MISSING is not None:
+            raise ImportError(
+                f"osms.robomimic.OsmsEnv needs robomimic ({_ROBOMIMIC_MISSING}): pip install robomimic"
+            )
         if use_image_obs:
             raise ValueError("osms/Catch-v0 has low-dimensional observations only (use_image_obs=False)")
         self._env_name = env_name
@@ -66,6 +73,12 @@ class OsmsEnv(EnvBase):
     def reset_to(self, state):
         """``state``: ``{"index": i}``, condition ``i`` of the set (osms's rollouts are keyed
         by their condition; there is no free-form simulator state to load)."""
+        if not isinstance(state, dict) or "index" not in state:
+            keys = sorted(state) if isinstance(state, dict) else type(state).__name__
+            raise ValueError(
+                f"reset_to({keys}): osms/Catch-v0 resets to a condition, {{'index': i}} "
+                "(get_state() gives the running one's); there is no simulator state to load"
+            )
         self._obs, self._info = self.env.reset(options={"index": int(state["index"])})
         return self.get_observation()
 
@@ -95,7 +108,7 @@ class OsmsEnv(EnvBase):
 
     @property
     def action_dimension(self):
-        return 24
+        return N_ACTION
 
     @property
     def name(self):
