@@ -20,3 +20,11 @@ pub use error::{ActionProblem, GymError, Result};
 pub use native::{Native, NativeKind};
 pub use pool::{Pool, SingleEpisode, StepInfo, check_action, rows_csv};
 pub use project::{Project, Protocol, ScriptedSetup};
+
+/// The Wilson score interval of `successes` out of `n` at the normal quantile `z` (95 %,
+/// z = 1.96, if `None`), as osms's tables compute it, exact at its ends
+/// ([`osms_core::stats::wilson_bounds`]); `None` for `n` = 0 or more successes than trials.
+pub fn wilson(successes: usize, n: usize, z: Option<f64>) -> Option<(f64, f64)> {
+    let z = z.unwrap_or_else(|| osms_core::stats::normal_quantile(0.975));
+    osms_core::stats::wilson_bounds(successes, n, z)
+}

@@ -70,6 +70,31 @@ impl PyProject {
         self.inner.profile().to_string()
     }
 
+    /// A project is immutable: a copy is the project itself (gymnasium deep-copies an
+    /// environment's keyword arguments, `project=` among them).
+    fn __copy__(slf: Py<Self>) -> Py<Self> {
+        slf
+    }
+
+    fn __deepcopy__(slf: Py<Self>, _memo: &Bound<'_, PyAny>) -> Py<Self> {
+        slf
+    }
+
+    /// Pickled as what opens it again (a vector environment's worker process gets its own).
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, PyAny>, (PathBuf, PathBuf, String))> {
+        let this = slf.get();
+        Ok((
+            slf.get_type().into_any(),
+            (
+                this.inner.pipeline_path().to_path_buf(),
+                this.inner.store_path().to_path_buf(),
+                this.inner.profile().to_string(),
+            ),
+        ))
+    }
+
     #[getter]
     fn pipeline(&self) -> PathBuf {
         self.inner.pipeline_path().to_path_buf()
@@ -632,8 +657,7 @@ fn wilson(successes: i64, n: i64, z: Option<f64>) -> PyResult<(f64, f64)> {
             "wilson({successes}, {n}): more successes than trials"
         )));
     }
-    let z = z.unwrap_or_else(|| osms_core::stats::normal_quantile(0.975));
-    Ok(osms_core::stats::wilson_bounds(x, total, z).unwrap_or((f64::NAN, f64::NAN)))
+    Ok(osms_gym::wilson(x, total, z).unwrap_or((f64::NAN, f64::NAN)))
 }
 
 /// The keys of osms's robomimic export's observations with their widths, in the deployable

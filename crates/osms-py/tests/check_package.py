@@ -9,9 +9,11 @@ Every check is explicit (no `assert`, so `python -O` skips none) and exits non-z
 failed; on success prints one JSON object of what was measured.
 """
 
+import copy
 import hashlib
 import json
 import os
+import pickle
 import sys
 import tempfile
 import threading
@@ -321,8 +323,15 @@ check(
     f"a misspelt policy lists other stages: {errors['policy']}",
 )
 out["errors"] = errors
-check(store_digest() == before, "the store changed")
-check(store_digest(bookkeeping=False) == artifacts_before, "the store's artifacts changed")
+def changed(then, now):
+    return sorted(k for k in set(then) | set(now) if then.get(k) != now.get(k))
+
+
+check(store_digest() == before, f"the store changed: {changed(before, store_digest())}")
+check(
+    store_digest(bookkeeping=False) == artifacts_before,
+    f"the store's artifacts changed: {changed(artifacts_before, store_digest(bookkeeping=False))}",
+)
 
 # 8. LeRobot's eval_info.json and the rows written together; Wilson's interval is osms's own.
 tmp = tempfile.mkdtemp(prefix="eval_out-", dir=os.path.dirname(pipeline))
@@ -337,7 +346,14 @@ out["eval_info"] = {"pc_success": info["overall"]["pc_success"], "groups": len(i
 out["wilson"] = {f"{x}/{n}": list(oe.wilson(x, n)) for x, n in ((0, 40), (7, 40), (40, 40))}
 check(oe.wilson(0, 40)[0] == 0.0 and oe.wilson(40, 40)[1] == 1.0, f"Wilson's ends: {out['wilson']}")
 
-# 9. The package's surface: a version, no shadowed builtins, typing marker and stubs.
+# 9. The package's surface: a version, no shadowed builtins, typing marker and stubs; a project
+#    survives gymnasium's deep copy of an environment's arguments and pickling to a worker.
+check(copy.deepcopy(project) is project, "a deep copy of a project is another object")
+reopened = pickle.loads(pickle.dumps(project))
+check(
+    (reopened.pipeline, reopened.store, reopened.profile) == (project.pipeline, project.store, project.profile),
+    "a pickled project reopens elsewhere",
+)
 namespace = {}
 exec("from osms import *", namespace)
 check(namespace.get("eval", eval) is eval, "`from osms import *` replaces the builtin eval")
