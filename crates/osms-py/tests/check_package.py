@@ -14,6 +14,7 @@ import hashlib
 import json
 import os
 import pickle
+import struct
 import sys
 import tempfile
 import threading
@@ -343,7 +344,11 @@ check(info["overall"]["n_episodes"] == result.n, "eval_info's episode count diff
 with open(os.path.join(tmp, "rollouts.csv"), encoding="utf-8") as f:
     check(f.read() == result.csv, "the rollouts.csv written differs from the rows")
 out["eval_info"] = {"pc_success": info["overall"]["pc_success"], "groups": len(info["per_group"])}
-out["wilson"] = {f"{x}/{n}": list(oe.wilson(x, n)) for x, n in ((0, 40), (7, 40), (40, 40))}
+# As IEEE bit patterns: a JSON reader need not round a decimal to the nearest double.
+out["wilson"] = {
+    f"{x}/{n}": [struct.unpack("<Q", struct.pack("<d", v))[0] for v in oe.wilson(x, n)]
+    for x, n in ((0, 40), (7, 40), (40, 40))
+}
 check(oe.wilson(0, 40)[0] == 0.0 and oe.wilson(40, 40)[1] == 1.0, f"Wilson's ends: {out['wilson']}")
 
 # 9. The package's surface: a version, no shadowed builtins, typing marker and stubs; a project
