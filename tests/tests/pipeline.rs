@@ -2060,7 +2060,12 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made, text: &str) {
         );
         if install == "editable install" {
             assert!(
-                package.starts_with(checkout.join("crates/osms-py/python").to_str().expect("utf-8")),
+                package.starts_with(
+                    checkout
+                        .join("crates/osms-py/python")
+                        .to_str()
+                        .expect("utf-8")
+                ),
                 "{install}: {package}"
             );
             assert!(
@@ -2101,7 +2106,9 @@ fn check_python_summary(summary: &serde_json::Value, teacher_csv: &str) {
         "{summary}"
     );
     assert!(
-        summary["refused_then_clean"].as_u64().is_some_and(|n| n >= 4),
+        summary["refused_then_clean"]
+            .as_u64()
+            .is_some_and(|n| n >= 4),
         "{summary}"
     );
     let warnings = summary["check_env_warnings"].as_array().expect("warnings");

@@ -238,7 +238,10 @@ impl Project {
         let (base, scripted) = match kind {
             "eval_teacher" => {
                 let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad(name))?;
-                let base = self.teacher_task(&input("teacher")?)?.with_dr(&p.dr).rollout;
+                let base = self
+                    .teacher_task(&input("teacher")?)?
+                    .with_dr(&p.dr)
+                    .rollout;
                 (base.clone(), ScriptedSetup::default_on(base))
             }
             "eval_student" => {
@@ -300,11 +303,13 @@ impl Project {
                     .to_string(),
             });
         }
-        let p: TeacherParams = serde_json::from_value(self.plan.stages[id.stage].params.json.clone())
-            .map_err(|e| GymError::Decode {
-                instance: teacher.to_string(),
-                message: format!("params: {e}"),
-            })?;
+        let p: TeacherParams = serde_json::from_value(
+            self.plan.stages[id.stage].params.json.clone(),
+        )
+        .map_err(|e| GymError::Decode {
+            instance: teacher.to_string(),
+            message: format!("params: {e}"),
+        })?;
         Ok(p.task.realised())
     }
 
@@ -332,7 +337,11 @@ impl Project {
             stages: 1,
             dry_run: false,
         };
-        let report = osms_make::make(&self.plan, &self.store, &opts, &osms_make::Silent)?;
+        let observer = FirstUse {
+            targets: &opts.targets,
+            store: self.store.root(),
+        };
+        let report = osms_make::make(&self.plan, &self.store, &opts, &observer)?;
         let failed = report.instances.iter().find_map(|r| match &r.outcome {
             osms_make::Outcome::Failed { error } => Some((r.instance.as_str(), error.as_str())),
             _ => None,
@@ -485,4 +494,26 @@ fn find_pipeline() -> Result<PathBuf> {
                 cwd.display()
             ))
         })
+}
+
+/// The make that builds a condition set on first use: silent, except that it says why it waits
+/// when another process (a running `osms make`) holds the store's lock, which it keeps for the
+/// whole make.
+struct FirstUse<'a> {
+    targets: &'a [String],
+    store: &'a Path,
+}
+
+impl osms_make::Observer for FirstUse<'_> {
+    fn waiting_for_lock(&self) {
+        eprintln!(
+            "osms: waiting for another osms process (a running `osms make`?) to release the store lock of {} before building {} (its first use)",
+            self.store.display(),
+            self.targets.join(", ")
+        );
+    }
+    fn started(&self, _: &str, _: &str) -> Box<dyn osms_make::Progress + '_> {
+        Box::new(osms_make::NoProgress)
+    }
+    fn finished(&self, _: &osms_make::InstanceReport) {}
 }

@@ -8,9 +8,9 @@ use osms_core::check::{
 use crate::candidates::SearchParams;
 use crate::cvae::ManifoldParams;
 use crate::error_model::ErrorFitParams;
+use crate::error_model::ErrorVariant;
 use crate::ios::IosParams;
 use crate::project::ProjectionParams;
-use crate::error_model::ErrorVariant;
 use crate::stages::{BaselineParams, CalibrateParams, CalibrationParams};
 use crate::validate::ValidateParams;
 

@@ -130,7 +130,6 @@ pub enum ActorInputs {
 /// Frames of deployable history the realisable rungs read: the students' default history.
 pub const REALISABLE_HISTORY: usize = 8;
 
-
 impl ActorInputs {
     pub fn is_privileged(&self) -> bool {
         *self == ActorInputs::Privileged
@@ -168,7 +167,9 @@ impl ActorInputs {
             ActorInputs::Privileged => OBS_LEN,
             ActorInputs::NoIdentity => IDENTITY + N_ACTION + 5,
             ActorInputs::ObservedVelocity => 48 + 3 + 9 + 2 + 6 + differences + N_ACTION + 5,
-            ActorInputs::NoContact | ActorInputs::Tracked => 48 + 3 + 9 + 6 + differences + N_ACTION,
+            ActorInputs::NoContact | ActorInputs::Tracked => {
+                48 + 3 + 9 + 6 + differences + N_ACTION
+            }
             ActorInputs::Deployable => h * DEPLOYABLE_LEN + 9 + differences + 6 + N_ACTION,
             ActorInputs::Touch => 48 + 3 + 9 + 6 + differences + h + N_ACTION,
         }

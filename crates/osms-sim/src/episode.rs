@@ -14,12 +14,12 @@ use osms_core::rng::{self, StreamRng};
 use serde::{Deserialize, Serialize};
 
 use crate::conditions::TaskCondition;
-pub use crate::flight::ObservedObject;
-use crate::flight::FlightTracker;
 use crate::control::{
     Action, ControlSpec, DrDraw, DrSpec, N_ACTION, N_ARM, N_HAND, hold_action, joint_ranges,
     targets,
 };
+use crate::flight::FlightTracker;
+pub use crate::flight::ObservedObject;
 use crate::metrics::{
     Evaluator, Failure, FirstContact, Metrics, Outcome, Phase, StepState, SuccessSpec, scan,
 };

@@ -121,7 +121,10 @@ pub fn track_with(frames: usize, seen: impl Fn(usize) -> [f64; 3], dt: f64) -> O
 
 /// The least-squares ballistic flight (gravity known) through `(time, position)` samples
 /// (at least two distinct times), evaluated at `at`: position and velocity.
-fn fit_ballistic(samples: impl Iterator<Item = (f64, [f64; 3])> + Clone, at: f64) -> ObservedObject {
+fn fit_ballistic(
+    samples: impl Iterator<Item = (f64, [f64; 3])> + Clone,
+    at: f64,
+) -> ObservedObject {
     let (mut n, mut sum_t) = (0.0, 0.0);
     for (t, _) in samples.clone() {
         n += 1.0;
@@ -210,8 +213,14 @@ mod tests {
                 let got = track(&seen, DT);
                 let (p, v) = state(p0, v0, (frames - 1) as f64 * DT);
                 for c in 0..3 {
-                    assert!((got.pos[c] - p[c]).abs() < 1e-9, "delay {delay}, {frames} frames: pos {c}");
-                    assert!((got.vel[c] - v[c]).abs() < 1e-7, "delay {delay}, {frames} frames: vel {c}");
+                    assert!(
+                        (got.pos[c] - p[c]).abs() < 1e-9,
+                        "delay {delay}, {frames} frames: pos {c}"
+                    );
+                    assert!(
+                        (got.vel[c] - v[c]).abs() < 1e-7,
+                        "delay {delay}, {frames} frames: vel {c}"
+                    );
                 }
             }
         }
@@ -245,7 +254,11 @@ mod tests {
         // The raw observation is off by the delay's 7.5 cm half the time plus the noise; the
         // fit by a few millimetres.
         assert!(est / 400.0 < 0.006, "estimate off by {} m", est / 400.0);
-        assert!(raw / 400.0 > 0.03, "raw observation off by {} m", raw / 400.0);
+        assert!(
+            raw / 400.0 > 0.03,
+            "raw observation off by {} m",
+            raw / 400.0
+        );
     }
 
     #[test]

@@ -943,8 +943,13 @@ fn the_flight_estimate_tracks_the_object_now_under_noise_and_delay() {
             &mut rng::stream(3, "test", "tracked", i),
         )
         .expect("condition");
-        Episode::new(&world, &spec, condition, rng::stream(3, "test", "tracked-dr", i))
-            .run(&mut watch, &mut NoHooks);
+        Episode::new(
+            &world,
+            &spec,
+            condition,
+            rng::stream(3, "test", "tracked-dr", i),
+        )
+        .run(&mut watch, &mut NoHooks);
     }
     let error = |pick: fn(&([f64; 3], [f64; 3], [f64; 3], [f64; 3])) -> [f64; 3]| {
         watch

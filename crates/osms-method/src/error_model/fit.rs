@@ -861,7 +861,10 @@ mod tests {
         }
         let (ls, _, _) = acc.regress(GainFit::LeastSquares);
         let attenuated = g / (1.0 + sigma * sigma);
-        assert!((ls - attenuated).abs() < 0.01, "least squares {ls} against {attenuated}");
+        assert!(
+            (ls - attenuated).abs() < 0.01,
+            "least squares {ls} against {attenuated}"
+        );
         let (tls, tls_bias, _) = acc.regress(GainFit::Orthogonal);
         assert!((tls - g).abs() < 0.01, "orthogonal {tls} against {g}");
         assert!((tls_bias - b).abs() < 0.01, "orthogonal bias {tls_bias}");

@@ -16,7 +16,9 @@ mod naive;
 mod normal;
 mod validate;
 
-pub use calibration::{CalibrateErrorModelStage, CalibrateParams, CalibrationParams, CalibrationStage};
+pub use calibration::{
+    CalibrateErrorModelStage, CalibrateParams, CalibrationParams, CalibrationStage,
+};
 pub use candidate_table::CandidateTableStage;
 pub use candidates::CandidatesStage;
 pub use construction_table::ConstructionTableStage;
