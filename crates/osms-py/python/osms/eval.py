@@ -34,6 +34,7 @@ import time
 
 import numpy as np
 
+from osms._actions import real_array
 from osms._native import N_ACTION, ActionError, NativePolicy, Pool, row_column_types
 from osms._native import wilson as _wilson
 from osms._project import project as _project
@@ -77,15 +78,7 @@ def as_actions(raw, obs):
             f"of shape {expected}: one row per observed rollout"
         )
 
-    if raw is None:
-        raise refuse("are None (does the policy return its actions?)")
-    try:
-        with np.errstate(all="ignore"):
-            actions = np.asarray(raw)
-    except (TypeError, ValueError) as e:
-        raise refuse(f"are not an array ({e})") from None
-    if actions.dtype.kind not in "iuf":
-        raise refuse(f"are not real numbers (dtype {actions.dtype})")
+    actions = real_array(raw, refuse, many=True)
     if actions.shape == (N_ACTION,) and n == 1:
         actions = actions[None, :]
     if actions.shape != (n, N_ACTION):

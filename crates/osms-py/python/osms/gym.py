@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from osms._actions import real_array
 from osms._native import DEFAULT_CONTROL_HZ, DEPLOYABLE_LEN, N_ACTION, PRIVILEGED_LEN
 from osms._native import ActionError, OsmsError
 from osms._native import Env as _Env
@@ -152,15 +153,7 @@ def _as_action(action, info):
             f"{problem}; expected {N_ACTION} real numbers in [-1, 1], shape ({N_ACTION},)"
         )
 
-    if action is None:
-        raise refuse("is None (does the policy return its action?)")
-    try:
-        with np.errstate(all="ignore"):
-            a = np.asarray(action)
-    except (TypeError, ValueError) as e:
-        raise refuse(f"is not an array ({e})") from None
-    if a.dtype.kind not in "iuf":
-        raise refuse(f"is not real numbers (dtype {a.dtype})")
+    a = real_array(action, refuse, many=False)
     if a.shape != (N_ACTION,):
         raise refuse(f"has shape {a.shape}")
     return np.ascontiguousarray(a, dtype=np.float64)
