@@ -628,11 +628,13 @@ fn a_store_being_created_is_never_taken_for_a_foreign_directory() {
         "store-creation kills: {} before the directory, {} during its creation, {} after",
         landed[0], landed[1], landed[2]
     );
-    // The kill points straddle the creation: some kills land before the directory exists and
-    // some after the store is complete; the states in between are made below. Load slows the
-    // child, so moves kills earlier in its work, never later; the last one is 200 ms in.
+    // The kill points straddle the creation: some kills land before the store is complete
+    // (before its directory exists, or during its creation) and some after it; the states in
+    // between are made below. Load can delay the parent's kill as much as the child's work
+    // (seen beside a make: no kill before the directory, 10 during, 35 after), so the earliest
+    // kills need not find the directory missing; the last one is 200 ms in.
     assert!(
-        landed[0] > 0 && landed[2] > 0,
+        landed[0] + landed[1] > 0 && landed[2] > 0,
         "the kills did not straddle the store's creation: {landed:?}"
     );
 
