@@ -7,40 +7,36 @@ use std::process::Command;
 /// The test interpreter, or `None` after logging a visible skip. Under `CI` a missing
 /// interpreter fails the test: the test command always sets one up there.
 pub fn interpreter(check: &str) -> Option<PathBuf> {
-    match std::env::var_os("OSMS_TEST_PYTHON").filter(|v| !v.is_empty()) {
-        Some(p) => Some(PathBuf::from(p)),
-        None => {
-            let mode = crate::golden::Mode::from_env();
-            assert!(
-                !mode.ci,
-                "{check} needs OSMS_TEST_PYTHON under CI (scripts/test sets it from scripts/setup-python)"
-            );
-            let line = format!("{check}: OSMS_TEST_PYTHON is not set (run scripts/test)");
-            eprintln!("skipped: {line}");
-            mode.log_skip(&line);
-            None
-        }
-    }
+    from_env(
+        "OSMS_TEST_PYTHON",
+        check,
+        "scripts/test sets it from scripts/setup-python",
+    )
 }
 
 /// The interpreter of a fresh venv holding the Python package as a wheel (scripts/test installs
 /// it there: `OSMS_TEST_WHEEL_PYTHON`), or `None` after logging a visible skip; under `CI` a
 /// missing one fails the test.
 pub fn wheel_interpreter(check: &str) -> Option<PathBuf> {
-    match std::env::var_os("OSMS_TEST_WHEEL_PYTHON").filter(|v| !v.is_empty()) {
-        Some(p) => Some(PathBuf::from(p)),
-        None => {
-            let mode = crate::golden::Mode::from_env();
-            assert!(
-                !mode.ci,
-                "{check} needs OSMS_TEST_WHEEL_PYTHON under CI (scripts/test installs the wheel)"
-            );
-            let line = format!("{check}: OSMS_TEST_WHEEL_PYTHON is not set (run scripts/test)");
-            eprintln!("skipped: {line}");
-            mode.log_skip(&line);
-            None
-        }
+    from_env(
+        "OSMS_TEST_WHEEL_PYTHON",
+        check,
+        "scripts/test installs the wheel",
+    )
+}
+
+/// The interpreter the environment variable `var` names; else a logged skip, or under `CI` a
+/// failure saying where it comes from (`set_by`).
+fn from_env(var: &str, check: &str, set_by: &str) -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os(var).filter(|v| !v.is_empty()) {
+        return Some(PathBuf::from(p));
     }
+    let mode = crate::golden::Mode::from_env();
+    assert!(!mode.ci, "{check} needs {var} under CI ({set_by})");
+    let line = format!("{check}: {var} is not set (run scripts/test)");
+    eprintln!("skipped: {line}");
+    mode.log_skip(&line);
+    None
 }
 
 /// Runs `scripts/<script>` with `args` and parses the one JSON object it prints.

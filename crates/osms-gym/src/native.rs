@@ -71,12 +71,7 @@ impl Native {
         if !project.has_stage(name) {
             let mut known = vec!["scripted".to_string()];
             known.extend(project.stages_of(&["teacher", "student"]));
-            return Err(GymError::UnknownStage {
-                name: name.to_string(),
-                what: "a policy",
-                pipeline: project.pipeline_path().display().to_string(),
-                known: known.join(", "),
-            });
+            return Err(project.unknown(name, "a policy", &known));
         }
         let (_, kind) = project.instance(name)?;
         match kind {

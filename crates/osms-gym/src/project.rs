@@ -81,20 +81,33 @@ impl Project {
 
     /// Whether `name`'s stage (`stage`, `stage@seed`, `stage#fold`) is in the pipeline.
     pub fn has_stage(&self, name: &str) -> bool {
+        self.stage_index(name).is_some()
+    }
+
+    fn stage_index(&self, name: &str) -> Option<usize> {
         let stage = name.split(['@', '#']).next().unwrap_or(name);
-        self.plan.stage_index(stage).is_some()
+        self.plan.stage_index(stage)
+    }
+
+    /// `name` is not `what` (`a stage`, `a policy`, …) here; `known` are the valid names.
+    pub fn unknown<S: std::borrow::Borrow<str>>(
+        &self,
+        name: &str,
+        what: &'static str,
+        known: &[S],
+    ) -> GymError {
+        GymError::UnknownStage {
+            name: name.to_string(),
+            what,
+            pipeline: self.pipeline_path.display().to_string(),
+            known: known.join(", "),
+        }
     }
 
     /// The instance `name` names (`stage`, `stage@seed`, `stage#fold`), and its kind.
     pub fn instance(&self, name: &str) -> Result<(InstanceId, &str)> {
-        let stage = name.split(['@', '#']).next().unwrap_or(name);
-        let Some(index) = self.plan.stage_index(stage) else {
-            return Err(GymError::UnknownStage {
-                name: name.to_string(),
-                what: "a stage",
-                pipeline: self.pipeline_path.display().to_string(),
-                known: self.plan.stage_names().join(", "),
-            });
+        let Some(index) = self.stage_index(name) else {
+            return Err(self.unknown(name, "a stage", &self.plan.stage_names()));
         };
         let id = self
             .plan
@@ -107,7 +120,8 @@ impl Project {
                     .map(|id| self.plan.display(id))
                     .collect();
                 GymError::Project(format!(
-                    "`{name}` names no instance of stage `{stage}`\nhint: its instances are {}",
+                    "`{name}` names no instance of stage `{}`\nhint: its instances are {}",
+                    self.plan.stages[index].name,
                     examples.join(", ")
                 ))
             })?;
@@ -203,12 +217,7 @@ impl Project {
     /// fix before any training); its world and conditions are built here if missing.
     pub fn protocol(&self, name: &str) -> Result<Protocol> {
         if !self.has_stage(name) {
-            return Err(GymError::UnknownStage {
-                name: name.to_string(),
-                what: "an evaluation stage",
-                pipeline: self.pipeline_path.display().to_string(),
-                known: self.evaluation_stages().join(", "),
-            });
+            return Err(self.unknown(name, "an evaluation stage", &self.evaluation_stages()));
         }
         let (id, kind) = self.instance(name)?;
         if !EVALUATION_KINDS.contains(&kind) {
@@ -224,12 +233,9 @@ impl Project {
         }
         let stage = &self.plan.stages[id.stage];
         let params = stage.params.json.clone();
-        let bad = |instance: &str| {
-            let instance = instance.to_string();
-            move |e: serde_json::Error| GymError::Decode {
-                instance,
-                message: format!("params: {e}"),
-            }
+        let bad = |e: serde_json::Error| GymError::Decode {
+            instance: name.to_string(),
+            message: format!("params: {e}"),
         };
         let input = |slot: &str| {
             self.input(id, slot)
@@ -237,7 +243,7 @@ impl Project {
         };
         let (base, scripted) = match kind {
             "eval_teacher" => {
-                let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad(name))?;
+                let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad)?;
                 let base = self
                     .teacher_task(&input("teacher")?)?
                     .with_dr(&p.dr)
@@ -245,11 +251,11 @@ impl Project {
                 (base.clone(), ScriptedSetup::default_on(base))
             }
             "eval_student" => {
-                let p: EvalStudentParams = serde_json::from_value(params).map_err(bad(name))?;
+                let p: EvalStudentParams = serde_json::from_value(params).map_err(bad)?;
                 (p.rollout.clone(), ScriptedSetup::default_on(p.rollout))
             }
             "eval_scripted" => {
-                let p: EvalParams = serde_json::from_value(params).map_err(bad(name))?;
+                let p: EvalParams = serde_json::from_value(params).map_err(bad)?;
                 let scripted = ScriptedSetup {
                     catcher: p.catcher,
                     perception: Perception::default(),
@@ -258,7 +264,7 @@ impl Project {
                 (p.rollout, scripted)
             }
             _ => {
-                let p: EvaluateParams = serde_json::from_value(params).map_err(bad(name))?;
+                let p: EvaluateParams = serde_json::from_value(params).map_err(bad)?;
                 let scripted = ScriptedSetup {
                     catcher: p.catcher.clone(),
                     perception: p.prior_perception(),
@@ -380,12 +386,7 @@ impl Project {
         let set = match self.instance(conditions) {
             Ok((set, "conditions")) => set,
             _ => {
-                return Err(GymError::UnknownStage {
-                    name: conditions.to_string(),
-                    what: "a condition set",
-                    pipeline: self.pipeline_path.display().to_string(),
-                    known: self.condition_sets().join(", "),
-                });
+                return Err(self.unknown(conditions, "a condition set", &self.condition_sets()));
             }
         };
         let on_set: Vec<&osms_make::PlannedStage> = self

@@ -688,10 +688,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("DEPLOYABLE_LEN", osms_sim::episode::DEPLOYABLE_LEN)?;
     m.add("PRIVILEGED_LEN", osms_sim::episode::PRIVILEGED_LEN)?;
     // The default world's control rate; a protocol's own is `Protocol.control_hz`.
-    let world = osms_sim::WorldSpec::default();
     m.add(
         "DEFAULT_CONTROL_HZ",
-        1.0 / (world.timestep_secs * f64::from(world.substeps)),
+        1.0 / osms_sim::WorldSpec::default().control_dt_secs(),
     )?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

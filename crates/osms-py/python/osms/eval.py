@@ -91,26 +91,19 @@ def _indices(indices, proto):
         return list(range(proto.n_conditions))
     if isinstance(indices, (str, bytes)):
         raise ValueError(f"indices is {indices!r}; expected condition indices such as [0, 3, 7] or range(100)")
+    # An empty list, out-of-range or repeated indices are the pool's to refuse (ValueError).
     try:
-        chosen = [operator.index(i) for i in indices]
+        return [operator.index(i) for i in indices]
     except TypeError as e:
         raise ValueError(f"indices must be integers (condition indices of `{proto.conditions}`): {e}") from None
-    if not chosen:
-        raise ValueError(
-            f"indices is empty: no conditions to run (`{proto.conditions}` has "
-            f"{proto.n_conditions}; leave indices out to run them all)"
-        )
-    return chosen
 
 
 def _n_envs(n_envs):
+    # Only the type here: the pool refuses a count below 1 (ValueError).
     try:
-        n = operator.index(n_envs)
+        return operator.index(n_envs)
     except TypeError:
         raise ValueError(f"n_envs is {n_envs!r}; expected an integer of at least 1") from None
-    if n < 1:
-        raise ValueError(f"n_envs is {n}; it must be at least 1 (rollouts stepped at once)")
-    return n
 
 
 class Evaluation:
