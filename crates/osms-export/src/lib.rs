@@ -393,6 +393,7 @@ fn execution_name(e: osms_policy::artifacts::Execution) -> String {
         Execution::Unperturbed => "unperturbed".into(),
         Execution::Perturbed { q } => format!("perturbed q={q}"),
         Execution::StudentVisited => "student visited".into(),
+        Execution::Dart => "dart".into(),
     }
 }
 

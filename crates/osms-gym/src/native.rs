@@ -8,7 +8,7 @@ use osms_core::rng::StreamRng;
 use osms_policy::artifacts::{StudentArtifact, Teacher};
 use osms_policy::catch::TeacherQuery;
 use osms_policy::flow::FlowSampler;
-use osms_policy::student::Student;
+use osms_policy::student::{ChunkRunner, Student};
 use osms_sim::catcher::ScriptedCatcher;
 use osms_sim::control::Action;
 use osms_sim::{Policy, PolicyView, RolloutSpec};
@@ -123,6 +123,18 @@ impl Native {
         }
     }
 
+    /// Refuses a protocol whose chunk execution this policy cannot run: a horizon longer than
+    /// a student's chunks.
+    pub fn check_protocol(&self, protocol: &Protocol) -> Result<()> {
+        if let NativeKind::Student { student, name } = &self.kind {
+            protocol
+                .execution
+                .check_for(&student.borrow_owner().params)
+                .map_err(|e| GymError::State(format!("`{name}` under `{}`: {e}", protocol.name)))?;
+        }
+        Ok(())
+    }
+
     /// Whether the policy reads the admissible contact force (the teacher's privileged frame).
     pub fn reads_contact_force(&self) -> bool {
         matches!(self.kind, NativeKind::Teacher { .. })
@@ -141,7 +153,10 @@ impl Native {
                     TeacherQuery::new(&t.agent, &t.task)
                 }))
             }
-            NativeKind::Student { .. } => NativeEpisode::Student(protocol.policy_rng(index)),
+            NativeKind::Student { student, .. } => NativeEpisode::Student(
+                protocol.policy_rng(index),
+                ChunkRunner::new(protocol.execution, &student.borrow_owner().params),
+            ),
         }
     }
 
@@ -157,11 +172,11 @@ impl Native {
                 .iter()
                 .map(|(_, v, _)| student.observation(v))
                 .collect();
-            let rngs = batch.iter_mut().map(|(state, _, _)| match state {
-                NativeEpisode::Student(rng) => rng,
+            let states = batch.iter_mut().map(|(state, _, _)| match state {
+                NativeEpisode::Student(rng, runner) => (rng, runner),
                 _ => unreachable!("a student's episodes hold its noise streams"),
             });
-            return student.act_batch_with(sampler, &obs, rngs);
+            return student.act_executed(sampler, &obs, states);
         }
         batch
             .iter_mut()
@@ -173,7 +188,7 @@ impl Native {
                     }
                     query.act(view)
                 }),
-                NativeEpisode::Student(_) => {
+                NativeEpisode::Student(..) => {
                     unreachable!("a student acts on its whole batch at once")
                 }
             })
@@ -194,5 +209,6 @@ self_cell!(
 pub enum NativeEpisode {
     Scripted(ScriptedCatcher),
     Teacher(TeacherEpisode),
-    Student(StreamRng),
+    /// Its noise stream and chunk state.
+    Student(StreamRng, ChunkRunner),
 }

@@ -361,6 +361,7 @@ impl Pool {
                     .to_string(),
             ));
         }
+        native.check_protocol(&self.protocol)?;
         if native.spec(&self.protocol) != *self.spec {
             return Err(GymError::State(format!(
                 "`{}` runs under a rollout spec of its own: make it the pool's policy (osms.eval.evaluate does) to act on its rollouts",

@@ -8,6 +8,7 @@ use osms_core::Artifact;
 use osms_core::rng::{self, StreamRng};
 use osms_make::{InstanceId, Pipeline, Plan, Sharded, State, StoreObjects};
 use osms_policy::stages::{EvalStudentParams, EvalTeacherParams, EvaluateParams, TeacherParams};
+use osms_policy::student::ChunkExecution;
 use osms_sim::artifacts::{Conditions, WorldArtifact};
 use osms_sim::catcher::{CatcherSpec, Perception};
 use osms_sim::conditions::TaskCondition;
@@ -241,6 +242,7 @@ impl Project {
             self.input(id, slot)
                 .ok_or_else(|| GymError::Project(format!("stage `{name}` has no `{slot}` input")))
         };
+        let mut execution = ChunkExecution::default();
         let (base, scripted) = match kind {
             "eval_teacher" => {
                 let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad)?;
@@ -252,6 +254,7 @@ impl Project {
             }
             "eval_student" => {
                 let p: EvalStudentParams = serde_json::from_value(params).map_err(bad)?;
+                execution = p.execution;
                 (p.rollout.clone(), ScriptedSetup::default_on(p.rollout))
             }
             "eval_scripted" => {
@@ -265,6 +268,7 @@ impl Project {
             }
             _ => {
                 let p: EvaluateParams = serde_json::from_value(params).map_err(bad)?;
+                execution = p.execution;
                 let scripted = ScriptedSetup {
                     catcher: p.catcher.clone(),
                     perception: p.prior_perception(),
@@ -292,6 +296,7 @@ impl Project {
             conditions: Arc::new(conditions.items),
             base,
             scripted,
+            execution,
             seed: self.plan.effective_seed(id),
             stream: self.plan.stream_name(id),
         })
@@ -430,6 +435,8 @@ pub struct Protocol {
     pub base: RolloutSpec,
     /// How the scripted catcher runs under this protocol, as the stage's params say.
     pub scripted: ScriptedSetup,
+    /// How a student's chunks are executed under this protocol (its stage's `execution`).
+    pub execution: ChunkExecution,
     /// The seed of the stage's streams; `None` when the stage draws nothing (no DR).
     pub seed: Option<u64>,
     /// The name the stage's streams go by (the stage, with `#fold` for folds).

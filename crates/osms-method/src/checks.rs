@@ -11,7 +11,7 @@ use crate::error_model::ErrorFitParams;
 use crate::error_model::ErrorVariant;
 use crate::ios::IosParams;
 use crate::project::ProjectionParams;
-use crate::stages::{BaselineParams, CalibrateParams, CalibrationParams};
+use crate::stages::{BaselineParams, CalibrateParams, CalibrationParams, DartParams};
 use crate::validate::ValidateParams;
 
 impl Check for ProjectionParams {
@@ -140,6 +140,13 @@ impl Check for ValidateParams {
         within("lambda_f", self.lambda_f, 0.0, 1e6)?;
         within("lambda_d", self.lambda_d, 0.0, 1e6)?;
         count("rollouts", self.rollouts, 0, 10_000_000)
+    }
+}
+
+impl Check for DartParams {
+    fn check(&self) -> Checked {
+        positive("kappa", self.kappa, 100.0)?;
+        count("max_attempts", self.max_attempts, 1, 100_000)
     }
 }
 

@@ -198,7 +198,7 @@ fn main() {
                         student::rollouts_in_slots(
                             &world,
                             &sspec,
-                            &student,
+                            (&student, student::ChunkExecution::default()),
                             (0..BATCH_EPISODES as u64).map(items).collect(),
                             len,
                         )

@@ -10,10 +10,10 @@ use crate::flow::UNetSpec;
 use crate::osw::OswSpec;
 use crate::ppo::PpoConfig;
 use crate::stages::{
-    CollectParams, ErrorPairsParams, EvalStudentParams, EvalTeacherParams, EvaluateParams,
-    TeacherParams,
+    CollectParams, DaggerRoundParams, ErrorPairsParams, EvalStudentParams, EvalTeacherParams,
+    EvaluateParams, TeacherParams,
 };
-use crate::student::{StudentNetwork, StudentParams};
+use crate::student::{ChunkExecution, StudentNetwork, StudentParams};
 
 /// Layer widths and other network sizes.
 const WIDTH: u64 = 16_384;
@@ -202,15 +202,45 @@ impl Check for ErrorPairsParams {
     }
 }
 
+impl Check for DaggerRoundParams {
+    fn check(&self) -> Checked {
+        count("rounds", self.rounds, 1, 100)?;
+        match &self.dr {
+            Some(dr) => nested("dr", dr),
+            None => Ok(()),
+        }
+    }
+}
+
 impl Check for EvalStudentParams {
     fn check(&self) -> Checked {
-        nested("rollout", &self.rollout)
+        nested("rollout", &self.rollout)?;
+        nested("execution", &self.execution)
+    }
+}
+
+/// The ranges a plan can check without the student (its chunk length bounds the horizon when
+/// the stage runs, [`ChunkExecution::check_for`]).
+impl Check for ChunkExecution {
+    fn check(&self) -> Checked {
+        count("horizon", self.horizon, 1, 1_000)?;
+        if let Some(m) = self.ensemble {
+            within("ensemble", m, 0.0, 10.0)?;
+            if self.horizon != 1 {
+                return Err(Invalid::new(
+                    "horizon",
+                    "the temporal ensemble samples a chunk every step (set horizon = 1 or leave ensemble out)",
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
 impl Check for EvaluateParams {
     fn check(&self) -> Checked {
         nested("rollout", &self.rollout)?;
+        nested("execution", &self.execution)?;
         nested("catcher", &self.catcher)?;
         if let Some(frames) = self.prior_fit_frames {
             if self.prior_inputs.perception().estimated_object.is_none() {

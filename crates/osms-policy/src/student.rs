@@ -17,7 +17,8 @@
 //!   loss, so the network is never asked to predict what happens after termination.
 //! - **Policy**: at every control step draw noise from the policy's own stream, integrate the
 //!   velocity field with `euler_steps` Euler steps, execute the chunk's first action (clamped
-//!   to [−1, 1]) and replan at the next step.
+//!   to [−1, 1]) and replan at the next step (the paper's). [`ChunkExecution`] runs other
+//!   execution horizons and ACT's temporal ensemble instead (issue 68, beyond the paper).
 //!
 //! Observations and actions are standardised per feature with statistics of the training
 //! demonstrations, frozen into the artifact.
@@ -742,6 +743,21 @@ impl Student {
         obs: &[O],
         rngs: impl IntoIterator<Item = &'r mut StreamRng>,
     ) -> Vec<Action> {
+        self.chunks_batch_with(sampler, obs, rngs)
+            .iter()
+            .zip(obs)
+            .map(|(chunk, o)| self.executable(&chunk[..N_ACTION], o.as_ref()))
+            .collect()
+    }
+
+    /// The sampled chunks for `obs`, each de-standardised (`chunk` steps of [`N_ACTION`]
+    /// values), observation i drawing its noise from the i-th stream.
+    pub fn chunks_batch_with<'r, O: AsRef<[f32]>>(
+        &self,
+        sampler: &FlowSampler<'_>,
+        obs: &[O],
+        rngs: impl IntoIterator<Item = &'r mut StreamRng>,
+    ) -> Vec<Vec<f64>> {
         let (c_len, x_len) = (self.params.obs_len(), self.params.chunk_len());
         let mut cond = Vec::with_capacity(obs.len() * c_len);
         let mut noise = Vec::with_capacity(obs.len() * x_len);
@@ -759,6 +775,9 @@ impl Student {
             "student: one stream per observation"
         );
         let rows = obs.len();
+        if rows == 0 {
+            return Vec::new();
+        }
         let x = sampler.sample_batch(
             &Matrix::from_vec(rows, c_len, cond),
             Matrix::from_vec(rows, x_len, noise),
@@ -766,20 +785,67 @@ impl Student {
         );
         (0..rows)
             .map(|i| {
-                let x = x.row(i);
-                let mut action: Action = std::array::from_fn(|k| {
-                    f64::from(x[k] * self.act_norm.std[k] + self.act_norm.mean[k])
-                });
-                if self.params.target_labels {
-                    // The arm target features close the observation (`push_features`).
-                    let o = obs[i].as_ref();
-                    let current = &o[o.len() - N_ARM..];
-                    for (a, t) in action[..N_ARM].iter_mut().zip(current) {
-                        *a = (*a - f64::from(*t)) / ARM_STEP_RAD;
-                    }
-                }
-                action.map(|a| a.clamp(-1.0, 1.0))
+                x.row(i)
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &v)| {
+                        let k = j % N_ACTION;
+                        f64::from(v * self.act_norm.std[k] + self.act_norm.mean[k])
+                    })
+                    .collect()
             })
+            .collect()
+    }
+
+    /// The action executed for a de-standardised chunk step at the observation `obs` of the step
+    /// it runs in: a target label turned into the increment from the current target, clamped
+    /// to [−1, 1].
+    fn executable(&self, step: &[f64], obs: &[f32]) -> Action {
+        let mut action: Action = std::array::from_fn(|k| step[k]);
+        if self.params.target_labels {
+            // The arm target features close the observation (`push_features`).
+            let current = &obs[obs.len() - N_ARM..];
+            for (a, t) in action[..N_ARM].iter_mut().zip(current) {
+                *a = (*a - f64::from(*t)) / ARM_STEP_RAD;
+            }
+        }
+        action.map(|a| a.clamp(-1.0, 1.0))
+    }
+
+    /// One control step of many running episodes, each with its own noise stream and chunk
+    /// state ([`ChunkRunner`]): the episodes whose runner samples this step get a chunk in one
+    /// batched sample, then every runner gives its step's action. With the paper's execution
+    /// (h = 1) action i is bit for bit [`Student::act_batch_with`]'s.
+    pub fn act_executed<'r, O: AsRef<[f32]>>(
+        &self,
+        sampler: &FlowSampler<'_>,
+        obs: &[O],
+        states: impl IntoIterator<Item = (&'r mut StreamRng, &'r mut ChunkRunner)>,
+    ) -> Vec<Action> {
+        let mut runners: Vec<&mut ChunkRunner> = Vec::with_capacity(obs.len());
+        let mut sampling = Vec::new();
+        let mut rngs = Vec::new();
+        for (i, (rng, runner)) in states.into_iter().enumerate() {
+            if runner.samples() {
+                sampling.push(i);
+                rngs.push(rng);
+            }
+            runners.push(runner);
+        }
+        assert_eq!(
+            runners.len(),
+            obs.len(),
+            "student: one runner per observation"
+        );
+        let sampled_obs: Vec<&[f32]> = sampling.iter().map(|&i| obs[i].as_ref()).collect();
+        let chunks = self.chunks_batch_with(sampler, &sampled_obs, rngs);
+        for (&i, chunk) in sampling.iter().zip(chunks) {
+            runners[i].push(chunk);
+        }
+        runners
+            .into_iter()
+            .zip(obs)
+            .map(|(runner, o)| self.executable(&runner.next(), o.as_ref()))
             .collect()
     }
 
@@ -877,20 +943,156 @@ fn push_features(p: &StudentParams, frames: usize, now: &Current<'_>, out: &mut 
     }
 }
 
+/// How a student's sampled chunks become executed actions (issue 68, beyond the paper; the
+/// default is the paper's). Params of the evaluation stages, not of training: one trained
+/// student runs under any of them.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ChunkExecution {
+    /// The execution horizon h: the first h actions of each sampled chunk run open loop before
+    /// the next sample (1, the paper's: replan every step; at most the chunk's length).
+    pub horizon: usize,
+    /// ACT's temporal ensemble (Zhao et al. 2023): sample a chunk every step and execute the
+    /// average of every live chunk's prediction for this step, the i-th oldest weighted by
+    /// exp(−m·i); the value is m (ACT's 0.01). Needs `horizon = 1`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ensemble: Option<f64>,
+}
+
+impl Default for ChunkExecution {
+    fn default() -> Self {
+        ChunkExecution {
+            horizon: 1,
+            ensemble: None,
+        }
+    }
+}
+
+impl ChunkExecution {
+    /// The paper's: the first action of every step's chunk.
+    pub fn is_paper(&self) -> bool {
+        *self == ChunkExecution::default()
+    }
+
+    /// Refuses an execution the student's chunks cannot carry.
+    pub fn check_for(&self, params: &StudentParams) -> Result<()> {
+        if self.horizon == 0 || self.horizon > params.chunk {
+            return Err(Error::Params(format!(
+                "execution.horizon = {}: must be within 1 ..= {} (the student's chunk length)",
+                self.horizon, params.chunk
+            )));
+        }
+        if let Some(m) = self.ensemble {
+            if self.horizon != 1 {
+                return Err(Error::Params(format!(
+                    "execution.ensemble with horizon = {}: the temporal ensemble samples every step\nhint: set execution.horizon = 1",
+                    self.horizon
+                )));
+            }
+            if !(m.is_finite() && m >= 0.0) {
+                return Err(Error::Params(format!(
+                    "execution.ensemble = {m}: the weights' decay m must be finite and ≥ 0 (ACT's is 0.01)"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One episode's chunk state under a [`ChunkExecution`]: the chunks sampled so far that still
+/// cover a step to come, each with the step it was sampled at.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChunkRunner {
+    execution: ChunkExecution,
+    /// Actions per chunk.
+    chunk: usize,
+    step: usize,
+    /// Oldest first.
+    live: std::collections::VecDeque<(usize, Vec<f64>)>,
+}
+
+impl ChunkRunner {
+    pub fn new(execution: ChunkExecution, params: &StudentParams) -> Self {
+        ChunkRunner {
+            execution,
+            chunk: params.chunk,
+            step: 0,
+            live: std::collections::VecDeque::new(),
+        }
+    }
+
+    /// Whether this step samples a new chunk.
+    pub fn samples(&self) -> bool {
+        self.execution.ensemble.is_some()
+            || self
+                .live
+                .back()
+                .is_none_or(|(start, _)| self.step >= start + self.execution.horizon)
+    }
+
+    /// The chunk sampled at this step (de-standardised, step-major).
+    fn push(&mut self, chunk: Vec<f64>) {
+        debug_assert_eq!(chunk.len(), self.chunk * N_ACTION);
+        self.live.push_back((self.step, chunk));
+    }
+
+    /// This step's de-standardised action, then the next step. The paper's execution returns
+    /// the newest chunk's first action unchanged.
+    fn next(&mut self) -> Vec<f64> {
+        let step = self.step;
+        self.step += 1;
+        while self
+            .live
+            .front()
+            .is_some_and(|(start, _)| start + self.chunk <= step)
+        {
+            self.live.pop_front();
+        }
+        let at = |(start, chunk): &(usize, Vec<f64>)| {
+            let j = step - start;
+            chunk[j * N_ACTION..(j + 1) * N_ACTION].to_vec()
+        };
+        match self.execution.ensemble {
+            None => at(self.live.back().expect("a chunk covers every step")),
+            Some(m) => {
+                let mut sum = vec![0.0; N_ACTION];
+                let mut total = 0.0;
+                for (i, live) in self.live.iter().enumerate() {
+                    let w = (-m * i as f64).exp();
+                    for (s, a) in sum.iter_mut().zip(at(live)) {
+                        *s += w * a;
+                    }
+                    total += w;
+                }
+                sum.into_iter().map(|s| s / total).collect()
+            }
+        }
+    }
+}
+
 /// A student as the simulator's policy: noise for each step's sample from `rng` (the policy's
 /// own stream, apart from the rollout's DR stream), its network prepared once for the episode.
 pub struct StudentPolicy<'s> {
     student: &'s Student,
     sampler: FlowSampler<'s>,
     rng: StreamRng,
+    runner: ChunkRunner,
 }
 
 impl<'s> StudentPolicy<'s> {
+    /// The paper's execution: a new chunk every step, its first action executed.
     pub fn new(student: &'s Student, rng: StreamRng) -> Self {
+        Self::with_execution(student, rng, ChunkExecution::default())
+    }
+
+    /// The student under another [`ChunkExecution`] (checked by the caller,
+    /// [`ChunkExecution::check_for`]).
+    pub fn with_execution(student: &'s Student, rng: StreamRng, execution: ChunkExecution) -> Self {
         StudentPolicy {
             student,
             sampler: student.net.sampler(),
             rng,
+            runner: ChunkRunner::new(execution, &student.params),
         }
     }
 
@@ -902,7 +1104,16 @@ impl<'s> StudentPolicy<'s> {
 impl Policy for StudentPolicy<'_> {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
         let obs = self.student.observation(view);
-        self.student.act_with(&self.sampler, &obs, &mut self.rng)
+        let [action] = self
+            .student
+            .act_executed(
+                &self.sampler,
+                std::slice::from_ref(&obs),
+                [(&mut self.rng, &mut self.runner)],
+            )
+            .try_into()
+            .unwrap_or_else(|_| unreachable!("one observation, one action"));
+        action
     }
 
     /// A deployable policy: it reads no privileged quantity at all.
@@ -957,20 +1168,37 @@ pub fn rollouts(
     student: &Student,
     items: Vec<(TaskCondition, StreamRng, StreamRng)>,
 ) -> Vec<RolloutRecord> {
-    rollouts_in_slots(world, spec, student, items, LOCKSTEP_SLOTS)
+    rollouts_in_slots(
+        world,
+        spec,
+        (student, ChunkExecution::default()),
+        items,
+        LOCKSTEP_SLOTS,
+    )
 }
 
-/// [`rollouts`] with at most `slots` episodes running at once (at least 1).
+/// [`rollouts`] under another [`ChunkExecution`]: rollout i is bit for bit the rollout of
+/// [`StudentPolicy::with_execution`] on item i.
+pub fn rollouts_executed(
+    world: &World,
+    spec: &RolloutSpec,
+    (student, execution): (&Student, ChunkExecution),
+    items: Vec<(TaskCondition, StreamRng, StreamRng)>,
+) -> Vec<RolloutRecord> {
+    rollouts_in_slots(world, spec, (student, execution), items, LOCKSTEP_SLOTS)
+}
+
+/// [`rollouts_executed`] with at most `slots` episodes running at once (at least 1).
 pub fn rollouts_in_slots(
     world: &World,
     spec: &RolloutSpec,
-    student: &Student,
+    (student, execution): (&Student, ChunkExecution),
     items: Vec<(TaskCondition, StreamRng, StreamRng)>,
     slots: usize,
 ) -> Vec<RolloutRecord> {
     let mut records: Vec<Option<RolloutRecord>> = vec![None; items.len()];
     let mut pending = items.into_iter().enumerate();
-    let mut running: Vec<(usize, Episode<'_>, StreamRng)> = Vec::new();
+    let mut running: Vec<(usize, Episode<'_>, (StreamRng, ChunkRunner))> = Vec::new();
     let sampler = student.net.sampler();
     loop {
         // Every slot observes its next step; an episode that is over finishes and its slot
@@ -982,7 +1210,12 @@ pub fn rollouts_in_slots(
                 let Some((i, (condition, dr, policy))) = pending.next() else {
                     break;
                 };
-                running.push((i, Episode::new(world, spec, condition, dr), policy));
+                let runner = ChunkRunner::new(execution, &student.params);
+                running.push((
+                    i,
+                    Episode::new(world, spec, condition, dr),
+                    (policy, runner),
+                ));
             }
             // A student reads no contact force (`StudentPolicy::reads_contact_force`).
             match running[k].1.observe_step(false) {
@@ -999,8 +1232,10 @@ pub fn rollouts_in_slots(
         if observed.is_empty() {
             break;
         }
-        let rngs = running.iter_mut().map(|(_, _, rng)| rng);
-        let actions = student.act_batch_with(&sampler, &obs, rngs);
+        let states = running
+            .iter_mut()
+            .map(|(_, _, (rng, runner))| (rng, runner));
+        let actions = student.act_executed(&sampler, &obs, states);
         for ((slot, o), action) in running.iter_mut().zip(observed).zip(actions) {
             slot.1.act_step(o, action, &mut NoHooks);
         }
@@ -1287,6 +1522,110 @@ mod tests {
     #[test]
     fn students_with_a_moving_average_of_weights_learn_too() {
         learns_a_deterministic_policy(0.99, false, StudentNetwork::Mlp);
+    }
+
+    /// Chunk c of a runner's test holds 100·c + j + k/100 at step j, channel k.
+    fn numbered_chunk(c: usize, chunk: usize) -> Vec<f64> {
+        (0..chunk * N_ACTION)
+            .map(|i| 100.0 * c as f64 + (i / N_ACTION) as f64 + (i % N_ACTION) as f64 / 100.0)
+            .collect()
+    }
+
+    fn run(execution: ChunkExecution, steps: usize) -> (Vec<bool>, Vec<Vec<f64>>) {
+        let params = StudentParams {
+            chunk: 4,
+            ..StudentParams::default()
+        };
+        execution.check_for(&params).expect("valid");
+        let mut runner = ChunkRunner::new(execution, &params);
+        let (mut sampled, mut actions) = (Vec::new(), Vec::new());
+        let mut c = 0;
+        for _ in 0..steps {
+            sampled.push(runner.samples());
+            if runner.samples() {
+                runner.push(numbered_chunk(c, 4));
+                c += 1;
+            }
+            actions.push(runner.next());
+        }
+        (sampled, actions)
+    }
+
+    #[test]
+    fn a_horizon_of_h_runs_h_actions_of_each_chunk_open_loop() {
+        for h in [1, 2, 3, 4] {
+            let (sampled, actions) = run(
+                ChunkExecution {
+                    horizon: h,
+                    ensemble: None,
+                },
+                9,
+            );
+            for (n, (s, a)) in sampled.iter().zip(&actions).enumerate() {
+                assert_eq!(*s, n % h == 0, "h = {h}, step {n}");
+                // Chunk n / h, its action n mod h.
+                let want = 100.0 * (n / h) as f64 + (n % h) as f64;
+                assert_eq!(a[0], want, "h = {h}, step {n}");
+                assert_eq!(a[5], want + 0.05, "h = {h}, step {n}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_temporal_ensemble_weights_older_predictions_by_exp_minus_m_i() {
+        let m = 0.5;
+        let (sampled, actions) = run(
+            ChunkExecution {
+                horizon: 1,
+                ensemble: Some(m),
+            },
+            7,
+        );
+        assert!(sampled.iter().all(|&s| s), "a chunk every step");
+        for (n, a) in actions.iter().enumerate() {
+            // Chunks max(0, n − 3) ..= n predict step n, the oldest first (weight exp(0)).
+            let live: Vec<usize> = (n.saturating_sub(3)..=n).collect();
+            let (mut num, mut den) = (0.0, 0.0);
+            for (i, &c) in live.iter().enumerate() {
+                let w = (-m * i as f64).exp();
+                num += w * (100.0 * c as f64 + (n - c) as f64);
+                den += w;
+            }
+            assert!(
+                (a[0] - num / den).abs() < 1e-9,
+                "step {n}: {} vs {}",
+                a[0],
+                num / den
+            );
+        }
+        // m = 0: the plain mean of the live predictions.
+        let (_, flat) = run(
+            ChunkExecution {
+                horizon: 1,
+                ensemble: Some(0.0),
+            },
+            5,
+        );
+        // Step 4: chunks 1..=4 predict 101 + 3, 201 + 2, 302 + 1 (their steps 3, 2, 1), 400.
+        let mean = (103.0 + 202.0 + 301.0 + 400.0) / 4.0;
+        assert!((flat[4][0] - mean).abs() < 1e-9, "{}", flat[4][0]);
+    }
+
+    #[test]
+    fn executions_the_chunks_cannot_carry_are_refused() {
+        let params = StudentParams::default();
+        let bad = |horizon, ensemble| {
+            ChunkExecution { horizon, ensemble }
+                .check_for(&params)
+                .expect_err("refused")
+                .to_string()
+        };
+        assert!(bad(0, None).contains("within 1 ..= 8"));
+        assert!(bad(9, None).contains("within 1 ..= 8"));
+        assert!(bad(2, Some(0.01)).contains("horizon = 1"));
+        assert!(bad(1, Some(-1.0)).contains("≥ 0"));
+        assert!(bad(1, Some(f64::NAN)).contains("finite"));
+        assert!(ChunkExecution::default().is_paper());
     }
 
     fn learns_a_deterministic_policy(ema_decay: f32, target_labels: bool, network: StudentNetwork) {

@@ -10,6 +10,7 @@
 
 pub mod ablations;
 pub mod artifacts;
+pub mod baselines;
 pub mod claims;
 mod error;
 pub mod figures;

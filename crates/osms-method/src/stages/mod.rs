@@ -1,13 +1,15 @@
 //! The method's stage kinds, one file each: the manifold and the candidates (`manifold`,
 //! `candidates`, `candidate_table`), the error model (`error_model`) and its closed-loop
 //! calibration (`calibrate_error_model`, `error_calibration`), validation and D_*
-//! (`validate`, `dstar`), the baselines (`naive`, `normal`, `construction_table`) and the IOS
+//! (`validate`, `dstar`), the baselines (`naive`, `normal`, `construction_table`; beyond the
+//! paper `dart`) and the IOS
 //! profile (`ios_profile`).
 
 mod calibration;
 mod candidate_table;
 mod candidates;
 mod construction_table;
+mod dart;
 mod dstar;
 mod error_model;
 mod ios_profile;
@@ -22,6 +24,7 @@ pub use calibration::{
 pub use candidate_table::CandidateTableStage;
 pub use candidates::CandidatesStage;
 pub use construction_table::ConstructionTableStage;
+pub use dart::{DartParams, DartStage};
 pub use dstar::{DstarParams, DstarStage};
 pub use error_model::ErrorModelStage;
 pub use ios_profile::IosProfileStage;
@@ -177,6 +180,7 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register_itemised(ValidateStage)
         .register_itemised(DstarStage)
         .register_itemised(NaiveStage)
+        .register_itemised(DartStage)
         .register_itemised(NormalStage)
         .register(ConstructionTableStage)
         .register_itemised(IosProfileStage);

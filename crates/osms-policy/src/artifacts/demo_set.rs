@@ -46,8 +46,11 @@ pub enum Execution {
     /// include the modelled perturbation).
     Perturbed { q: u32 },
     /// A student's own rollout, labelled with the teacher's actions at the states it visited
-    /// (the `dagger` diagnostic).
+    /// (the `dagger` diagnostic and the DAgger-IL baseline).
     StudentVisited,
+    /// The teacher's rollout under injected action noise, labelled with the actions it
+    /// intended (the DART-IL baseline).
+    Dart,
 }
 
 /// One successful rollout kept as a demonstration.

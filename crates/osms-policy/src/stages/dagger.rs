@@ -1,5 +1,6 @@
 //! `dagger`: one round of DAgger (Ross et al. 2011) as a diagnostic of covariate shift
-//! (issue 33), not as the paper's method. The IL student π̄ runs on the D_E conditions it was
+//! (issue 33), not as the paper's method; `dagger_round`, a round of the DAgger-IL baseline
+//! (issue 68, beyond the paper). The IL student π̄ runs on the D_E conditions it was
 //! trained on, the frozen teacher is queried at every state it visits, and each of its rollouts,
 //! labelled with those teacher actions, joins the teacher's own demonstration of the same
 //! condition. A student trained on the set sees the states its predecessor drifted into; if it
@@ -7,9 +8,12 @@
 
 use std::collections::BTreeMap;
 
+use serde::{Deserialize, Serialize};
+
 use osms_core::rng::StreamRng;
 use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
 use osms_sim::artifacts::WorldArtifact;
+use osms_sim::control::DrSpec;
 use osms_sim::{RolloutSpec, World};
 
 use super::error_pairs::{ErrorPairsParams, beside_teacher};
@@ -126,6 +130,146 @@ impl ItemStage for DaggerStage {
         &self,
         _: &Ctx<'_, ErrorPairsParams>,
         _: DaggerPrepared,
+        groups: Vec<DemoGroup>,
+    ) -> Result<DemoSet, StageError> {
+        Ok(DemoSet {
+            construction: "dagger".into(),
+            target: None,
+            used: None,
+            groups,
+        })
+    }
+}
+
+/// A round of the DAgger-IL baseline. Every default lives here.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DaggerRoundParams {
+    /// The chain's number of rounds R: each of its B = ⌊N / (R + 1)⌋ conditions ends with its
+    /// demonstration and R labelled student rollouts, N the `target` set's demonstrations
+    /// (size-matched).
+    pub rounds: u32,
+    /// Domain randomisation of the student's rollouts (a preset name or a table); absent: the
+    /// teacher's training setting.
+    pub dr: Option<DrSpec>,
+}
+
+impl Default for DaggerRoundParams {
+    fn default() -> Self {
+        DaggerRoundParams {
+            rounds: 1,
+            dr: None,
+        }
+    }
+}
+
+/// What `dagger_round` builds once: `dagger`'s, with the set's leading groups to extend.
+pub struct DaggerRoundPrepared {
+    world: World,
+    teacher: Teacher,
+    student: Student,
+    spec: RolloutSpec,
+    groups: Vec<DemoGroup>,
+}
+
+/// One DAgger round (Ross et al. 2011) on a demonstration set: the student trained on `demos`
+/// runs on the conditions of its B leading groups, the frozen teacher labels every state it
+/// visits, and each condition's group gains that rollout. Round 1 reads the Naive set and
+/// Naive-IL's student, round r the set of round r − 1 and the student trained on it; after R
+/// rounds the set holds B · (R + 1) ≤ N demonstrations. Rollout `i` draws its domain
+/// randomisation from ("item", i) and the student's noise from ("policy", i).
+pub struct DaggerRoundStage;
+impl ItemStage for DaggerRoundStage {
+    const KIND: &'static str = "dagger_round";
+    const CODE_VERSION: u32 = 1;
+    const USES_RNG: bool = true;
+    const INPUTS: &'static [Slot] = &[
+        Slot::one::<WorldArtifact>("world"),
+        Slot::one::<DemoSet>("demos"),
+        Slot::one::<StudentArtifact>("student"),
+        Slot::one::<Teacher>("teacher"),
+        Slot::one::<DemoSet>("target"),
+    ];
+    const DOC: &'static str = "a round of the DAgger-IL baseline: the student trained on a demonstration set on its leading conditions, labelled by the teacher, added to their groups (size-matched to `target` over the chain's rounds)";
+    type Params = DaggerRoundParams;
+    type Prepared = DaggerRoundPrepared;
+    type Item = DemoGroup;
+    type Output = DemoSet;
+
+    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
+        osms_core::check::Check::check(params)
+    }
+
+    fn numerics() -> Vec<Numerics> {
+        super::numerics()
+    }
+    fn prepare(&self, ctx: &Ctx<'_, DaggerRoundParams>) -> Result<DaggerRoundPrepared, StageError> {
+        let target = ctx.sharded::<DemoSet>("target")?.len();
+        let conditions = target / (ctx.params.rounds as usize + 1);
+        let demos: DemoSet = ctx.sharded("demos")?;
+        let mut groups: Vec<DemoGroup> = demos
+            .used_groups()
+            .iter()
+            .filter(|g| !g.demos.is_empty())
+            .take(conditions)
+            .cloned()
+            .collect();
+        if groups.len() < conditions || conditions == 0 {
+            return Err(format!(
+                "input `demos` has {} conditions with demonstrations; {} rounds size-matched to `target`'s {target} demonstrations need {conditions}\nhint: wire a larger set, or fewer rounds",
+                groups.len(),
+                ctx.params.rounds
+            )
+            .into());
+        }
+        let student: StudentArtifact = ctx.input("student")?;
+        let trained: std::collections::BTreeSet<u32> = student.items.iter().copied().collect();
+        if groups.iter().any(|g| !trained.contains(&g.item)) {
+            return Err("input `student` was not trained on the conditions of input `demos`' leading groups\nhint: wire the student trained on `demos` (round 1: the Naive set's student)".into());
+        }
+        for g in &mut groups {
+            g.extension = false;
+        }
+        let (world, teacher, spec) = beside_teacher(ctx, &student.student, &ctx.params.dr)?;
+        Ok(DaggerRoundPrepared {
+            world,
+            teacher,
+            student: student.student,
+            spec,
+            groups,
+        })
+    }
+    fn n_items(&self, _: &Ctx<'_, DaggerRoundParams>, p: &DaggerRoundPrepared) -> usize {
+        p.groups.len()
+    }
+    fn run_item(
+        &self,
+        ctx: &Ctx<'_, DaggerRoundParams>,
+        p: &DaggerRoundPrepared,
+        index: usize,
+        rng: &mut StreamRng,
+    ) -> Result<DemoGroup, StageError> {
+        let mut group = p.groups[index].clone();
+        let paired = paired_rollout(
+            &p.world,
+            &p.spec,
+            &p.student,
+            (&p.teacher.agent, &p.teacher.task),
+            group.condition.clone(),
+            rng.clone(),
+            ctx.rng("policy", index as u64),
+        );
+        group.demos.push(DemoEntry::labelled(
+            Execution::StudentVisited,
+            &paired.record,
+            paired.teacher,
+        ));
+        Ok(group)
+    }
+    fn merge(
+        &self,
+        _: &Ctx<'_, DaggerRoundParams>,
+        _: DaggerRoundPrepared,
         groups: Vec<DemoGroup>,
     ) -> Result<DemoSet, StageError> {
         Ok(DemoSet {

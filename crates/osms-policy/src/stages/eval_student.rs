@@ -7,7 +7,7 @@ use osms_sim::{RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::StudentArtifact;
-use crate::student::{ROLLOUT_BATCH, Student};
+use crate::student::{ChunkExecution, ROLLOUT_BATCH, Student};
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -15,6 +15,10 @@ pub struct EvalStudentParams {
     /// How the evaluation rollouts run (control, domain randomisation, success criteria); the
     /// history the student reads is its own.
     pub rollout: RolloutSpec,
+    /// How the student's chunks are executed (issue 68, beyond the paper). The paper's, the
+    /// default, is left out of the encoded params, so keys built before it stay valid.
+    #[serde(skip_serializing_if = "ChunkExecution::is_paper")]
+    pub execution: ChunkExecution,
 }
 
 /// A student on every condition of a set; rollout `i` draws its domain randomisation from
@@ -45,6 +49,7 @@ impl ItemStage for EvalStudentStage {
     }
     fn prepare(&self, ctx: &Ctx<'_, EvalStudentParams>) -> Result<Self::Prepared, StageError> {
         let student = ctx.input::<StudentArtifact>("student")?.student;
+        ctx.params.execution.check_for(&student.params)?;
         let spec = student.rollout_spec(&ctx.params.rollout);
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,
@@ -79,7 +84,7 @@ impl ItemStage for EvalStudentStage {
         Ok(super::student_rows(
             ctx,
             (world, conditions),
-            (student, spec),
+            (student, ctx.params.execution, spec),
             first,
             rngs,
         ))

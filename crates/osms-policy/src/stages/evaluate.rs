@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{StudentArtifact, Teacher};
 use crate::catch::ActorInputs;
-use crate::student::{ROLLOUT_BATCH, Student};
+use crate::student::{ChunkExecution, ROLLOUT_BATCH, Student};
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -42,6 +42,10 @@ pub struct EvaluateParams {
     /// params when false.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub prior_tracked: bool,
+    /// How a wired student's chunks are executed (issue 68, beyond the paper). The paper's,
+    /// the default, is left out of the encoded params, so keys built before it stay valid.
+    #[serde(skip_serializing_if = "ChunkExecution::is_paper")]
+    pub execution: ChunkExecution,
 }
 
 impl EvaluateParams {
@@ -110,6 +114,9 @@ impl ItemStage for EvaluateStage {
     }
     fn prepare(&self, ctx: &Ctx<'_, EvaluateParams>) -> Result<Self::Prepared, StageError> {
         let p = ctx.params;
+        if !p.execution.is_paper() && !ctx.has_input("student") {
+            return Err("params.execution: chunk execution applies to a student, and no `student` is wired\nhint: wire `student` or leave `execution` out".into());
+        }
         let policy = match (ctx.has_input("teacher"), ctx.has_input("student")) {
             (true, true) => {
                 return Err(
@@ -123,6 +130,7 @@ impl ItemStage for EvaluateStage {
             }
             (false, true) => {
                 let student = ctx.input::<StudentArtifact>("student")?.student;
+                p.execution.check_for(&student.params)?;
                 let spec = student.rollout_spec(&p.rollout);
                 Evaluated::Student(Box::new(student), spec)
             }
@@ -191,7 +199,7 @@ impl ItemStage for EvaluateStage {
         Ok(super::student_rows(
             ctx,
             (world, conditions),
-            (student, spec),
+            (student, ctx.params.execution, spec),
             first,
             rngs,
         ))

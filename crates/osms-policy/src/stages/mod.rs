@@ -15,7 +15,9 @@ mod teacher;
 mod teacher_table;
 
 pub use collect::{CollectParams, CollectStage, DatasetRole};
-pub use dagger::{DaggerPrepared, DaggerStage};
+pub use dagger::{
+    DaggerPrepared, DaggerRoundParams, DaggerRoundPrepared, DaggerRoundStage, DaggerStage,
+};
 pub use error_pairs::{ErrorPairsParams, ErrorPairsStage, PairsPrepared};
 pub use eval_student::{EvalStudentParams, EvalStudentStage};
 pub use eval_teacher::{EvalTeacherParams, EvalTeacherStage};
@@ -30,7 +32,7 @@ use osms_make::{Ctx, Fold, Numerics};
 use osms_sim::artifacts::{Conditions, EvalRow};
 use osms_sim::{RolloutSpec, World};
 
-use crate::student::{Student, rollouts};
+use crate::student::{ChunkExecution, Student, rollouts_executed};
 
 /// What a kind that rolls out or trains networks depends on beyond its inputs: MuJoCo,
 /// osms-sim's and osms-nn's numerics.
@@ -49,7 +51,7 @@ pub fn numerics() -> Vec<Numerics> {
 pub(crate) fn student_rows<P>(
     ctx: &Ctx<'_, P>,
     (world, conditions): (&World, &Conditions),
-    (student, spec): (&Student, &RolloutSpec),
+    (student, execution, spec): (&Student, ChunkExecution, &RolloutSpec),
     first: usize,
     dr: Vec<StreamRng>,
 ) -> Vec<EvalRow> {
@@ -61,7 +63,7 @@ pub(crate) fn student_rows<P>(
             (conditions.items[i].clone(), dr, ctx.rng("policy", i as u64))
         })
         .collect();
-    rollouts(world, spec, student, items)
+    rollouts_executed(world, spec, (student, execution), items)
         .into_iter()
         .map(EvalRow::of)
         .collect()
@@ -84,7 +86,8 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register_itemised(EvalStudentStage)
         .register_itemised(EvaluateStage)
         .register_itemised(ErrorPairsStage)
-        .register_itemised(DaggerStage);
+        .register_itemised(DaggerStage)
+        .register_itemised(DaggerRoundStage);
 }
 
 #[cfg(test)]

@@ -1,7 +1,8 @@
-//! The report's stage kinds, one file each: Tables II and III, the figures, the ablations and
-//! the report.
+//! The report's stage kinds, one file each: Tables II and III, the figures, the ablations, the
+//! baselines beyond the paper and the report.
 
 mod ablations;
+mod baselines;
 mod candidate_selection;
 mod impact_profiles;
 mod ios_figure;
@@ -12,6 +13,7 @@ mod table3;
 mod task_conditions;
 
 pub use ablations::AblationsStage;
+pub use baselines::BaselinesStage;
 pub use candidate_selection::CandidateSelectionStage;
 pub use impact_profiles::ImpactProfilesStage;
 pub use ios_figure::IosFigureStage;
@@ -49,5 +51,6 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register(CandidateSelectionStage)
         .register(LearningCurvesStage)
         .register(ReportStage)
-        .register(AblationsStage);
+        .register(AblationsStage)
+        .register(BaselinesStage);
 }

@@ -14,9 +14,9 @@ use osms_store::{Record, Store};
 use super::outdir;
 use crate::context::Context;
 
-/// The kinds whose builds `osms make` writes out as a directory: the report and the
-/// ablations.
-pub const REPORT_KINDS: [&str; 2] = ["report", "ablations"];
+/// The kinds whose builds `osms make` writes out as a directory: the report, the ablations
+/// and the baselines beyond the paper.
+pub const REPORT_KINDS: [&str; 3] = ["report", "ablations", "baselines"];
 
 /// A report directory holds this marker: osms may replace it.
 const MARKER: outdir::Marker = outdir::Marker {
