@@ -126,7 +126,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 103, "{reference:?}");
+    assert_eq!(reference.len(), 119, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -141,6 +141,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     interventions_replay_hand_back_and_share_random_numbers(&first);
     validation_is_exact_when_fast_and_dstar_repeats_it(&first);
     dagger_adds_the_students_rollouts_labelled_by_the_teacher(&first);
+    dart_and_dagger_il_are_size_matched_to_dstar(&first);
     let two = make(&text, 2, Some(&first));
     assert_eq!(two.hashes, reference, "1 vs 2 threads");
     assert_eq!(
@@ -334,6 +335,7 @@ fn the_report_shows_its_sources(made: &Made) {
 fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
     let aggregates = [
         "ablations",
+        "baselines",
         "impact_profiles",
         "learning_curves",
         "report",
@@ -357,11 +359,29 @@ fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
             "intended",
             "omitted",
             "least_squares",
+            "dart",
+            "dagger1",
+            "dagger3",
         ]
         .iter()
         .flat_map(|s| [format!("student_{s}@{seed}"), format!("eval_{s}@{seed}")])
-        // The development stream's evaluation of student_ours.
-        .chain([format!("dev_student@{seed}")])
+        // The development stream's evaluations of the final students.
+        .chain(
+            ["dev_student", "dev_student_naive", "dev_student_normal"]
+                .map(|s| format!("{s}@{seed}")),
+        )
+        // DAgger-IL's rounds, on the run seed's Naive-IL student.
+        .chain(
+            [
+                "dagger1_round1",
+                "dagger3_round1",
+                "student_dagger3_round1",
+                "dagger3_round2",
+                "student_dagger3_round2",
+                "dagger3_round3",
+            ]
+            .map(|s| format!("{s}@{seed}")),
+        )
         .collect()
     };
     let sorted = |mut v: Vec<String>| {
@@ -912,6 +932,157 @@ fn dagger_adds_the_students_rollouts_labelled_by_the_teacher(made: &Made) {
     );
 }
 
+/// Issue 68's baselines. DART-IL: as many teacher successes under the calibrated error model
+/// (κ = 1) as D_* has demonstrations, from conditions of its own stream, each labelled with the
+/// actions the teacher intended: a replay from the stage's streams reproduces the rollout, its
+/// intended actions are the labels and the executed (perturbed) ones differ from them.
+/// DAgger-IL: after R rounds each of the B = ⌊|D_*| / (R + 1)⌋ leading Naive conditions holds
+/// its Naive demonstration, then one teacher-labelled rollout per round of the student trained
+/// on the round before.
+fn dart_and_dagger_il_are_size_matched_to_dstar(made: &Made) {
+    use osms_method::artifacts::ErrorModelArtifact;
+    use osms_method::error_model::Perturber;
+    use osms_method::intervene::{Errors, execute};
+    use osms_method::stages::DartParams;
+    use osms_policy::artifacts::{Dataset, DemoSet, Execution, StudentArtifact, Teacher};
+    use osms_policy::student::Demo;
+    use osms_sim::artifacts::WorldArtifact;
+
+    let dstar: DemoSet = load_sharded(made, "dstar");
+    let target = dstar.len();
+    let dart: DemoSet = load_sharded(made, "dart");
+    assert_eq!((dart.target, dart.len()), (Some(target), target));
+    let world = load::<WorldArtifact>(made, "world").world().expect("world");
+    let mut teacher: Teacher = load(made, "teacher");
+    teacher.task = load_sharded::<Dataset>(made, "d_r").task;
+    teacher.task.rollout.record_privileged = false;
+    // The tiny profile injects another fit and keeps failures (pipeline.toml says why).
+    let stage = made
+        .plan
+        .stages
+        .iter()
+        .find(|s| s.name == "dart")
+        .expect("dart");
+    let p: DartParams = serde_json::from_value(stage.params.json.clone()).expect("params");
+    let artifact: ErrorModelArtifact = load(made, "error_model_calibrated");
+    let model = match p.error_model {
+        None => artifact.model,
+        Some(v) => {
+            artifact
+                .variants
+                .into_iter()
+                .find(|f| f.model.variant == v)
+                .expect("fit")
+                .model
+        }
+    }
+    .with_kappa(p.kappa);
+    let mut perturbed = 0;
+    for g in dart.used_groups() {
+        assert_eq!(g.demos.len(), 1, "item {}", g.item);
+        let entry = &g.demos[0];
+        assert_eq!(entry.execution, Execution::Dart);
+        assert!(g.original_success || !p.successes_only, "successes only");
+        let stream = u64::from(g.item) * 100 + u64::from(g.attempt);
+        let e = execute(
+            &world,
+            &teacher.task,
+            &teacher.agent,
+            g.condition.clone(),
+            osms_core::rng::stream(0, "dart", "attempt", stream),
+            None,
+            Some(Errors {
+                perturber: Perturber::new(&model),
+                rng: osms_core::rng::stream(0, "dart", "noise", stream),
+            }),
+        );
+        assert_eq!(
+            e.record.outcome.success(),
+            g.original_success,
+            "item {}",
+            g.item
+        );
+        assert_eq!(
+            entry.demo,
+            Demo::labelled(&e.record, e.record.intended.clone()),
+            "item {}: the replay's frames, labelled with the intended actions",
+            g.item
+        );
+        if e.commanded != e.record.intended {
+            perturbed += 1;
+        }
+    }
+    assert_eq!(
+        perturbed,
+        dart.used_groups().len(),
+        "the noise moves every rollout"
+    );
+    let naive: DemoSet = load_sharded(made, "naive");
+    let leading: Vec<_> = naive
+        .used_groups()
+        .iter()
+        .filter(|g| !g.demos.is_empty())
+        .collect();
+    for (rounds, stage, last) in [
+        (1, "dagger1_round1", "dagger1_round1@0"),
+        (3, "dagger3_round3", "dagger3_round3@0"),
+    ] {
+        // B from the size match, unless the profile sets it (tiny's D_* is too small for three
+        // rounds).
+        let params = &made
+            .plan
+            .stages
+            .iter()
+            .find(|s| s.name == stage)
+            .expect("stage")
+            .params
+            .json;
+        let b = params["conditions"]
+            .as_u64()
+            .map_or(target / (rounds + 1), |b| b as usize);
+        let set: DemoSet = load_sharded(made, last);
+        assert_eq!(set.groups.len(), b, "{last}");
+        assert_eq!(set.len(), b * (rounds + 1), "{last}");
+        if params["conditions"].is_null() {
+            assert!(set.len() <= target, "{last}: size-matched");
+        }
+        for (g, naive_group) in set.groups.iter().zip(&leading) {
+            assert_eq!(
+                g.item, naive_group.item,
+                "{last}: the leading Naive conditions"
+            );
+            assert_eq!(
+                g.demos[0], naive_group.demos[0],
+                "{last}: the Naive demonstration first"
+            );
+            for visited in &g.demos[1..] {
+                assert_eq!(visited.execution, Execution::StudentVisited);
+                assert_ne!(
+                    visited.demo.deployable,
+                    naive_group.demos[0].demo.deployable
+                );
+            }
+        }
+    }
+    // Each round's student trains on the round before, the final one on the last round.
+    for (student, set) in [
+        ("student_dagger3_round1@0", "dagger3_round1@0"),
+        ("student_dagger3_round2@0", "dagger3_round2@0"),
+        ("student_dagger3@0", "dagger3_round3@0"),
+        ("student_dagger1@0", "dagger1_round1@0"),
+    ] {
+        let trained: StudentArtifact = load(made, student);
+        let groups: Vec<u32> = load_sharded::<DemoSet>(made, set)
+            .groups
+            .iter()
+            .map(|g| g.item)
+            .collect();
+        assert_eq!(trained.items, groups, "{student} trains on {set}");
+    }
+    let round2: DemoSet = load_sharded(made, "dagger3_round2@0");
+    assert!(round2.groups.iter().all(|g| g.demos.len() == 3));
+}
+
 /// The teacher as a query (its own prior and phase input following the visited states) is the
 /// teacher: acting with its answers reproduces the teacher's own rollout bit for bit.
 fn teacher_queries_reproduce_the_teacher(made: &Made) {
@@ -1023,18 +1194,63 @@ fn student_rollouts_are_deterministic_and_see_their_training_features(made: &Mad
         "episodes of one length only: {lengths:?}"
     );
     // Fewer slots than episodes: an ended episode's slot takes the next condition.
+    let paper = osms_policy::student::ChunkExecution::default();
     for slots in [1, 2, 4] {
         assert_eq!(
-            osms_policy::student::rollouts_in_slots(&world, &spec, &sampling, items.clone(), slots),
+            osms_policy::student::rollouts_in_slots(
+                &world,
+                &spec,
+                (&sampling, paper),
+                items.clone(),
+                slots
+            ),
             alone,
             "lockstep in {slots} slots = one by one"
         );
     }
     assert_eq!(
-        osms_policy::student::rollouts(&world, &spec, &sampling, items),
+        osms_policy::student::rollouts(&world, &spec, &sampling, items.clone()),
         alone,
         "lockstep = one by one"
     );
+    // Other chunk executions (issue 68): in lockstep, where only some episodes sample at a
+    // step, each episode is still its rollout alone under the same execution, and the
+    // execution changes what the student does.
+    for execution in [
+        osms_policy::student::ChunkExecution {
+            horizon: 3,
+            ensemble: None,
+        },
+        osms_policy::student::ChunkExecution {
+            horizon: 1,
+            ensemble: Some(0.01),
+        },
+    ] {
+        let alone_executed: Vec<_> = items
+            .iter()
+            .map(|(c, dr, p)| {
+                let mut policy = StudentPolicy::with_execution(&sampling, p.clone(), execution);
+                osms_sim::Episode::new(&world, &spec, c.clone(), dr.clone())
+                    .run(&mut policy, &mut osms_sim::NoHooks)
+            })
+            .collect();
+        for slots in [1, 4] {
+            assert_eq!(
+                osms_policy::student::rollouts_in_slots(
+                    &world,
+                    &spec,
+                    (&sampling, execution),
+                    items.clone(),
+                    slots
+                ),
+                alone_executed,
+                "{execution:?}: lockstep in {slots} slots = one by one"
+            );
+        }
+        for (a, b) in alone_executed.iter().zip(&alone) {
+            assert_ne!(a.intended, b.intended, "{execution:?} acts as the paper's");
+        }
+    }
     // Querying the teacher does not change what the student does.
     let paired = paired_rollout(
         &world,
@@ -1946,9 +2162,9 @@ fn datasets_export_replay_and_render(made: &Made) {
 }
 
 /// The stages the Python package's identity check adds to the tiny pipeline: a student acting
-/// with noise and the scripted catcher with other gains and inputs than the defaults, each with
-/// its evaluation (protocol), so that the store's policies are checked for every param their
-/// stages read.
+/// with noise (also under two other chunk executions) and the scripted catcher with other gains
+/// and inputs than the defaults, each with its evaluation (protocol), so that the store's
+/// policies are checked for every param their stages read.
 const PYTHON_IDENTITY_STAGES: &str = r#"
 [stages.student_noisy]
 kind = "student"
@@ -1967,10 +2183,23 @@ kind = "evaluate"
 seed = 0
 inputs = { world = "world", conditions = "heldout" }
 params = { rollout = { dr = "paper" }, catcher = { gain = 0.35 }, prior_inputs = "tracked" }
+
+[stages.eval_student_h3]
+kind = "eval_student"
+seed = 0
+inputs = { world = "world", conditions = "heldout", student = "student_noisy" }
+params = { rollout = { dr = "paper" }, execution = { horizon = 3 } }
+
+[stages.eval_student_ensemble]
+kind = "evaluate"
+seed = 0
+inputs = { world = "world", conditions = "heldout", student = "student_noisy" }
+params = { rollout = { dr = "paper" }, execution = { ensemble = 0.01 } }
 "#;
 
 /// The Python package `osms` (crates/osms-py) against osms's own evaluations: the store's
-/// teacher, students (with and without noise) and scripted catcher (default and tuned)
+/// teacher, students (with and without noise, under the paper's chunk execution, a horizon of 3
+/// and the temporal ensemble) and scripted catcher (default and tuned)
 /// evaluated from Python give `osms export`'s rows bit for bit at 1, 3 and 16 rollouts at once;
 /// a NumPy policy's rows do not depend on batching and match the gymnasium environment's;
 /// gymnasium's checker passes; bad actions and arguments raise errors naming what would do and
@@ -1991,7 +2220,12 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made, text: &str) {
         &osms::registry(),
     )
     .expect("plan");
-    let added = ["eval_student_noisy", "eval_scripted_tuned"];
+    let added = [
+        "eval_student_noisy",
+        "eval_scripted_tuned",
+        "eval_student_h3",
+        "eval_student_ensemble",
+    ];
     let opts = MakeOptions {
         targets: added.iter().map(|s| s.to_string()).collect(),
         seeds: vec![0],
@@ -2010,6 +2244,8 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made, text: &str) {
         "eval_student_noisy",
         "eval_scripted",
         "eval_scripted_tuned",
+        "eval_student_h3",
+        "eval_student_ensemble",
     ];
     for stage in protocols {
         let hash = built
@@ -2035,6 +2271,9 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made, text: &str) {
     };
     assert_ne!(read("eval_scripted_tuned"), read("eval_scripted"));
     assert_ne!(read("eval_student_noisy"), read("eval_student_il"));
+    // So are the same noisy student under other chunk executions (issue 68).
+    assert_ne!(read("eval_student_h3"), read("eval_student_noisy"));
+    assert_ne!(read("eval_student_ensemble"), read("eval_student_noisy"));
     let checkout = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("..")
         .canonicalize()
@@ -2090,10 +2329,11 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made, text: &str) {
 /// What every run of check_package.py must have measured (it exits non-zero itself on a failed
 /// check; these are the counts and values it reports).
 fn check_python_summary(summary: &serde_json::Value, teacher_csv: &str) {
-    // Fifteen identity checks (five policies × three batch sizes), each over the whole set.
+    // 21 identity checks (seven (policy, protocol) pairs × three batch sizes), each over the
+    // whole set.
     let conditions = teacher_csv.lines().count() - 1;
     let identity = summary["identity"].as_object().expect("identity");
-    assert_eq!(identity.len(), 15, "{summary}");
+    assert_eq!(identity.len(), 21, "{summary}");
     assert!(
         identity
             .values()

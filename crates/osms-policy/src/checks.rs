@@ -205,6 +205,9 @@ impl Check for ErrorPairsParams {
 impl Check for DaggerRoundParams {
     fn check(&self) -> Checked {
         count("rounds", self.rounds, 1, 100)?;
+        if let Some(b) = self.conditions {
+            count("conditions", b, 1, 10_000_000)?;
+        }
         match &self.dr {
             Some(dr) => nested("dr", dr),
             None => Ok(()),

@@ -35,11 +35,14 @@ project = osms.Project(pipeline, None, "tiny")
 out = {}
 
 # (policy, protocol) pairs whose rows must equal osms export's: a teacher, a student without
-# and with noise, the scripted catcher with default and with other gains and inputs.
+# and with noise (and the noisy one under a chunk execution horizon of 3 and under the temporal
+# ensemble), the scripted catcher with default and with other gains and inputs.
 PROTOCOLS = [
     ("teacher", "eval_teacher"),
     ("student_il#0", "eval_student_il"),
     ("student_noisy", "eval_student_noisy"),
+    ("student_noisy", "eval_student_h3"),
+    ("student_noisy", "eval_student_ensemble"),
     ("scripted", "eval_scripted"),
     ("scripted", "eval_scripted_tuned"),
 ]

@@ -149,6 +149,11 @@ pub struct DaggerRoundParams {
     /// demonstration and R labelled student rollouts, N the `target` set's demonstrations
     /// (size-matched).
     pub rounds: u32,
+    /// B itself instead of ⌊N / (R + 1)⌋ (absent: size-matched). For a target too small to
+    /// share between R + 1 demonstrations per condition (the tiny profile's D_*); the final set
+    /// may then exceed the target.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub conditions: Option<usize>,
     /// Domain randomisation of the student's rollouts (a preset name or a table); absent: the
     /// teacher's training setting.
     pub dr: Option<DrSpec>,
@@ -158,6 +163,7 @@ impl Default for DaggerRoundParams {
     fn default() -> Self {
         DaggerRoundParams {
             rounds: 1,
+            conditions: None,
             dr: None,
         }
     }
@@ -205,7 +211,10 @@ impl ItemStage for DaggerRoundStage {
     }
     fn prepare(&self, ctx: &Ctx<'_, DaggerRoundParams>) -> Result<DaggerRoundPrepared, StageError> {
         let target = ctx.sharded::<DemoSet>("target")?.len();
-        let conditions = target / (ctx.params.rounds as usize + 1);
+        let conditions = ctx
+            .params
+            .conditions
+            .unwrap_or(target / (ctx.params.rounds as usize + 1));
         let demos: DemoSet = ctx.sharded("demos")?;
         let mut groups: Vec<DemoGroup> = demos
             .used_groups()
@@ -216,7 +225,7 @@ impl ItemStage for DaggerRoundStage {
             .collect();
         if groups.len() < conditions || conditions == 0 {
             return Err(format!(
-                "input `demos` has {} conditions with demonstrations; {} rounds size-matched to `target`'s {target} demonstrations need {conditions}\nhint: wire a larger set, or fewer rounds",
+                "input `demos` has {} conditions with demonstrations; {} rounds size-matched to `target`'s {target} demonstrations need {conditions} (at least 1)\nhint: wire a larger set, fewer rounds, or set params.conditions",
                 groups.len(),
                 ctx.params.rounds
             )
