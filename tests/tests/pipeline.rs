@@ -2195,6 +2195,13 @@ kind = "evaluate"
 seed = 0
 inputs = { world = "world", conditions = "heldout", student = "student_noisy" }
 params = { rollout = { dr = "paper" }, execution = { ensemble = 0.01 } }
+
+# Never built: a protocol whose horizon is past the student's chunks, for the refusal.
+[stages.eval_student_h9]
+kind = "eval_student"
+seed = 0
+inputs = { world = "world", conditions = "heldout", student = "student_noisy" }
+params = { rollout = { dr = "paper" }, execution = { horizon = 9 } }
 "#;
 
 /// The Python package `osms` (crates/osms-py) against osms's own evaluations: the store's

@@ -321,6 +321,13 @@ obs = noisy_pool.observe()
 answer = noisy_a(obs)
 errors["twice"] = raises(osms.OsmsError, lambda: noisy_a(obs), "already acted")
 noisy_pool.act(answer)
+# A protocol whose chunk execution the student cannot run: a horizon past its chunks.
+errors["horizon"] = raises(
+    osms.OsmsError,
+    lambda: oe.evaluate(noisy_a, protocol="eval_student_h9", indices=[0], project=project),
+    "execution.horizon = 9",
+    "chunk length",
+)
 check(
     all(name in ("scripted", "teacher") or "student" in name or "teacher" in name
         for name in errors["policy"].split("valid here: ")[-1].split(", ")),
