@@ -524,6 +524,10 @@ pub fn check(d: &ClaimData<'_>) -> Vec<Claim> {
             "Candidate generation: geodesic > Euclidean > unconditional > direct",
             "needs the candidate-generation ablation: `osms make ablations`",
         ),
+        (
+            "Beyond the paper: Ours-IL succeeds more often than DART-IL and than DAgger-IL (1 and 3 rounds)",
+            "needs the standard baselines: `osms make baselines` decides it in baselines/index.md",
+        ),
     ] {
         claims.push(Claim {
             claim: claim.into(),
