@@ -228,7 +228,7 @@ impl Check for ChunkExecution {
     fn check(&self) -> Checked {
         count("horizon", self.horizon, 1, 1_000)?;
         if let Some(m) = self.ensemble {
-            within("ensemble", m, 0.0, 10.0)?;
+            within("ensemble", m, -10.0, 10.0)?;
             if self.horizon != 1 {
                 return Err(Invalid::new(
                     "horizon",

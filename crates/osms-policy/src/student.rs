@@ -954,7 +954,8 @@ pub struct ChunkExecution {
     pub horizon: usize,
     /// ACT's temporal ensemble (Zhao et al. 2023): sample a chunk every step and execute the
     /// average of every live chunk's prediction for this step, the i-th oldest weighted by
-    /// exp(−m·i); the value is m (ACT's 0.01). Needs `horizon = 1`.
+    /// exp(−m·i); the value is m (ACT's 0.01, which favours the older predictions a little; a
+    /// negative m favours the newest). Needs `horizon = 1`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ensemble: Option<f64>,
 }
@@ -989,9 +990,9 @@ impl ChunkExecution {
                     self.horizon
                 )));
             }
-            if !(m.is_finite() && m >= 0.0) {
+            if !(m.is_finite() && m.abs() <= 10.0) {
                 return Err(Error::Params(format!(
-                    "execution.ensemble = {m}: the weights' decay m must be finite and ≥ 0 (ACT's is 0.01)"
+                    "execution.ensemble = {m}: the weights' decay m must be finite, within ±10 (ACT's is 0.01)"
                 )));
             }
         }
@@ -1609,6 +1610,17 @@ mod tests {
         // Step 4: chunks 1..=4 predict 101 + 3, 201 + 2, 302 + 1 (their steps 3, 2, 1), 400.
         let mean = (103.0 + 202.0 + 301.0 + 400.0) / 4.0;
         assert!((flat[4][0] - mean).abs() < 1e-9, "{}", flat[4][0]);
+        // A steep negative m: the newest chunk's first action, as replanning every step does.
+        let (_, newest) = run(
+            ChunkExecution {
+                horizon: 1,
+                ensemble: Some(-10.0),
+            },
+            6,
+        );
+        for (n, a) in newest.iter().enumerate() {
+            assert!((a[0] - 100.0 * n as f64).abs() < 0.01, "step {n}: {}", a[0]);
+        }
     }
 
     #[test]
@@ -1623,8 +1635,17 @@ mod tests {
         assert!(bad(0, None).contains("within 1 ..= 8"));
         assert!(bad(9, None).contains("within 1 ..= 8"));
         assert!(bad(2, Some(0.01)).contains("horizon = 1"));
-        assert!(bad(1, Some(-1.0)).contains("≥ 0"));
+        assert!(bad(1, Some(-11.0)).contains("within ±10"));
         assert!(bad(1, Some(f64::NAN)).contains("finite"));
+        assert!(
+            ChunkExecution {
+                horizon: 1,
+                ensemble: Some(-1.0)
+            }
+            .check_for(&params)
+            .is_ok(),
+            "a negative m favours the newest predictions"
+        );
         assert!(ChunkExecution::default().is_paper());
     }
 

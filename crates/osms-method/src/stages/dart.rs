@@ -85,22 +85,7 @@ impl ItemStage for DartStage {
 
     fn prepare(&self, ctx: &Ctx<'_, DartParams>) -> Result<DartPrepared, StageError> {
         let p = ctx.params;
-        let artifact: ErrorModelArtifact = ctx.input("error_model")?;
-        let model = match p.error_model {
-            None => artifact.model,
-            Some(v) => artifact
-                .variants
-                .into_iter()
-                .find(|f| f.model.variant == v)
-                .map(|f| f.model)
-                .ok_or_else(|| {
-                    format!(
-                        "params.error_model = `{}`: the error-model artifact has no such fit",
-                        v.name()
-                    )
-                })?,
-        }
-        .with_kappa(p.kappa);
+        let model = super::fit_of(ctx.input("error_model")?, p.error_model)?.with_kappa(p.kappa);
         model
             .validate()
             .map_err(|e| format!("input `error_model`: {e}"))?;

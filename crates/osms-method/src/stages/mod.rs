@@ -96,6 +96,29 @@ fn deficit(
     Ok((Some(n), n.saturating_sub(base)))
 }
 
+/// The fit `variant` of an error-model artifact (absent: the model it adopts), or the error
+/// naming the param.
+fn fit_of(
+    artifact: ErrorModelArtifact,
+    variant: Option<crate::error_model::ErrorVariant>,
+) -> Result<crate::error_model::ErrorModel, StageError> {
+    let Some(v) = variant else {
+        return Ok(artifact.model);
+    };
+    artifact
+        .variants
+        .into_iter()
+        .find(|f| f.model.variant == v)
+        .map(|f| f.model)
+        .ok_or_else(|| {
+            format!(
+                "params.error_model = `{}`: the error-model artifact has no such fit",
+                v.name()
+            )
+            .into()
+        })
+}
+
 /// What validation, D_* and the Normal baseline read from their inputs: the world, the teacher,
 /// the D_R rollouts with their task, their candidate sets and the error model.
 fn load_inputs<P>(ctx: &Ctx<'_, P>, params: &ValidateParams) -> Result<Inputs, StageError> {
@@ -114,21 +137,7 @@ fn load_inputs<P>(ctx: &Ctx<'_, P>, params: &ValidateParams) -> Result<Inputs, S
             "input `candidates`: the sets were built for other rollouts than `data`\nhint: wire `candidates` to a candidates stage on the windows of the same D_R dataset".into(),
         );
     }
-    let errors: ErrorModelArtifact = ctx.input("error_model")?;
-    let model = match params.error_model {
-        None => errors.model,
-        Some(v) => errors
-            .variants
-            .into_iter()
-            .find(|f| f.model.variant == v)
-            .map(|f| f.model)
-            .ok_or_else(|| {
-                format!(
-                    "params.error_model = `{}`: the error-model artifact has no such fit",
-                    v.name()
-                )
-            })?,
-    };
+    let model = fit_of(ctx.input("error_model")?, params.error_model)?;
     model
         .validate()
         .map_err(|e| format!("input `error_model`: {e}"))?;

@@ -100,11 +100,8 @@ impl ItemStage for DaggerStage {
         rng: &mut StreamRng,
     ) -> Result<DemoGroup, StageError> {
         let original = &p.trained[index];
-        let paired = paired_rollout(
-            &p.world,
-            &p.spec,
-            &p.student,
-            (&p.teacher.agent, &p.teacher.task),
+        let visited = labelled_visit(
+            (&p.world, &p.teacher, &p.student, &p.spec),
             original.record.condition.clone(),
             rng.clone(),
             ctx.rng("policy", index as u64),
@@ -122,7 +119,7 @@ impl ItemStage for DaggerStage {
                     &original.record,
                     original.record.intended.clone(),
                 ),
-                DemoEntry::labelled(Execution::StudentVisited, &paired.record, paired.teacher),
+                visited,
             ],
         })
     }
@@ -139,6 +136,26 @@ impl ItemStage for DaggerStage {
             groups,
         })
     }
+}
+
+/// The student's rollout on ω (DR from `dr`, its noise from `policy`) as a demonstration
+/// labelled with the teacher's action at every state it visited.
+fn labelled_visit(
+    (world, teacher, student, spec): (&World, &Teacher, &Student, &RolloutSpec),
+    condition: osms_sim::conditions::TaskCondition,
+    dr: StreamRng,
+    policy: StreamRng,
+) -> DemoEntry {
+    let paired = paired_rollout(
+        world,
+        spec,
+        student,
+        (&teacher.agent, &teacher.task),
+        condition,
+        dr,
+        policy,
+    );
+    DemoEntry::labelled(Execution::StudentVisited, &paired.record, paired.teacher)
 }
 
 /// A round of the DAgger-IL baseline. Every default lives here.
@@ -259,19 +276,11 @@ impl ItemStage for DaggerRoundStage {
         rng: &mut StreamRng,
     ) -> Result<DemoGroup, StageError> {
         let mut group = p.groups[index].clone();
-        let paired = paired_rollout(
-            &p.world,
-            &p.spec,
-            &p.student,
-            (&p.teacher.agent, &p.teacher.task),
+        group.demos.push(labelled_visit(
+            (&p.world, &p.teacher, &p.student, &p.spec),
             group.condition.clone(),
             rng.clone(),
             ctx.rng("policy", index as u64),
-        );
-        group.demos.push(DemoEntry::labelled(
-            Execution::StudentVisited,
-            &paired.record,
-            paired.teacher,
         ));
         Ok(group)
     }
