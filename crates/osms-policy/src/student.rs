@@ -752,7 +752,7 @@ impl Student {
 
     /// The sampled chunks for `obs`, each de-standardised (`chunk` steps of [`N_ACTION`]
     /// values), observation i drawing its noise from the i-th stream.
-    pub fn chunks_batch_with<'r, O: AsRef<[f32]>>(
+    fn chunks_batch_with<'r, O: AsRef<[f32]>>(
         &self,
         sampler: &FlowSampler<'_>,
         obs: &[O],
@@ -975,30 +975,33 @@ impl ChunkExecution {
         *self == ChunkExecution::default()
     }
 
-    /// Refuses an execution the student's chunks cannot carry.
+    /// Refuses an execution the student's chunks cannot carry: the plan's checks
+    /// (`osms_core::check::Check`), then a horizon past the chunk and ensemble weights that
+    /// would overflow over it.
     pub fn check_for(&self, params: &StudentParams) -> Result<()> {
-        if self.horizon == 0 || self.horizon > params.chunk {
+        <Self as osms_core::check::Check>::check(self)
+            .map_err(|e| Error::from(e.within("execution")))?;
+        if self.horizon > params.chunk {
             return Err(Error::Params(format!(
                 "execution.horizon = {}: must be within 1 ..= {} (the student's chunk length)",
                 self.horizon, params.chunk
             )));
         }
-        if let Some(m) = self.ensemble {
-            if self.horizon != 1 {
-                return Err(Error::Params(format!(
-                    "execution.ensemble with horizon = {}: the temporal ensemble samples every step\nhint: set execution.horizon = 1",
-                    self.horizon
-                )));
-            }
-            if !(m.is_finite() && m.abs() <= 10.0) {
-                return Err(Error::Params(format!(
-                    "execution.ensemble = {m}: the weights' decay m must be finite, within ±10 (ACT's is 0.01)"
-                )));
-            }
+        if let Some(m) = self.ensemble
+            && m.abs() * (params.chunk - 1) as f64 > MAX_ENSEMBLE_EXPONENT
+        {
+            return Err(Error::Params(format!(
+                "execution.ensemble = {m}: over the student's {} overlapping predictions the weights exp(−m·i) span more than exp({MAX_ENSEMBLE_EXPONENT}) and overflow\nhint: |m| · (chunk − 1) must be at most {MAX_ENSEMBLE_EXPONENT}",
+                params.chunk
+            )));
         }
         Ok(())
     }
 }
+
+/// The largest |m| · i an ensemble's weights exp(−m·i) may reach: exp(709) is the last finite
+/// f64, and the weights are summed.
+const MAX_ENSEMBLE_EXPONENT: f64 = 700.0;
 
 /// One episode's chunk state under a [`ChunkExecution`]: the chunks sampled so far that still
 /// cover a step to come, each with the step it was sampled at.
@@ -1034,6 +1037,10 @@ impl ChunkRunner {
     /// The chunk sampled at this step (de-standardised, step-major).
     fn push(&mut self, chunk: Vec<f64>) {
         debug_assert_eq!(chunk.len(), self.chunk * N_ACTION);
+        if self.execution.ensemble.is_none() {
+            // Only the newest chunk is ever read without an ensemble.
+            self.live.clear();
+        }
         self.live.push_back((self.step, chunk));
     }
 
@@ -1059,7 +1066,8 @@ impl ChunkRunner {
                 let mut sum = vec![0.0; N_ACTION];
                 let mut total = 0.0;
                 for (i, live) in self.live.iter().enumerate() {
-                    let w = (-m * i as f64).exp();
+                    // libm, not the platform's exp: the weights must have the same bits everywhere.
+                    let w = libm::exp(-m * i as f64);
                     for (s, a) in sum.iter_mut().zip(at(live)) {
                         *s += w * a;
                     }
@@ -1632,11 +1640,24 @@ mod tests {
                 .expect_err("refused")
                 .to_string()
         };
-        assert!(bad(0, None).contains("within 1 ..= 8"));
+        assert!(bad(0, None).contains("execution.horizon"));
         assert!(bad(9, None).contains("within 1 ..= 8"));
         assert!(bad(2, Some(0.01)).contains("horizon = 1"));
-        assert!(bad(1, Some(-11.0)).contains("within ±10"));
-        assert!(bad(1, Some(f64::NAN)).contains("finite"));
+        assert!(bad(1, Some(-11.0)).contains("execution.ensemble"));
+        assert!(bad(1, Some(f64::NAN)).contains("execution.ensemble"));
+        // Within the plan's ±10, but 8 · 100 overlapping predictions would overflow.
+        let long = StudentParams {
+            chunk: 100,
+            ..StudentParams::default()
+        };
+        let overflow = ChunkExecution {
+            horizon: 1,
+            ensemble: Some(-8.0),
+        }
+        .check_for(&long)
+        .expect_err("overflow")
+        .to_string();
+        assert!(overflow.contains("overflow"), "{overflow}");
         assert!(
             ChunkExecution {
                 horizon: 1,

@@ -51,13 +51,14 @@ pub fn baselines_table(
         });
     }
     table.notes.push(
-        "Not in the paper. DART-IL: the teacher's rollouts under the calibrated action-error \
-         model at κ = 1 (the trained student's modelled error, DART's rule), labelled with the \
-         actions it intended, successes only, as many as D_* has demonstrations. DAgger-IL: \
-         Naive-IL's student of the same run seed on B = ⌊|D_*| / (R + 1)⌋ of its training \
-         conditions, the teacher's actions at the states it visits as labels, aggregated with \
-         those conditions' Naive demonstrations and retrained, R rounds; `demos` per run seed. \
-         Every student has Table II's protocol."
+        "Not in the paper. DART-IL (by default): the teacher's rollouts under the calibrated \
+         action-error model at κ = 1 (the trained student's modelled error, DART's rule), \
+         labelled with the actions it intended, successes only, as many as D_* has \
+         demonstrations. DAgger-IL (by default): Naive-IL's student of the same run seed on \
+         B = ⌊|D_*| / (R + 1)⌋ of its training conditions, the teacher's actions at the states \
+         it visits as labels, aggregated with those conditions' Naive demonstrations and \
+         retrained, R rounds; `demos` per run seed. The `dart` and `dagger*_round*` stages' \
+         params say what this build ran. Every student has Table II's protocol."
             .into(),
     );
     table

@@ -164,7 +164,8 @@ fn labelled_visit(
 pub struct DaggerRoundParams {
     /// The chain's number of rounds R: each of its B = ⌊N / (R + 1)⌋ conditions ends with its
     /// demonstration and R labelled student rollouts, N the `target` set's demonstrations
-    /// (size-matched).
+    /// (size-matched). Every round of a chain carries the same R: a later round with a larger
+    /// one would relabel fewer conditions and drop the rest of its input.
     pub rounds: u32,
     /// B itself instead of ⌊N / (R + 1)⌋ (absent: size-matched). For a target too small to
     /// share between R + 1 demonstrations per condition (the tiny profile's D_*); the final set
@@ -240,9 +241,17 @@ impl ItemStage for DaggerRoundStage {
             .take(conditions)
             .cloned()
             .collect();
-        if groups.len() < conditions || conditions == 0 {
+        if conditions == 0 {
             return Err(format!(
-                "input `demos` has {} conditions with demonstrations; {} rounds size-matched to `target`'s {target} demonstrations need {conditions} (at least 1)\nhint: wire a larger set, fewer rounds, or set params.conditions",
+                "`target` holds {target} demonstrations: too few to share between {} per condition ({} rounds)\nhint: set params.conditions, or fewer rounds",
+                ctx.params.rounds + 1,
+                ctx.params.rounds
+            )
+            .into());
+        }
+        if groups.len() < conditions {
+            return Err(format!(
+                "input `demos` has {} conditions with demonstrations; {} rounds size-matched to `target`'s {target} demonstrations need {conditions}\nhint: wire a larger set, fewer rounds, or set params.conditions",
                 groups.len(),
                 ctx.params.rounds
             )
@@ -253,6 +262,8 @@ impl ItemStage for DaggerRoundStage {
         if groups.iter().any(|g| !trained.contains(&g.item)) {
             return Err("input `student` was not trained on the conditions of input `demos`' leading groups\nhint: wire the student trained on `demos` (round 1: the Naive set's student)".into());
         }
+        // The relabelled conditions are this set's own conditions, whichever stream they were
+        // drawn from: its construction statistics count them as its target conditions.
         for g in &mut groups {
             g.extension = false;
         }
