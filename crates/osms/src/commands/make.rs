@@ -285,7 +285,7 @@ fn pinned_binary(store: &osms_store::Store) -> Result<std::path::PathBuf> {
     std::fs::canonicalize(&dest).with_context(|| format!("cannot resolve {}", dest.display()))
 }
 
-/// Writes every report or ablations stage this make built or found to its directory
+/// Writes every report, ablations or baselines stage this make built or found to its directory
 /// (`report/` for the stage named `report`).
 fn write_reports(
     ctx: &Context,
