@@ -23,13 +23,55 @@ use crate::artifacts::{
 };
 use crate::student::{Student, paired_rollout};
 
-/// What `dagger` builds once: the world, the teacher, the student, its rollout spec and the
-/// D_E rollouts it was trained on, in item order.
-pub struct DaggerPrepared {
+/// What both DAgger kinds roll out with: the world, the frozen teacher, the student and its
+/// rollout spec beside the teacher.
+struct Visits {
     world: World,
     teacher: Teacher,
     student: Student,
     spec: RolloutSpec,
+}
+
+impl Visits {
+    fn new<P>(
+        ctx: &Ctx<'_, P>,
+        student: Student,
+        dr: &Option<DrSpec>,
+    ) -> Result<Visits, StageError> {
+        let (world, teacher, spec) = beside_teacher(ctx, &student, dr)?;
+        Ok(Visits {
+            world,
+            teacher,
+            student,
+            spec,
+        })
+    }
+
+    /// The student's rollout on ω (DR from `dr`, its noise from `policy`) as a demonstration
+    /// labelled with the teacher's action at every state it visited.
+    fn labelled(
+        &self,
+        condition: osms_sim::conditions::TaskCondition,
+        dr: StreamRng,
+        policy: StreamRng,
+    ) -> DemoEntry {
+        let paired = paired_rollout(
+            &self.world,
+            &self.spec,
+            &self.student,
+            (&self.teacher.agent, &self.teacher.task),
+            condition,
+            dr,
+            policy,
+        );
+        DemoEntry::labelled(Execution::StudentVisited, &paired.record, paired.teacher)
+    }
+}
+
+/// What `dagger` builds once: its [`Visits`] and the D_E rollouts the student was trained on,
+/// in item order.
+pub struct DaggerPrepared {
+    visits: Visits,
     trained: Vec<DemoRollout>,
 }
 
@@ -80,12 +122,8 @@ impl ItemStage for DaggerStage {
         if trained.is_empty() {
             return Err("input `student` was trained on no rollouts of a dataset (it trained on a demonstration set)\nhint: wire a student whose input is `data`, e.g. `student_il#0`".into());
         }
-        let (world, teacher, spec) = beside_teacher(ctx, &student.student, &ctx.params.dr)?;
         Ok(DaggerPrepared {
-            world,
-            teacher,
-            student: student.student,
-            spec,
+            visits: Visits::new(ctx, student.student, &ctx.params.dr)?,
             trained,
         })
     }
@@ -100,8 +138,7 @@ impl ItemStage for DaggerStage {
         rng: &mut StreamRng,
     ) -> Result<DemoGroup, StageError> {
         let original = &p.trained[index];
-        let visited = labelled_visit(
-            (&p.world, &p.teacher, &p.student, &p.spec),
+        let visited = p.visits.labelled(
             original.record.condition.clone(),
             rng.clone(),
             ctx.rng("policy", index as u64),
@@ -138,26 +175,6 @@ impl ItemStage for DaggerStage {
     }
 }
 
-/// The student's rollout on ω (DR from `dr`, its noise from `policy`) as a demonstration
-/// labelled with the teacher's action at every state it visited.
-fn labelled_visit(
-    (world, teacher, student, spec): (&World, &Teacher, &Student, &RolloutSpec),
-    condition: osms_sim::conditions::TaskCondition,
-    dr: StreamRng,
-    policy: StreamRng,
-) -> DemoEntry {
-    let paired = paired_rollout(
-        world,
-        spec,
-        student,
-        (&teacher.agent, &teacher.task),
-        condition,
-        dr,
-        policy,
-    );
-    DemoEntry::labelled(Execution::StudentVisited, &paired.record, paired.teacher)
-}
-
 /// A round of the DAgger-IL baseline. Every default lives here.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -187,12 +204,9 @@ impl Default for DaggerRoundParams {
     }
 }
 
-/// What `dagger_round` builds once: `dagger`'s, with the set's leading groups to extend.
+/// What `dagger_round` builds once: its [`Visits`] and the set's leading groups to extend.
 pub struct DaggerRoundPrepared {
-    world: World,
-    teacher: Teacher,
-    student: Student,
-    spec: RolloutSpec,
+    visits: Visits,
     groups: Vec<DemoGroup>,
 }
 
@@ -233,14 +247,6 @@ impl ItemStage for DaggerRoundStage {
             .params
             .conditions
             .unwrap_or(target / (ctx.params.rounds as usize + 1));
-        let demos: DemoSet = ctx.sharded("demos")?;
-        let mut groups: Vec<DemoGroup> = demos
-            .used_groups()
-            .iter()
-            .filter(|g| !g.demos.is_empty())
-            .take(conditions)
-            .cloned()
-            .collect();
         if conditions == 0 {
             return Err(format!(
                 "`target` holds {target} demonstrations: too few to share between {} per condition ({} rounds)\nhint: set params.conditions, or fewer rounds",
@@ -249,6 +255,15 @@ impl ItemStage for DaggerRoundStage {
             )
             .into());
         }
+        let demos: DemoSet = ctx.sharded("demos")?;
+        let used = demos.used_groups().len();
+        let mut groups: Vec<DemoGroup> = demos
+            .groups
+            .into_iter()
+            .take(used)
+            .filter(|g| !g.demos.is_empty())
+            .take(conditions)
+            .collect();
         if groups.len() < conditions {
             return Err(format!(
                 "input `demos` has {} conditions with demonstrations; {} rounds size-matched to `target`'s {target} demonstrations need {conditions}\nhint: wire a larger set, fewer rounds, or set params.conditions",
@@ -267,12 +282,8 @@ impl ItemStage for DaggerRoundStage {
         for g in &mut groups {
             g.extension = false;
         }
-        let (world, teacher, spec) = beside_teacher(ctx, &student.student, &ctx.params.dr)?;
         Ok(DaggerRoundPrepared {
-            world,
-            teacher,
-            student: student.student,
-            spec,
+            visits: Visits::new(ctx, student.student, &ctx.params.dr)?,
             groups,
         })
     }
@@ -287,8 +298,7 @@ impl ItemStage for DaggerRoundStage {
         rng: &mut StreamRng,
     ) -> Result<DemoGroup, StageError> {
         let mut group = p.groups[index].clone();
-        group.demos.push(labelled_visit(
-            (&p.world, &p.teacher, &p.student, &p.spec),
+        group.demos.push(p.visits.labelled(
             group.condition.clone(),
             rng.clone(),
             ctx.rng("policy", index as u64),
