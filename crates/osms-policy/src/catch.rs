@@ -469,7 +469,7 @@ fn residual_action(
     let prior = if spec.from_scratch {
         [0.0; N_ACTION]
     } else {
-        prior_state.act(view)
+        prior_state.act_increments(view)
     };
     let obs = observation(spec, prior_state, &prior, phase, view);
     let r = act(&obs);
@@ -507,6 +507,9 @@ fn residual_action(
     for o in &mut out {
         *o = o.clamp(-1.0, 1.0);
     }
+    // The residuals act on increments of the commanded targets, whatever the world's arm: on an
+    // absolute arm the command is the targets they reach (issue 74).
+    view.arm_from_increments(&spec.rollout.control, &mut out);
     (out, r)
 }
 

@@ -26,7 +26,7 @@
 use osms_core::rng::{self, StreamRng};
 use osms_nn::{Adam, AdamConfig, Matrix, Schedule};
 use osms_sim::conditions::TaskCondition;
-use osms_sim::control::{ControlSpec, targets};
+use osms_sim::control::{ArmAction, ControlSpec, targets};
 use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
 use osms_sim::flight::track_with;
 use osms_sim::{
@@ -281,7 +281,7 @@ impl Demo {
             let previous: [f64; N_ACTION] =
                 std::array::from_fn(|i| start.get(i).map_or(0.0, |t| f64::from(*t)));
             let action: Action = std::array::from_fn(|i| f64::from(row[i]));
-            let next = targets(&control, &previous, &action);
+            let next = targets(&control, ArmAction::Increment, &previous, &action);
             for (a, t) in row[..N_ARM].iter_mut().zip(next) {
                 *a = t as f32;
             }
@@ -1502,7 +1502,8 @@ mod tests {
             }
         });
         let action: Action = std::array::from_fn(|i| f64::from(d.actions[i]));
-        let integrated = osms_sim::control::targets(&control, &previous, &action);
+        let integrated =
+            osms_sim::control::targets(&control, ArmAction::Increment, &previous, &action);
         for (i, t) in integrated[..N_ARM].iter().enumerate() {
             assert_eq!(relabelled.actions[i], *t as f32, "joint {i}");
         }

@@ -27,7 +27,8 @@ pub struct WorldArtifact {
 
 impl Artifact for WorldArtifact {
     const TYPE_TAG: &'static str = "sim.world";
-    const SCHEMA_VERSION: u16 = 1;
+    /// 2: the spec has the arm's action (issue 74).
+    const SCHEMA_VERSION: u16 = 2;
 }
 
 impl Summarize for WorldArtifact {
@@ -36,6 +37,7 @@ impl Summarize for WorldArtifact {
             "variants": ObjectVariant::all().iter().map(ToString::to_string).collect::<Vec<_>>(),
             "timestep_secs": self.spec.timestep_secs,
             "control_hz": 1.0 / self.spec.control_dt_secs(),
+            "arm_action": self.spec.arm_action.name(),
             "home_palm_pos_m": self.home_palm_pos,
             "home_palm_normal": self.home_palm_normal,
             "mjcf_bytes": self.xml.iter().map(String::len).sum::<usize>(),

@@ -148,6 +148,11 @@ impl ScriptedCatcher {
         }
     }
 
+    /// How the catcher's increments become servo targets.
+    pub fn control(&self) -> &ControlSpec {
+        &self.control
+    }
+
     /// The direction a follow-through moves the palm along: the pre-contact incoming
     /// direction that ℓ_max is measured along once there has been a contact (frozen with the
     /// first contact); for a catcher that does not read contacts, the direction of flight it
@@ -316,6 +321,22 @@ pub fn palm_motion_channels(
 
 impl Policy for ScriptedCatcher {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
+        let mut action = self.act_increments(view);
+        view.arm_from_increments(&self.control, &mut action);
+        action
+    }
+
+    /// It reads the privileged contact count, never the force.
+    fn reads_contact_force(&self) -> bool {
+        false
+    }
+}
+
+impl ScriptedCatcher {
+    /// The catcher's action with its arm channels as increments of the commanded targets,
+    /// whatever the world's arm ([`PolicyView::arm_from_increments`] turns them into the
+    /// world's): the form the residual teacher adds its residuals to.
+    pub fn act_increments(&mut self, view: &PolicyView<'_>) -> Action {
         let data = view.data;
         let ids = &view.world.ids;
         // The object as observed (delayed, noisy), as the student sees it; the robot is exact.
@@ -419,11 +440,6 @@ impl Policy for ScriptedCatcher {
         }
         debug_assert_eq!(action.len(), N_ACTION);
         action
-    }
-
-    /// It reads the privileged contact count, never the force.
-    fn reads_contact_force(&self) -> bool {
-        false
     }
 }
 

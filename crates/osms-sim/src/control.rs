@@ -3,9 +3,13 @@
 //! An action has 24 channels in [-1, 1]: 7 arm channels, then 17 hand channels in actuator order
 //! (wrist; thumb cmc, abd, mcp, dip; index, middle, ring, pinky abd, mcp, pip).
 //!
-//! - **Arm channels are bounded delta targets**: the servo target of arm joint i moves by
-//!   `a_i · arm_max_delta_rad` per control step from its previous target, clamped to the joint's
-//!   range. A zero arm action holds the current targets (no drift under gravity).
+//! - **Arm channels** are read as the world's [`ArmAction`] says:
+//!   - `increment` (the default): bounded delta targets, the servo target of arm joint i moves by
+//!     `a_i · arm_max_delta_rad` per control step from its previous target, clamped to the
+//!     joint's range. A zero arm action holds the current targets (no drift under gravity).
+//!   - `absolute`: joint targets over the joint's range, as the hand's, reached at most
+//!     `arm_max_delta_rad` per control step (the servo's rate limit, which a target increment
+//!     has by construction).
 //! - **Hand channels are absolute targets** over the joint's range: `lo + (a + 1) / 2 · (hi - lo)`.
 
 use serde::{Deserialize, Serialize};
@@ -40,6 +44,90 @@ impl Default for ControlSpec {
     }
 }
 
+/// What an arm action channel means (issue 74): the paper says only "each action channel
+/// normalized to [-1, 1]". A world option (`world.arm_action`), so every stage that rolls out in
+/// a world reads its arm the same way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ArmAction {
+    /// A change of the joint's servo target: `a · arm_max_delta_rad` per control step.
+    #[default]
+    Increment,
+    /// The joint's servo target over its range, `lo + (a + 1) / 2 · (hi - lo)`, followed at
+    /// most `arm_max_delta_rad` per control step.
+    Absolute,
+}
+
+impl ArmAction {
+    pub const NAMES: [&'static str; 2] = ["increment", "absolute"];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ArmAction::Increment => "increment",
+            ArmAction::Absolute => "absolute",
+        }
+    }
+
+    /// The factor on domain randomisation's actuation noise for arm joint `joint`'s channel:
+    /// the noise is sized in the increment's units on both arms (one unit is
+    /// `arm_max_delta_rad` of servo target), so a given noise is the same error of the servo
+    /// target per control step whichever way the arm is commanded. On an absolute arm one unit
+    /// is half the joint's range (π rad for joints 1, 3, 5, 7), and the paper DR's 0.02 would be
+    /// a 0.06 rad jitter of the target.
+    pub fn noise_scale(self, spec: &ControlSpec, joint: usize) -> f64 {
+        match self {
+            ArmAction::Increment => 1.0,
+            ArmAction::Absolute => {
+                let [lo, hi] = ARM[joint].range_rad;
+                spec.arm_max_delta_rad / (0.5 * (hi - lo))
+            }
+        }
+    }
+
+    /// The arm action that asks for the servo targets `arm_rad`, one control step after the
+    /// targets `from_rad`: the increment toward them (bounded by the rate limit) or the targets
+    /// themselves.
+    pub fn command(
+        self,
+        spec: &ControlSpec,
+        from_rad: &[f64; N_ARM],
+        arm_rad: &[f64; N_ARM],
+    ) -> [f64; N_ARM] {
+        std::array::from_fn(|i| {
+            let [lo, hi] = ARM[i].range_rad;
+            let a = match self {
+                ArmAction::Increment => (arm_rad[i] - from_rad[i]) / spec.arm_max_delta_rad,
+                ArmAction::Absolute => 2.0 * (arm_rad[i] - lo) / (hi - lo) - 1.0,
+            };
+            a.clamp(-1.0, 1.0)
+        })
+    }
+}
+
+impl ArmAction {
+    /// The arm action in this world of a controller that moves by increments from the
+    /// commanded targets `commanded_rad` ([`crate::episode::PolicyView::commanded_arm`]): the
+    /// increments themselves on an increment arm, the targets they reach on an absolute one.
+    pub fn from_increments(
+        self,
+        spec: &ControlSpec,
+        commanded_rad: &[f64; N_ARM],
+        increments: &[f64; N_ARM],
+    ) -> [f64; N_ARM] {
+        match self {
+            ArmAction::Increment => *increments,
+            ArmAction::Absolute => {
+                let to: [f64; N_ARM] = std::array::from_fn(|i| {
+                    let [lo, hi] = ARM[i].range_rad;
+                    (commanded_rad[i] + increments[i].clamp(-1.0, 1.0) * spec.arm_max_delta_rad)
+                        .clamp(lo, hi)
+                });
+                self.command(spec, commanded_rad, &to)
+            }
+        }
+    }
+}
+
 /// Joint ranges in action order.
 pub fn joint_ranges() -> [[f64; 2]; N_ACTION] {
     let mut r = [[0.0; 2]; N_ACTION];
@@ -50,22 +138,47 @@ pub fn joint_ranges() -> [[f64; 2]; N_ACTION] {
     r
 }
 
-/// New servo targets from the previous ones and an (already validated) action.
-pub fn targets(spec: &ControlSpec, previous: &[f64; N_ACTION], action: &Action) -> [f64; N_ACTION] {
+/// New servo targets from the previous ones and an (already validated) action, its arm
+/// channels read as `arm` says.
+pub fn targets(
+    spec: &ControlSpec,
+    arm: ArmAction,
+    previous: &[f64; N_ACTION],
+    action: &Action,
+) -> [f64; N_ACTION] {
     let ranges = joint_ranges();
     let mut out = [0.0; N_ACTION];
+    let step = spec.arm_max_delta_rad;
     for i in 0..N_ACTION {
         let [lo, hi] = ranges[i];
-        out[i] = if i < N_ARM {
-            (previous[i] + action[i] * spec.arm_max_delta_rad).clamp(lo, hi)
+        let absolute = lo + 0.5 * (action[i] + 1.0) * (hi - lo);
+        out[i] = if i >= N_ARM {
+            absolute
         } else {
-            lo + 0.5 * (action[i] + 1.0) * (hi - lo)
+            match arm {
+                ArmAction::Increment => (previous[i] + action[i] * step).clamp(lo, hi),
+                ArmAction::Absolute => absolute
+                    .clamp(previous[i] - step, previous[i] + step)
+                    .clamp(lo, hi),
+            }
         };
     }
     out
 }
 
-/// The action that holds the arm's targets and asks the hand for the posture `hand_rad`.
+/// The action that holds the arm at the servo targets `arm_rad` (where they already are) and
+/// asks the hand for the posture `hand_rad`.
+pub fn hold_action_at(arm: ArmAction, arm_rad: &[f64; N_ARM], hand_rad: &[f64; N_HAND]) -> Action {
+    let mut a = hold_action(hand_rad);
+    if arm == ArmAction::Absolute {
+        let spec = ControlSpec::default();
+        a[..N_ARM].copy_from_slice(&arm.command(&spec, arm_rad, arm_rad));
+    }
+    a
+}
+
+/// The action of an increment arm that holds the arm's targets and asks the hand for the
+/// posture `hand_rad` ([`hold_action_at`] for either arm).
 pub fn hold_action(hand_rad: &[f64; N_HAND]) -> Action {
     let ranges = joint_ranges();
     let mut a = [0.0; N_ACTION];
@@ -215,13 +328,13 @@ mod tests {
         let spec = ControlSpec::default();
         let ranges = joint_ranges();
         let prev = [0.0; N_ACTION];
-        let lo = targets(&spec, &prev, &[-1.0; N_ACTION]);
-        let hi = targets(&spec, &prev, &[1.0; N_ACTION]);
+        let lo = targets(&spec, ArmAction::Increment, &prev, &[-1.0; N_ACTION]);
+        let hi = targets(&spec, ArmAction::Increment, &prev, &[1.0; N_ACTION]);
         for i in N_ARM..N_ACTION {
             assert!((lo[i] - ranges[i][0]).abs() < 1e-12 && (hi[i] - ranges[i][1]).abs() < 1e-12);
         }
         let hand: [f64; N_HAND] = std::array::from_fn(|i| 0.1 + 0.01 * i as f64);
-        let t = targets(&spec, &prev, &hold_action(&hand));
+        let t = targets(&spec, ArmAction::Increment, &prev, &hold_action(&hand));
         for i in 0..N_HAND {
             assert!((t[N_ARM + i] - hand[i]).abs() < 1e-12);
         }
@@ -268,8 +381,90 @@ mod tests {
         let ranges = joint_ranges();
         let mut prev = [0.0; N_ACTION];
         prev[3] = ranges[3][1] - 0.01;
-        let t = targets(&spec, &prev, &[1.0; N_ACTION]);
+        let t = targets(&spec, ArmAction::Increment, &prev, &[1.0; N_ACTION]);
         assert!((t[0] - spec.arm_max_delta_rad).abs() < 1e-12);
         assert_eq!(t[3], ranges[3][1]);
+    }
+
+    #[test]
+    fn absolute_arm_targets_span_the_range_at_the_servos_rate() {
+        let spec = ControlSpec::default();
+        let ranges = joint_ranges();
+        let step = spec.arm_max_delta_rad;
+        // From the range's ends, a full-scale action reaches the other end one rate-limited
+        // step at a time; from next to it, the end itself.
+        let at_lo: [f64; N_ACTION] = std::array::from_fn(|i| ranges[i][0]);
+        let t = targets(&spec, ArmAction::Absolute, &at_lo, &[1.0; N_ACTION]);
+        let near_hi: [f64; N_ACTION] = std::array::from_fn(|i| ranges[i][1] - 0.5 * step);
+        let u = targets(&spec, ArmAction::Absolute, &near_hi, &[1.0; N_ACTION]);
+        for i in 0..N_ARM {
+            assert!(
+                (t[i] - (ranges[i][0] + step)).abs() < 1e-12,
+                "joint {i}: {}",
+                t[i]
+            );
+            assert!((u[i] - ranges[i][1]).abs() < 1e-12, "joint {i}: {}", u[i]);
+        }
+        // Within the rate, an absolute action designates the target whatever the previous one.
+        let prev: [f64; N_ACTION] = std::array::from_fn(|i| 0.5 * (ranges[i][0] + ranges[i][1]));
+        let want: [f64; N_ARM] = std::array::from_fn(|i| prev[i] + 0.1 - 0.03 * i as f64);
+        let prev_arm: [f64; N_ARM] = std::array::from_fn(|i| prev[i]);
+        let mut a = [0.0; N_ACTION];
+        a[..N_ARM].copy_from_slice(&ArmAction::Absolute.command(&spec, &prev_arm, &want));
+        let t = targets(&spec, ArmAction::Absolute, &prev, &a);
+        for i in 0..N_ARM {
+            assert!((t[i] - want[i]).abs() < 1e-12, "joint {i}");
+        }
+        // The same targets as an increment arm's command.
+        a[..N_ARM].copy_from_slice(&ArmAction::Increment.command(&spec, &prev_arm, &want));
+        let t = targets(&spec, ArmAction::Increment, &prev, &a);
+        for i in 0..N_ARM {
+            assert!((t[i] - want[i]).abs() < 1e-12, "joint {i}");
+        }
+    }
+
+    #[test]
+    fn a_hold_action_keeps_either_arms_targets() {
+        let spec = ControlSpec::default();
+        let ranges = joint_ranges();
+        let hand = [0.2; N_HAND];
+        let prev: [f64; N_ACTION] =
+            std::array::from_fn(|i| ranges[i][0] + 0.3 * (ranges[i][1] - ranges[i][0]));
+        let arm: [f64; N_ARM] = std::array::from_fn(|i| prev[i]);
+        for mode in [ArmAction::Increment, ArmAction::Absolute] {
+            let t = targets(&spec, mode, &prev, &hold_action_at(mode, &arm, &hand));
+            for i in 0..N_ARM {
+                assert!((t[i] - prev[i]).abs() < 1e-12, "{mode:?}, joint {i}");
+            }
+        }
+        assert_eq!(
+            hold_action_at(ArmAction::Increment, &arm, &hand),
+            hold_action(&hand)
+        );
+    }
+
+    #[test]
+    fn actuation_noise_is_the_same_target_error_on_either_arm() {
+        let spec = ControlSpec::default();
+        for j in 0..N_ARM {
+            assert_eq!(ArmAction::Increment.noise_scale(&spec, j), 1.0);
+            // One unit of noise moves an absolute arm's target by one increment's step.
+            let [lo, hi] = ARM[j].range_rad;
+            let rad = ArmAction::Absolute.noise_scale(&spec, j) * 0.5 * (hi - lo);
+            assert!((rad - spec.arm_max_delta_rad).abs() < 1e-12, "joint {j}");
+        }
+    }
+
+    #[test]
+    fn arm_action_names_parse() {
+        #[derive(Deserialize)]
+        struct P {
+            arm_action: ArmAction,
+        }
+        for name in ArmAction::NAMES {
+            let p: P = toml::from_str(&format!("arm_action = \"{name}\"")).expect("parses");
+            assert_eq!(p.arm_action.name(), name);
+        }
+        assert!(toml::from_str::<P>("arm_action = \"delta\"").is_err());
     }
 }

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::conditions::TaskCondition;
 use crate::control::{
-    Action, ControlSpec, DrDraw, DrSpec, N_ACTION, N_ARM, N_HAND, hold_action, joint_ranges,
+    Action, ControlSpec, DrDraw, DrSpec, N_ACTION, N_ARM, N_HAND, hold_action_at, joint_ranges,
     targets,
 };
 use crate::flight::FlightTracker;
@@ -110,6 +110,12 @@ pub struct PolicyView<'a> {
     /// The arm's servo targets at the step's start: the target the controller has accumulated
     /// from its commanded increments (a deployed controller knows its own command).
     pub arm_targets: [f64; N_ARM],
+    /// The arm targets the commands so far designate, as the policy (or the snippet that
+    /// replaced its arm channels) chose them: the intended actions run through the servo-target
+    /// mapping from the home posture, without actuation noise, delay or perturbation. On an
+    /// increment arm it is where the commanded increments add up to; a controller that acts
+    /// on an absolute arm by increments moves from it (the scripted catcher does).
+    pub commanded_arm: [f64; N_ARM],
     /// The simulator at the step's start: positions, velocities, kinematics, contacts and
     /// Jacobians are current; acceleration-stage fields only at steps with an admissible
     /// contact and only if the policy [reads the contact force](Policy::reads_contact_force)
@@ -118,6 +124,19 @@ pub struct PolicyView<'a> {
 }
 
 impl PolicyView<'_> {
+    /// Turns `action`'s arm channels, increments of [`PolicyView::commanded_arm`], into the
+    /// world's arm action ([`crate::control::ArmAction::from_increments`]); on an increment arm
+    /// they stay as they are.
+    pub fn arm_from_increments(&self, control: &ControlSpec, action: &mut Action) {
+        let increments: [f64; N_ARM] = std::array::from_fn(|i| action[i]);
+        let arm =
+            self.world
+                .spec
+                .arm_action
+                .from_increments(control, &self.commanded_arm, &increments);
+        action[..N_ARM].copy_from_slice(&arm);
+    }
+
     /// The deployable estimate of the object's flight now, from every observed position so far
     /// ([`crate::flight`]): computed on demand, so a policy that does not read it pays nothing.
     pub fn tracked(&self) -> ObservedObject {
@@ -226,6 +245,8 @@ impl RolloutRecord {
 #[derive(Debug, Clone, PartialEq)]
 struct Controller {
     targets: [f64; N_ACTION],
+    /// The arm targets the policy's commands designate ([`PolicyView::commanded_arm`]).
+    commanded_arm: [f64; N_ARM],
     executed: Action,
     pending_actions: VecDeque<Action>,
     /// The object's position, quaternion and velocities (13) of the last steps, newest last:
@@ -388,12 +409,14 @@ impl<'w> Episode<'w> {
         let nv = data.qvel().len();
 
         let hand_home: [f64; N_HAND] = std::array::from_fn(|i| posture[N_ARM + i]);
-        let hold = hold_action(&hand_home);
+        let arm_home: [f64; N_ARM] = std::array::from_fn(|i| posture[i]);
+        let hold = hold_action_at(world.spec.arm_action, &arm_home, &hand_home);
         let mut touch_rng = rng.clone();
         touch_rng.set_stream(TOUCH_STREAM);
         touch_rng.set_word_pos(0);
         let controller = Controller {
             targets: posture,
+            commanded_arm: arm_home,
             executed: hold,
             pending_actions: VecDeque::from(vec![hold; dr.actuation_delay_steps as usize]),
             pending_object: VecDeque::new(),
@@ -602,6 +625,7 @@ impl<'w> Episode<'w> {
             first_contact: self.evaluator.first_contact(),
             palm_jacobian: frame.palm_jacobian,
             arm_targets: frame.arm_targets,
+            commanded_arm: self.controller.commanded_arm,
             data: &self.data,
         }
     }
@@ -616,6 +640,16 @@ impl<'w> Episode<'w> {
     ) -> bool {
         let frame = observed.0;
         hooks.override_arm(self.step, &mut intended);
+        let arm = self.world.spec.arm_action;
+        if intended
+            .iter()
+            .all(|a| a.is_finite() && a.abs() <= 1.0 + 1e-9)
+        {
+            let mut previous = [0.0; N_ACTION];
+            previous[..N_ARM].copy_from_slice(&self.controller.commanded_arm);
+            let commanded = targets(&self.spec.control, arm, &previous, &intended);
+            self.controller.commanded_arm = std::array::from_fn(|i| commanded[i]);
+        }
         let mut executed = intended;
         hooks.perturb(self.step, &mut executed);
         if executed
@@ -629,8 +663,13 @@ impl<'w> Episode<'w> {
         }
         let noise = self.spec.dr.actuation_noise;
         if noise > 0.0 {
-            for a in &mut executed {
-                *a = (*a + noise * rng::normal(&mut self.rng)).clamp(-1.0, 1.0);
+            for (i, a) in executed.iter_mut().enumerate() {
+                let scale = if i < N_ARM {
+                    arm.noise_scale(&self.spec.control, i)
+                } else {
+                    1.0
+                };
+                *a = (*a + noise * scale * rng::normal(&mut self.rng)).clamp(-1.0, 1.0);
             }
         }
         self.controller.pending_actions.push_back(executed);
@@ -639,7 +678,8 @@ impl<'w> Episode<'w> {
             .pending_actions
             .pop_front()
             .unwrap_or(executed);
-        self.controller.targets = targets(&self.spec.control, &self.controller.targets, &applied);
+        self.controller.targets =
+            targets(&self.spec.control, arm, &self.controller.targets, &applied);
         self.controller.executed = applied;
 
         let mut substeps = self.world.spec.substeps;
@@ -1022,7 +1062,7 @@ mod tests {
         for k in 0..record.steps - 1 {
             let executed: Action =
                 std::array::from_fn(|c| f64::from(record.executed[k * N_ACTION + c]));
-            t = targets(&spec.control, &t, &executed);
+            t = targets(&spec.control, world.spec.arm_action, &t, &executed);
             let next = &record.arm_targets[(k + 1) * N_ARM..(k + 2) * N_ARM];
             for (c, (t, recorded)) in t.iter_mut().zip(next).enumerate() {
                 let recorded = f64::from(*recorded);

@@ -46,7 +46,7 @@ impl FollowThroughProbe {
 
 impl Policy for FollowThroughProbe {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
-        let mut action = self.catcher.act(view);
+        let mut action = self.catcher.act_increments(view);
         let moving = match view.first_contact {
             // Past the evaluation window the arm holds its targets, as a catch that ends its
             // follow-through does, instead of folding onto itself.
@@ -63,6 +63,7 @@ impl Policy for FollowThroughProbe {
             let g = palm_motion_channels(view, dir, self.orientation_weight, PALM_MOTION_DAMPING);
             action[..N_ARM].copy_from_slice(&g);
         }
+        view.arm_from_increments(self.catcher.control(), &mut action);
         action
     }
 

@@ -6,6 +6,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use crate::control::ArmAction;
+
 /// Object families (paper, section V-A).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -145,6 +147,10 @@ pub struct WorldSpec {
     /// average of 0.01 s and the hand's 0.02 s); at 0.01 s the teacher lost 7–18 points on the
     /// development stream (docs/sim.md, "Contact parameters").
     pub contact_timeconst_secs: f64,
+    /// What the arm's action channels command (issue 74): target increments (the default) or
+    /// absolute targets over each joint's range. A world option, so every stage that acts in
+    /// this world, teachers, datasets, students and their evaluations, reads the arm one way.
+    pub arm_action: ArmAction,
 }
 
 impl Default for WorldSpec {
@@ -164,6 +170,7 @@ impl Default for WorldSpec {
             ],
             friction: 1.0,
             contact_timeconst_secs: 0.015,
+            arm_action: ArmAction::Increment,
         }
     }
 }

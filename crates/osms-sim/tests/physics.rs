@@ -794,6 +794,7 @@ impl Policy for Gripping {
             // Hand targets are absolute, so the previous targets do not matter.
             let targets = osms_sim::control::targets(
                 &osms_sim::control::ControlSpec::default(),
+                osms_sim::control::ArmAction::Increment,
                 &[0.0; N_ACTION],
                 &a,
             );

@@ -6,6 +6,7 @@ use std::fmt::Write;
 
 use osms_core::rng::StreamId;
 use osms_core::table::{Cell, Column, Layout, Table, Unit};
+use osms_sim::control::ArmAction;
 use osms_sim::{Phase, RolloutRecord};
 use serde::{Deserialize, Serialize};
 
@@ -45,6 +46,9 @@ pub struct Dataset {
     /// The teacher's task as the rollouts ran it: its rollout spec with the dataset's domain
     /// randomisation, so later stages branch from these rollouts under the same setting.
     pub task: CatchTaskSpec,
+    /// What the world's arm channels command (`world.arm_action`), so a reader of the actions
+    /// without the world knows.
+    pub arm_action: ArmAction,
     pub items: Vec<DatasetItem>,
 }
 
@@ -56,7 +60,8 @@ impl osms_core::Artifact for Dataset {
     /// physics-step counts (open-loop replay).
     /// 7: the task has the actor-input rung and the smoothness weight (issue 54).
     /// 8: deployable frames carry the palm's touch reading (issue 54, item 2).
-    const SCHEMA_VERSION: u16 = 8;
+    /// 9: the world's arm action (issue 74).
+    const SCHEMA_VERSION: u16 = 9;
 }
 
 impl osms_make::Sharded for Dataset {

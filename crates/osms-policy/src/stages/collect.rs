@@ -204,13 +204,14 @@ impl ItemStage for CollectStage {
     fn merge(
         &self,
         ctx: &Ctx<'_, CollectParams>,
-        (_, teacher): Self::Prepared,
+        (world, teacher): Self::Prepared,
         items: Vec<DatasetItem>,
     ) -> Result<Dataset, StageError> {
         Ok(Dataset {
             successes_only: ctx.params.successes_only,
             osw: ctx.params.osw.clone(),
             task: teacher.task,
+            arm_action: world.spec.arm_action,
             items,
         })
     }

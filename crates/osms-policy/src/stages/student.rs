@@ -5,6 +5,7 @@ use osms_make::{Ctx, Numerics, Scale, Slot, Stage, StageError};
 use super::in_fold;
 use crate::artifacts::{Dataset, DemoSet, StudentArtifact};
 use crate::student::{ARM_STEP_RAD, Demo, Student, StudentParams};
+use osms_sim::control::ArmAction;
 
 /// A flow-matching student trained on a dataset's rollouts. With `folds = F` instance `#f`
 /// trains on the items outside fold f (item index mod F ≠ f): the cross-fitted IL students π̄.
@@ -54,7 +55,15 @@ impl Stage for StudentStage {
             return Err("`size_match` cuts a demonstration set; it needs `demos`, not `data`\nhint: remove `size_match` or train on `demos`".into());
         }
         if slot == "data" {
-            let control = ctx.head::<Dataset>("data")?.task.rollout.control;
+            let head = ctx.head::<Dataset>("data")?;
+            if ctx.params.target_labels && head.arm_action != ArmAction::Increment {
+                return Err(format!(
+                    "params.target_labels turns arm increments into targets, but input `data` ran on an arm of `{}` actions, whose labels are targets already\nhint: leave `target_labels` off",
+                    head.arm_action.name()
+                )
+                .into());
+            }
+            let control = head.task.rollout.control;
             if ctx.params.target_labels && control.arm_max_delta_rad != ARM_STEP_RAD {
                 return Err(format!(
                     "params.target_labels assumes an arm step of {ARM_STEP_RAD} rad, but input `data` ran with `control.arm_max_delta_rad` = {}\nhint: train on a dataset of the default control spec or leave `target_labels` off",
