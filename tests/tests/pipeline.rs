@@ -126,7 +126,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     let text = shipped();
     let first = make(&text, 1, None);
     let reference = first.hashes.clone();
-    assert_eq!(reference.len(), 119, "{reference:?}");
+    assert_eq!(reference.len(), 123, "{reference:?}");
     datasets_are_disjoint_successes_and_aligned(&first);
     osw_alignment_holds_in_independent_replays(&first);
     successful_rollouts_pass_through_all_five_phases(&first);
@@ -203,6 +203,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     the_report_shows_its_sources(&first);
     datasets_export_replay_and_render(&first);
     a_sweep_rebuilds_only_its_seeds_and_the_aggregates(&first, &text);
+    paired_experiments_compare_rollout_by_rollout(&first);
     // Last: it builds a condition set into a store of its own beside this one.
     the_python_package_reproduces_osms_evaluations(&first, &text);
     golden::check("outputs_pipeline_tiny", first.outputs);
@@ -367,8 +368,15 @@ fn a_sweep_rebuilds_only_its_seeds_and_the_aggregates(made: &Made, text: &str) {
         .flat_map(|s| [format!("student_{s}@{seed}"), format!("eval_{s}@{seed}")])
         // The development stream's evaluations of the final students.
         .chain(
-            ["dev_student", "dev_student_naive", "dev_student_normal"]
-                .map(|s| format!("{s}@{seed}")),
+            [
+                "dev_student",
+                "dev_student_naive",
+                "dev_student_normal",
+                "dev_student_dart",
+                "student_naive_curve",
+                "dev_student_naive_curve",
+            ]
+            .map(|s| format!("{s}@{seed}")),
         )
         // DAgger-IL's rounds, on the run seed's Naive-IL student.
         .chain(
@@ -1529,6 +1537,12 @@ seed = 0
 inputs = { world = "world", teacher = "teacher", data = "d_r", target = "dstar_unperturbed" }
 shards = 2
 
+[stages.validate_kappa]
+kind = "validate"
+seed = 0
+inputs = { world = "world", teacher = "teacher", data = "d_r", candidates = "candidates_direct", error_model = "error_model" }
+params = { q = 6, rollouts = 0, kappa = 0.05, deviation_scale = 1.0 }
+
 [stages.normal_extended]
 kind = "normal"
 seed = 0
@@ -1572,6 +1586,11 @@ shards = 3
         assert_eq!(fast[s], slow[s], "{s}: fast and exhaustive bytes");
     }
     baselines_reach_dstar_from_streams_of_their_own(made, &fast);
+
+    // The Naive-IL data curve's set: `demos` fixes the size with no D_* wired (tiny: 20).
+    let sized: DemoSet = load_sharded(made, "naive_curve");
+    assert_eq!((sized.target, sized.len()), (Some(20), 20));
+    assert!(sized.stats().extension_conditions > 0);
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
     let teacher: Teacher = load(made, "teacher");
@@ -1729,6 +1748,57 @@ shards = 3
         assert_eq!(report.candidates[0], report.candidates[1]);
         assert_eq!(report.candidates[0], item.candidates[k]);
     }
+
+    // Validation's κ param is the model's κ: the default model validated at κ = 0.05 (and
+    // deviation scale 1) by the param reports, on its own streams, what the gentle model (whose
+    // fit recorded κ = 0.05) reports when validated directly.
+    let by_param: Validation = osms_make::assemble(
+        &made.store.get(&fast["validate_kappa"]).expect("object"),
+        &osms_make::StoreObjects(&made.store),
+    )
+    .expect("validation");
+    let gentle: ErrorModelArtifact =
+        osms_core::decode(&made.store.get(&fast["error_model_gentle"]).expect("object"))
+            .expect("decode");
+    assert_eq!(gentle.model.kappa, 0.05);
+    assert_ne!(model.kappa, 0.05, "the param changes κ");
+    let mut perturbed = 0;
+    for (index, item) in by_param.items.iter().enumerate() {
+        let Some(set) = direct.items[index].set.as_ref() else {
+            continue;
+        };
+        let streams = by_param.streams.clone();
+        let it = item.item;
+        let errors = move |q| streams.rng(it, q);
+        let (report, _) = validate(
+            &Case {
+                world: &world,
+                task: &task,
+                agent: &teacher.agent,
+                rollout: d_r.rollouts().nth(index).expect("rollout"),
+                candidates: &set.candidates,
+                model: &gentle.model,
+                errors: &errors,
+            },
+            &ValidateParams {
+                kappa: None,
+                deviation_scale: None,
+                ..by_param.params.clone()
+            },
+        )
+        .expect("validate");
+        assert_eq!(report.original, item.original, "item {index}");
+        assert_eq!(report.candidates, item.candidates, "item {index}");
+        perturbed += item
+            .candidates
+            .iter()
+            .filter(|c| c.robustness != Robustness::NotRun)
+            .count();
+    }
+    assert!(
+        perturbed > 0,
+        "the κ = 0.05 reports include perturbed rollouts"
+    );
 }
 
 /// Naive reaches D_*'s count exactly, Normal at least (its extension runs with a margin and
@@ -1822,6 +1892,94 @@ fn lists(list: &serde_json::Value, s: &str) -> bool {
 
 /// `osms export-dataset`, `replay` and `render` on the tiny datasets through the real command
 /// line, with pyarrow, h5py and MuJoCo's own Python bindings as independent readers.
+/// `osms exp diff A B --paired STAGE`: the difference of the mean success over A's and B's
+/// evaluations of STAGE, from the artifacts themselves; refused where nothing pairs.
+fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
+    use osms_sim::artifacts::Evaluation;
+    let bin = env!("CARGO_BIN_EXE_osms-shipped");
+    let pipeline = made._dir.path().join("pipeline.toml");
+    let osms = |args: &[&str]| {
+        std::process::Command::new(bin)
+            .arg("--pipeline")
+            .arg(&pipeline)
+            .arg("--store")
+            .arg(made.store.root())
+            .args(args)
+            .env("OSMS_NO_PROGRESS", "1")
+            .output()
+            .expect("run osms")
+    };
+    for args in [
+        &[
+            "exp",
+            "run",
+            "one",
+            "-p",
+            "tiny",
+            "--seed",
+            "0",
+            "dev_student",
+        ][..],
+        &[
+            "exp",
+            "run",
+            "three",
+            "-p",
+            "tiny",
+            "--seeds",
+            "0,1,2",
+            "dev_student",
+        ][..],
+    ] {
+        let o = osms(args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    let o = osms(&[
+        "exp",
+        "diff",
+        "one",
+        "three",
+        "--paired",
+        "dev_student",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let d: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    // The seeds' evaluations as the experiment recorded them (`first` names seed 0's only).
+    let three = osms_make::experiment::load(&made.store, "three")
+        .expect("read")
+        .expect("recorded");
+    let success = |seed: u64| -> f64 {
+        let i = three.points[0]
+            .instances
+            .iter()
+            .find(|i| i.stage == "dev_student" && i.run_seed == Some(seed))
+            .expect("recorded");
+        let e: Evaluation = osms_make::assemble(
+            &made.store.get(&i.content_hash).expect("object"),
+            &osms_make::StoreObjects(&made.store),
+        )
+        .expect("evaluation");
+        e.rows.iter().filter(|r| r.outcome.success()).count() as f64 / e.rows.len() as f64
+    };
+    let mean = (success(0) + success(1) + success(2)) / 3.0;
+    let x = &d["difference"];
+    let estimate = x["estimate"].as_f64().expect("estimate");
+    assert!((estimate - (mean - success(0))).abs() < 1e-12, "{d}");
+    assert_eq!(x["seeds"], serde_json::json!([3, 1]), "{d}");
+    assert_eq!(x["n"][0], 12, "tiny dev's conditions: {d}");
+    assert!(x["low"].as_f64() <= Some(estimate) && Some(estimate) <= x["high"].as_f64());
+    assert_eq!(d["b"]["evaluations"].as_array().map(Vec::len), Some(3));
+    let o = osms(&["exp", "diff", "one", "three", "--paired", "dev_teacher"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("has no instance of `dev_teacher`"), "{err}");
+    let o = osms(&["exp", "diff", "one", "three", "--paired", "student_ours"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("only evaluations pair by condition"), "{err}");
+}
+
 fn datasets_export_replay_and_render(made: &Made) {
     use osms_policy::artifacts::Dataset;
     use osms_policy::artifacts::DemoSet;

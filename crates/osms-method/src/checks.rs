@@ -139,6 +139,12 @@ impl Check for ValidateParams {
         unit("delta_sr", self.delta_sr)?;
         within("lambda_f", self.lambda_f, 0.0, 1e6)?;
         within("lambda_d", self.lambda_d, 0.0, 1e6)?;
+        if let Some(k) = self.kappa {
+            within("kappa", k, 0.0, 100.0)?;
+        }
+        if let Some(s) = self.deviation_scale {
+            within("deviation_scale", s, 0.0, 100.0)?;
+        }
         count("rollouts", self.rollouts, 0, 10_000_000)
     }
 }

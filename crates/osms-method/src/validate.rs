@@ -71,6 +71,12 @@ pub struct ValidateParams {
     /// Which of the error-model artifact's Table III fits to validate under; absent: the one
     /// it applies (its `params.variant`).
     pub error_model: Option<ErrorVariant>,
+    /// κ_ε of Eq. 7 instead of the error model's (the paper's 1.5): for studies of where the
+    /// search pays (issue 74's regime map), not a knob to tune.
+    pub kappa: Option<f64>,
+    /// The error model's deviation (bias and residual; `ErrorModel::with_deviation_scale`)
+    /// scaled by this factor, as [`ValidateParams::kappa`] a study's knob (issue 74).
+    pub deviation_scale: Option<f64>,
     /// Run every rollout from step 0 to the end (the reference the fast path is tested and
     /// benchmarked against; same artifact).
     pub exhaustive: bool,
@@ -88,6 +94,8 @@ impl Default for ValidateParams {
             lambda_d: 1.0 / 80.0,
             construction: Construction::Both,
             error_model: None,
+            kappa: None,
+            deviation_scale: None,
             exhaustive: false,
             rollouts: 0,
         }

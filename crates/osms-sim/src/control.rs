@@ -446,10 +446,10 @@ mod tests {
     #[test]
     fn actuation_noise_is_the_same_target_error_on_either_arm() {
         let spec = ControlSpec::default();
-        for j in 0..N_ARM {
+        for (j, joint) in ARM.iter().enumerate() {
             assert_eq!(ArmAction::Increment.noise_scale(&spec, j), 1.0);
             // One unit of noise moves an absolute arm's target by one increment's step.
-            let [lo, hi] = ARM[j].range_rad;
+            let [lo, hi] = joint.range_rad;
             let rad = ArmAction::Absolute.noise_scale(&spec, j) * 0.5 * (hi - lo);
             assert!((rad - spec.arm_max_delta_rad).abs() < 1e-12, "joint {j}");
         }

@@ -151,12 +151,10 @@ fn commanded_targets_follow_a_snippet_that_replaces_the_arm() {
             let mut action = [0.0; N_ACTION];
             action[..N_ARM].copy_from_slice(&snippet);
             let want = targets(&spec.control, arm, &previous, &action);
-            for j in 0..N_ARM {
+            for (j, (&got, &want)) in watch.seen[k + 1].iter().zip(&want[..N_ARM]).enumerate() {
                 assert!(
-                    (watch.seen[k + 1][j] - want[j]).abs() < 1e-12,
-                    "{arm:?}, step {k}, joint {j}: commanded {}, the snippet designates {}",
-                    watch.seen[k + 1][j],
-                    want[j]
+                    (got - want).abs() < 1e-12,
+                    "{arm:?}, step {k}, joint {j}: commanded {got}, the snippet designates {want}"
                 );
             }
         }

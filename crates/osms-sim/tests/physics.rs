@@ -899,9 +899,11 @@ fn the_flight_estimate_tracks_the_object_now_under_noise_and_delay() {
     use osms_sim::catcher::{CatcherSpec, ScriptedCatcher, estimate_object, fit_range};
     use osms_sim::control::DrSpec;
 
+    /// Four 3-vectors a step, in the order the watcher records them.
+    type Seen = ([f64; 3], [f64; 3], [f64; 3], [f64; 3]);
     struct Watch {
         inner: ScriptedCatcher,
-        seen: Vec<([f64; 3], [f64; 3], [f64; 3], [f64; 3])>,
+        seen: Vec<Seen>,
     }
     impl Policy for Watch {
         fn act(&mut self, view: &PolicyView<'_>) -> Action {
@@ -952,7 +954,7 @@ fn the_flight_estimate_tracks_the_object_now_under_noise_and_delay() {
         )
         .run(&mut watch, &mut NoHooks);
     }
-    let error = |pick: fn(&([f64; 3], [f64; 3], [f64; 3], [f64; 3])) -> [f64; 3]| {
+    let error = |pick: fn(&Seen) -> [f64; 3]| {
         watch
             .seen
             .iter()

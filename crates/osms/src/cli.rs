@@ -169,6 +169,11 @@ pub struct ExpDiffArgs {
     pub b: String,
     #[arg(long, value_delimiter = ',', default_value = DEFAULT_METRICS)]
     pub metrics: Vec<String>,
+    /// Compare STAGE's success rollout by rollout instead: every evaluation of STAGE in A (each
+    /// point and run seed one seed) against every one in B, paired by condition (all on the
+    /// same condition set), with a 95 % interval that holds the seeds' spread
+    #[arg(long, value_name = "STAGE")]
+    pub paired: Option<String>,
     #[arg(long)]
     pub json: bool,
 }

@@ -45,8 +45,9 @@ impl ErrorStreams {
 
 impl Artifact for Validation {
     const TYPE_TAG: &'static str = "method.validation";
-    /// 2: its params name the D_R subset (`rollouts`).
-    const SCHEMA_VERSION: u16 = 2;
+    /// 2: its params name the D_R subset (`rollouts`). 3: and κ and the deviation's scale
+    /// (issue 74).
+    const SCHEMA_VERSION: u16 = 3;
 }
 
 impl osms_make::Sharded for Validation {

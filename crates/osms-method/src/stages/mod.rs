@@ -57,6 +57,10 @@ fn nn_numerics() -> Vec<Numerics> {
 pub struct BaselineParams {
     /// Extend to the `target` set's number of demonstrations (false: D_R only).
     pub extend: bool,
+    /// Extend to this many demonstrations instead of the `target` set's (issue 74's data
+    /// curve); absent, as by default, it is left out of the encoded params.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub demos: Option<usize>,
     /// Attempts an extension item of `naive` may take to find a teacher success.
     pub max_attempts: u32,
     /// `normal` runs this many times the extension conditions its D_R yield predicts, and
@@ -68,6 +72,7 @@ impl Default for BaselineParams {
     fn default() -> Self {
         BaselineParams {
             extend: true,
+            demos: None,
             max_attempts: 100,
             margin: 1.15,
         }
@@ -77,7 +82,12 @@ impl Default for BaselineParams {
 impl BaselineParams {
     /// `has_target`: whether the `target` input is wired.
     fn check(&self, has_target: bool) -> crate::Result<()> {
-        if self.extend && !has_target {
+        if self.demos.is_some() && !self.extend {
+            return Err(crate::Error::Params(
+                "params.demos sets the size an extension reaches, but `extend = false`\nhint: remove `demos` or set `extend = true`".into(),
+            ));
+        }
+        if self.extend && !has_target && self.demos.is_none() {
             return Err(crate::Error::Params("`extend = true` needs the `target` input (D_*)\nhint: wire `target = \"dstar\"` or set params.extend = false".into()));
         }
         <Self as osms_core::check::Check>::check(self).map_err(crate::Error::from)
@@ -92,7 +102,10 @@ fn deficit(
     if !ctx.params.extend {
         return Ok((None, 0));
     }
-    let n = ctx.sharded::<DemoSet>("target")?.len();
+    let n = match ctx.params.demos {
+        Some(n) => n,
+        None => ctx.sharded::<DemoSet>("target")?.len(),
+    };
     Ok((Some(n), n.saturating_sub(base)))
 }
 
@@ -137,7 +150,13 @@ fn load_inputs<P>(ctx: &Ctx<'_, P>, params: &ValidateParams) -> Result<Inputs, S
             "input `candidates`: the sets were built for other rollouts than `data`\nhint: wire `candidates` to a candidates stage on the windows of the same D_R dataset".into(),
         );
     }
-    let model = fit_of(ctx.input("error_model")?, params.error_model)?;
+    let mut model = fit_of(ctx.input("error_model")?, params.error_model)?;
+    if let Some(scale) = params.deviation_scale {
+        model = model.with_deviation_scale(scale, model.variant);
+    }
+    if let Some(kappa) = params.kappa {
+        model = model.with_kappa(kappa);
+    }
     model
         .validate()
         .map_err(|e| format!("input `error_model`: {e}"))?;

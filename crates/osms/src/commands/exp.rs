@@ -609,14 +609,19 @@ fn show(ctx: &Context, args: &ExpShowArgs) -> Result<ExitCode> {
 }
 
 /// `NAME` (an experiment of one point) or `NAME/k`.
-fn row_named(ctx: &Context, store: &Store, spec: &str, metrics: &[String]) -> Result<Row> {
-    let (name, point) = match spec.rsplit_once('/') {
+/// `NAME` or `NAME/k`: an experiment, or one point of it.
+fn point_spec(spec: &str) -> Result<(&str, Option<usize>)> {
+    match spec.rsplit_once('/') {
         Some((n, k)) => match k.parse::<usize>() {
-            Ok(k) => (n, Some(k)),
+            Ok(k) => Ok((n, Some(k))),
             Err(_) => bail!("`{spec}`: `{k}` is not a point\nhint: write NAME/0, NAME/1, ..."),
         },
-        None => (spec, None),
-    };
+        None => Ok((spec, None)),
+    }
+}
+
+fn row_named(ctx: &Context, store: &Store, spec: &str, metrics: &[String]) -> Result<Row> {
+    let (name, point) = point_spec(spec)?;
     let exp = experiment::load(store, name)?.ok_or_else(|| unknown_experiment(store, name))?;
     let n = exp.points.len();
     match (point, n) {
@@ -655,6 +660,9 @@ struct Diff {
 
 fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
     let store = ctx.store()?;
+    if let Some(stage) = &args.paired {
+        return paired(&store, args, stage);
+    }
     let a = row_named(ctx, &store, &args.a, &args.metrics)?;
     let b = row_named(ctx, &store, &args.b, &args.metrics)?;
     let knobs: BTreeSet<&String> = a.params.keys().chain(b.params.keys()).collect();
@@ -720,6 +728,138 @@ fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
     println!(
         "shared instances: {} ({} in {}, {} in {})",
         d.shared_instances, d.instances.0, d.a, d.instances.1, d.b
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `exp diff --paired`: B − A in STAGE's success, paired by condition.
+#[derive(Debug, Serialize)]
+struct Paired {
+    stage: String,
+    a: PairedSide,
+    b: PairedSide,
+    /// The conditions' content hash every evaluation rolled out on.
+    conditions: String,
+    difference: osms_core::stats::Difference,
+}
+
+#[derive(Debug, Serialize)]
+struct PairedSide {
+    label: String,
+    /// `point: instance` of each evaluation, one per seed.
+    evaluations: Vec<String>,
+    /// Success of each, in the same order.
+    success: Vec<f64>,
+}
+
+fn paired(store: &Store, args: &ExpDiffArgs, stage: &str) -> Result<ExitCode> {
+    let mut conditions: Option<osms_store::Hash> = None;
+    let mut side = |spec: &str| -> Result<(PairedSide, Vec<Vec<f64>>)> {
+        let (name, only) = point_spec(spec)?;
+        let exp = experiment::load(store, name)?.ok_or_else(|| unknown_experiment(store, name))?;
+        if let Some(k) = only.filter(|&k| k >= exp.points.len()) {
+            bail!("experiment `{name}` has no point {k}");
+        }
+        let mut evaluations = Vec::new();
+        let mut values = Vec::new();
+        for (k, point) in exp.points.iter().enumerate() {
+            if only.is_some_and(|o| o != k) {
+                continue;
+            }
+            for i in point.instances.iter().filter(|i| i.stage == stage) {
+                let record = store.record(&i.key)?.ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "{name}/{k}: `{}` has no build record\nhint: rerun `osms exp run {name}`",
+                        i.instance
+                    )
+                })?;
+                let Some(&(_, on)) = record.inputs.iter().find(|(n, _)| n == "conditions") else {
+                    bail!(
+                        "`{stage}` ({}) has no `conditions` input: only evaluations pair by condition",
+                        i.kind
+                    );
+                };
+                match conditions {
+                    None => conditions = Some(on),
+                    Some(c) if c != on => bail!(
+                        "{name}/{k}: `{}` rolled out on other conditions ({}) than the first evaluation ({})\nhint: pair evaluations of one condition set",
+                        i.instance,
+                        on.short(),
+                        c.short()
+                    ),
+                    Some(_) => {}
+                }
+                let eval: osms_sim::artifacts::Evaluation =
+                    osms_make::assemble(&store.get(&i.content_hash)?, &StoreObjects(store))
+                        .map_err(|e| anyhow::anyhow!("{name}/{k}: `{}`: {e}", i.instance))?;
+                let s: Vec<f64> = eval
+                    .rows
+                    .iter()
+                    .map(|r| f64::from(u8::from(r.outcome.success())))
+                    .collect();
+                evaluations.push(format!("{k}: {}", i.instance));
+                values.push(s);
+            }
+        }
+        if values.is_empty() {
+            bail!(
+                "`{spec}` has no instance of `{stage}`\nhint: `osms exp show {name}` lists its targets"
+            );
+        }
+        let success = values
+            .iter()
+            .map(|v| v.iter().sum::<f64>() / v.len().max(1) as f64)
+            .collect();
+        Ok((
+            PairedSide {
+                label: spec.to_string(),
+                evaluations,
+                success,
+            },
+            values,
+        ))
+    };
+    let (a, va) = side(&args.a)?;
+    let (b, vb) = side(&args.b)?;
+    let Some(difference) = osms_core::stats::paired_difference(&vb, &va) else {
+        bail!("`{stage}`: fewer than two conditions to pair");
+    };
+    let d = Paired {
+        stage: stage.to_string(),
+        a,
+        b,
+        conditions: conditions.map(|c| c.to_string()).unwrap_or_default(),
+        difference,
+    };
+    if args.json {
+        print_json(&d)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let pct = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{:.1} %", 100.0 * x))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mean = |v: &[f64]| 100.0 * v.iter().sum::<f64>() / v.len().max(1) as f64;
+    for s in [&d.a, &d.b] {
+        println!(
+            "{}: {} evaluation(s) of {stage}: {} (mean {:.1} %)",
+            s.label,
+            s.evaluations.len(),
+            pct(&s.success),
+            mean(&s.success)
+        );
+    }
+    let x = &d.difference;
+    println!(
+        "b - a: {:+.1} points, 95 % [{:+.1}, {:+.1}] (paired on {} conditions; seeds {} and {})",
+        100.0 * x.estimate,
+        100.0 * x.low,
+        100.0 * x.high,
+        x.n[0],
+        x.seeds[1],
+        x.seeds[0]
     );
     Ok(ExitCode::SUCCESS)
 }
