@@ -1970,6 +1970,35 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
     assert_eq!(x["n"][0], 12, "tiny dev's conditions: {d}");
     assert!(x["low"].as_f64() <= Some(estimate) && Some(estimate) <= x["high"].as_f64());
     assert_eq!(d["b"]["evaluations"].as_array().map(Vec::len), Some(3));
+    // A sweep of a knob dev_student does not read shares its evaluations between the points:
+    // still three seeds.
+    let o = osms(&[
+        "exp",
+        "run",
+        "swept",
+        "-p",
+        "tiny",
+        "--seeds",
+        "0,1,2",
+        "--sweep",
+        "dev_teacher.shards=1,2",
+        "dev_student",
+        "dev_teacher",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = osms(&[
+        "exp",
+        "diff",
+        "one",
+        "swept",
+        "--paired",
+        "dev_student",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let swept: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(swept["difference"], d["difference"], "{swept}");
+    assert_eq!(swept["b"]["evaluations"].as_array().map(Vec::len), Some(3));
     let o = osms(&["exp", "diff", "one", "three", "--paired", "dev_teacher"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");

@@ -762,11 +762,17 @@ fn paired(store: &Store, args: &ExpDiffArgs, stage: &str) -> Result<ExitCode> {
         }
         let mut evaluations = Vec::new();
         let mut values = Vec::new();
+        // An instance the sweep does not change is shared by every point: one seed, not several.
+        let mut seen = BTreeSet::new();
         for (k, point) in exp.points.iter().enumerate() {
             if only.is_some_and(|o| o != k) {
                 continue;
             }
-            for i in point.instances.iter().filter(|i| i.stage == stage) {
+            for i in point
+                .instances
+                .iter()
+                .filter(|i| i.stage == stage && seen.insert(i.key))
+            {
                 let record = store.record(&i.key)?.ok_or_else(|| {
                     anyhow::anyhow!(
                         "{name}/{k}: `{}` has no build record\nhint: rerun `osms exp run {name}`",
