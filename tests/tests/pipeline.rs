@@ -1909,32 +1909,35 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
             .output()
             .expect("run osms")
     };
-    for args in [
-        &[
-            "exp",
-            "run",
-            "one",
-            "-p",
-            "tiny",
-            "--seed",
-            "0",
-            "dev_student",
-        ][..],
-        &[
-            "exp",
-            "run",
-            "three",
-            "-p",
-            "tiny",
-            "--seeds",
-            "0,1,2",
-            "dev_student",
-        ][..],
-    ] {
+    let ok = |args: &[&str]| {
         let o = osms(args);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    }
-    let o = osms(&[
+        o
+    };
+    let json = |args: &[&str]| -> serde_json::Value {
+        serde_json::from_slice(&ok(args).stdout).expect("json")
+    };
+    ok(&[
+        "exp",
+        "run",
+        "one",
+        "-p",
+        "tiny",
+        "--seed",
+        "0",
+        "dev_student",
+    ]);
+    ok(&[
+        "exp",
+        "run",
+        "three",
+        "-p",
+        "tiny",
+        "--seeds",
+        "0,1,2",
+        "dev_student",
+    ]);
+    let d = json(&[
         "exp",
         "diff",
         "one",
@@ -1943,8 +1946,6 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
         "dev_student",
         "--json",
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let d: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     // The seeds' evaluations as the experiment recorded them (`first` names seed 0's only).
     let three = osms_make::experiment::load(&made.store, "three")
         .expect("read")
@@ -1972,7 +1973,7 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
     assert_eq!(d["b"]["evaluations"].as_array().map(Vec::len), Some(3));
     // A sweep of a knob dev_student does not read shares its evaluations between the points:
     // still three seeds.
-    let o = osms(&[
+    ok(&[
         "exp",
         "run",
         "swept",
@@ -1985,8 +1986,7 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
         "dev_student",
         "dev_teacher",
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = osms(&[
+    let swept = json(&[
         "exp",
         "diff",
         "one",
@@ -1995,18 +1995,22 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
         "dev_student",
         "--json",
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let swept: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert_eq!(swept["difference"], d["difference"], "{swept}");
     assert_eq!(swept["b"]["evaluations"].as_array().map(Vec::len), Some(3));
-    let o = osms(&["exp", "diff", "one", "three", "--paired", "dev_teacher"]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(err.contains("has no instance of `dev_teacher`"), "{err}");
-    let o = osms(&["exp", "diff", "one", "three", "--paired", "student_ours"]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(err.contains("only evaluations pair by condition"), "{err}");
+    let fails = |args: &[&str], says: &str| {
+        let o = osms(args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains(says), "{err}");
+    };
+    fails(
+        &["exp", "diff", "one", "three", "--paired", "dev_teacher"],
+        "has no instance of `dev_teacher`",
+    );
+    fails(
+        &["exp", "diff", "one", "three", "--paired", "student_ours"],
+        "only evaluations pair by condition",
+    );
 }
 
 fn datasets_export_replay_and_render(made: &Made) {
