@@ -1997,6 +1997,49 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
     ]);
     assert_eq!(swept["difference"], d["difference"], "{swept}");
     assert_eq!(swept["b"]["evaluations"].as_array().map(Vec::len), Some(3));
+    // `exp plot`: a line per target over the swept knob, each point the seeds' mean with the
+    // pooled rollouts behind its interval; the figure and its numbers on disk.
+    let plots = tempfile::tempdir().expect("plot dir");
+    let out = plots.path().join("figs");
+    let out_arg = out.to_str().expect("utf-8 path");
+    let plot = json(&[
+        "exp",
+        "plot",
+        "swept",
+        "--x",
+        "dev_teacher.shards",
+        "--id",
+        "shards",
+        "-o",
+        out_arg,
+        "--json",
+    ])["plot"]
+        .clone();
+    assert_eq!(plot["categories"], serde_json::json!(["1", "2"]), "{plot}");
+    let student = plot["series"]
+        .as_array()
+        .expect("series")
+        .iter()
+        .find(|s| s["name"] == "success (dev_student)")
+        .expect("dev_student's line");
+    for p in student["points"].as_array().expect("points") {
+        assert!(
+            (p["y"].as_f64().expect("y") - 100.0 * mean).abs() < 1e-9,
+            "{p}"
+        );
+        assert_eq!(
+            (p["values"].as_u64(), p["rollouts"].as_u64()),
+            (Some(3), Some(36)),
+            "{p}"
+        );
+        assert!(p["low"].as_f64() <= p["y"].as_f64() && p["y"].as_f64() <= p["high"].as_f64());
+    }
+    let png = std::fs::read(out.join("shards.png")).expect("png");
+    assert_eq!(&png[1..4], b"PNG");
+    let svg = std::fs::read_to_string(out.join("shards.svg")).expect("svg");
+    assert!(svg.starts_with("<svg"), "{svg:.100}");
+    let csv = std::fs::read_to_string(out.join("shards.csv")).expect("csv");
+    assert_eq!(csv.lines().count(), 1 + 2 * 2, "{csv}");
     let fails = |args: &[&str], says: &str| {
         let o = osms(args);
         let err = String::from_utf8_lossy(&o.stderr);
@@ -2010,6 +2053,18 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
     fails(
         &["exp", "diff", "one", "three", "--paired", "student_ours"],
         "only evaluations pair by condition",
+    );
+    fails(
+        &[
+            "exp",
+            "plot",
+            "three",
+            "--x",
+            "dev_teacher.shards",
+            "-o",
+            out_arg,
+        ],
+        "three: --x `dev_teacher.shards` is not a knob of this point",
     );
 }
 

@@ -102,6 +102,9 @@ pub enum ExpCommand {
     Show(ExpShowArgs),
     /// Two experiments (or points, `NAME/k`) side by side: knobs, metric deltas, shared work
     Diff(ExpDiffArgs),
+    /// Draw metrics against a knob over experiments' points (a data curve, a regime map):
+    /// SVG, PNG and the CSV of the numbers, each point with its 95 % interval
+    Plot(ExpPlotArgs),
     /// Forget experiments; their artifacts go at the next `osms gc` unless something else keeps them
     Rm(ExpRmArgs),
 }
@@ -174,6 +177,36 @@ pub struct ExpDiffArgs {
     /// same condition set), with a 95 % interval that holds the seeds' spread
     #[arg(long, value_name = "STAGE")]
     pub paired: Option<String>,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ExpPlotArgs {
+    /// Experiments, or points `NAME/k`, whose points are drawn (points that share the x value,
+    /// `--by` value and metric pool into one)
+    #[arg(required = true)]
+    pub names: Vec<String>,
+    /// The knob on the x axis (`STAGE.PATH`, as given to --set or --sweep); its values are
+    /// the axis' steps, in numeric order when all are numbers
+    #[arg(long, value_name = "STAGE.PATH")]
+    pub x: String,
+    /// A line per value of this knob
+    #[arg(long, value_name = "STAGE.PATH")]
+    pub by: Option<String>,
+    /// Metrics, a panel each (as `osms exp show --metrics`); a line per target stage that has it
+    #[arg(long, value_delimiter = ',', default_value = "success")]
+    pub metrics: Vec<String>,
+    /// Directory the files go to (created if missing; files of the same name are replaced)
+    #[arg(long, short, default_value = ".")]
+    pub out: PathBuf,
+    /// File stem of the figure [default: exp-NAME-KNOB]
+    #[arg(long)]
+    pub id: Option<String>,
+    /// The figure's title [default: METRICS against KNOB]
+    #[arg(long)]
+    pub title: Option<String>,
+    /// Print the files written and the plotted numbers as JSON on stdout
     #[arg(long)]
     pub json: bool,
 }
@@ -359,7 +392,7 @@ pub struct RenderArgs {
     /// The PNG strip of key frames (NAME.png); the GIF and the faded-poses picture are written
     /// beside it (NAME.gif, NAME-poses.png)
     #[arg(long)]
-    pub out: std::path::PathBuf,
+    pub out: PathBuf,
     /// Width of one frame in pixels
     #[arg(long, default_value_t = 480)]
     pub width: u32,

@@ -20,6 +20,8 @@ use crate::commands::print_json;
 use crate::context::{Context, parse_overrides};
 use crate::progress::MakeObserver;
 
+mod plot;
+
 /// Kinds whose build time is training time: `train_secs` of a target is the build time of the
 /// artifacts of these kinds it reads directly.
 const TRAINING_KINDS: [&str; 3] = ["teacher", "student", "manifold"];
@@ -35,6 +37,7 @@ pub fn run(ctx: &Context, command: ExpCommand) -> Result<ExitCode> {
         ExpCommand::Ls(args) => ls(ctx, args.json),
         ExpCommand::Show(args) => show(ctx, &args),
         ExpCommand::Diff(args) => diff(ctx, &args),
+        ExpCommand::Plot(args) => plot::plot(ctx, &args),
         ExpCommand::Rm(args) => rm(ctx, &args),
     }
 }
@@ -908,7 +911,11 @@ mod tests {
         assert_eq!(unit_of("f_max"), Unit::Number(1));
     }
 
-    fn row(point: Option<usize>, params: &[(&str, &str)], metrics: &[(&str, &[f64])]) -> Row {
+    pub(super) fn row(
+        point: Option<usize>,
+        params: &[(&str, &str)],
+        metrics: &[(&str, &[f64])],
+    ) -> Row {
         Row {
             experiment: "e".into(),
             point,
