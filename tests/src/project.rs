@@ -88,8 +88,13 @@ impl Project {
 
     /// Runs an osms binary on this project with progress bars off.
     pub fn run(&self, bin: &Path, args: &[&str]) -> Output {
-        Command::new(bin)
-            .arg("--pipeline")
+        self.command(bin, args).output().expect("run osms")
+    }
+
+    /// The command [`Project::run`] runs, for a test that sets its own stdio or environment.
+    pub fn command(&self, bin: &Path, args: &[&str]) -> Command {
+        let mut c = Command::new(bin);
+        c.arg("--pipeline")
             .arg(&self.pipeline)
             .arg("--store")
             .arg(&self.store)
@@ -100,9 +105,8 @@ impl Project {
             // builds side by side).
             .env("OSMS_STAGES", "1")
             .env_remove("OSMS_LOG")
-            .current_dir(self.dir.path())
-            .output()
-            .expect("run osms")
+            .current_dir(self.dir.path());
+        c
     }
 }
 

@@ -5,6 +5,8 @@
 //! [`main_with`] runs the command line with any [`Registry`], so end-to-end tests can drive the
 //! same code with stage kinds of their own; [`registry`] holds the kinds osms ships.
 
+#[macro_use]
+mod term;
 mod cli;
 mod commands;
 mod context;
@@ -40,7 +42,7 @@ pub fn main_with(registry: Registry) -> ExitCode {
     match commands::run(cli, registry) {
         Ok(code) => code,
         Err(err) => {
-            eprintln!("error: {}", render(&err));
+            errln!("error: {}", render(&err));
             ExitCode::from(exit_code_of(&err))
         }
     }
@@ -60,7 +62,9 @@ fn init_logging(global: &cli::Global) {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
+        .with_writer(|| term::LogWriter)
+        .with_ansi(term::colour())
+        .log_internal_errors(false)
         .without_time()
         .with_target(false)
         .try_init();

@@ -54,7 +54,7 @@ impl MakeObserver {
     /// since a hidden `MultiProgress` drops what it is asked to print.
     fn line(&self, text: &str) {
         if self.bars.is_hidden() || self.bars.println(text).is_err() {
-            eprintln!("{text}");
+            errln!("{text}");
         }
     }
 }

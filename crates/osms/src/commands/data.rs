@@ -241,7 +241,7 @@ pub fn export_dataset(ctx: &Context, args: &ExportDatasetArgs) -> Result<ExitCod
             "files": written,
         }))?;
     } else {
-        println!(
+        outln!(
             "wrote {instance} as {format}: {} episodes, {frames} frames{} to {}",
             set.episodes.len(),
             if set.source_kind == "rollouts" {
@@ -252,14 +252,14 @@ pub fn export_dataset(ctx: &Context, args: &ExportDatasetArgs) -> Result<ExitCod
             dir.display()
         );
         for w in &written {
-            println!("  {}", w.display());
+            outln!("  {}", w.display());
         }
         if set.episodes.iter().any(|e| e.environment_state.is_some()) {
             let at = match args.format {
                 DatasetFormat::Lerobot => osms_export::lerobot::privileged_key(options).to_string(),
                 DatasetFormat::Robomimic => osms_export::robomimic::privileged_path(options),
             };
-            println!(
+            outln!(
                 "the privileged frame is in {at}{}",
                 if options.privileged_obs {
                     ", among the policy inputs (--privileged-obs)"
@@ -298,7 +298,7 @@ pub fn replay(ctx: &Context, args: &ReplayArgs) -> Result<ExitCode> {
             "report": report,
         }))?;
     } else {
-        print!("{}", describe(&instance, args.at.episode, &report));
+        out!("{}", describe(&instance, args.at.episode, &report));
     }
     Ok(if report.bit_exact {
         ExitCode::SUCCESS
@@ -441,7 +441,7 @@ pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
             "files": files.iter().map(|(p, _)| p.display().to_string()).collect::<Vec<_>>(),
         }))?;
     } else {
-        println!(
+        outln!(
             "rendered {instance} episode {} ({}, {} steps):",
             args.at.episode,
             if record.outcome.success() {
@@ -452,7 +452,7 @@ pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
             record.steps
         );
         for k in &rendered.key_frames {
-            println!(
+            outln!(
                 "  {:<15} step {:>3}, t = {:.2} s",
                 k.kind.label(),
                 k.step,
@@ -460,7 +460,7 @@ pub fn render(ctx: &Context, args: &RenderArgs) -> Result<ExitCode> {
             );
         }
         for (path, _) in &files {
-            println!("  {}", path.display());
+            outln!("  {}", path.display());
         }
     }
     Ok(ExitCode::SUCCESS)

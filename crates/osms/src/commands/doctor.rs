@@ -55,12 +55,12 @@ fn smoke_test() -> Result<String, String> {
 
 /// The class and what it is made of, for humans: which libm variant golden hashes are kept for.
 fn print_platform(p: &crate::platform::Report) {
-    println!(
+    outln!(
         "platform class  {} (golden content hashes are kept per class)",
         p.class
     );
     let names: Vec<&str> = p.libm.functions.iter().map(|(n, _)| *n).collect();
-    println!(
+    outln!(
         "  libm          fingerprint {} of {} functions MuJoCo and osms may call ({}){}",
         &p.libm.digest[..16],
         names.len(),
@@ -77,7 +77,7 @@ fn print_platform(p: &crate::platform::Report) {
             .as_deref()
             .is_some_and(|t| t.contains("-FMA") || t.contains("-AVX2"));
         let fma_variants = p.cpu_fma == Some(true) && p.cpu_avx2 == Some(true);
-        println!(
+        outln!(
             "  CPU           FMA {}, AVX2 {}, AVX-512F {}: {}",
             yes_no(p.cpu_fma),
             yes_no(p.cpu_avx2),
@@ -97,7 +97,7 @@ fn print_platform(p: &crate::platform::Report) {
         );
     }
     if let Some(t) = &p.glibc_tunables {
-        println!("  GLIBC_TUNABLES {t} (can mask CPU features from glibc, changing the class)");
+        outln!("  GLIBC_TUNABLES {t} (can mask CPU features from glibc, changing the class)");
     }
 }
 
@@ -157,20 +157,21 @@ pub fn run(global: &Global, registry: &Registry, json: bool) -> Result<ExitCode>
             Ok(s) => format!("ok: {s}"),
             Err(e) => format!("PROBLEM: {e}"),
         };
-        println!("osms            {}", report.osms_version);
-        println!(
+        outln!("osms            {}", report.osms_version);
+        outln!(
             "MuJoCo          {} (library's own mj_versionString; expected {})",
-            report.mujoco_version, MUJOCO_EXPECTED
+            report.mujoco_version,
+            MUJOCO_EXPECTED
         );
-        println!(
+        outln!(
             "MuJoCo library  {}",
             report
                 .mujoco_lib_dir
                 .unwrap_or("(found by the system loader)")
         );
-        println!("MuJoCo check    {}", show(&report.mujoco_smoke_test));
+        outln!("MuJoCo check    {}", show(&report.mujoco_smoke_test));
         print_platform(&report.platform);
-        println!(
+        outln!(
             "pipeline        {} ({})",
             report
                 .pipeline
@@ -179,7 +180,7 @@ pub fn run(global: &Global, registry: &Registry, json: bool) -> Result<ExitCode>
                 .unwrap_or("-".into()),
             show(&report.pipeline_check)
         );
-        println!(
+        outln!(
             "store           {} ({})",
             report
                 .store
@@ -188,7 +189,7 @@ pub fn run(global: &Global, registry: &Registry, json: bool) -> Result<ExitCode>
                 .unwrap_or("-".into()),
             show(&report.store_check)
         );
-        println!(
+        outln!(
             "set-up          {}",
             if report.setup_complete {
                 "complete"

@@ -29,8 +29,8 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
     }
     // Everything gc decides from the store is read under the lock: a make that finishes while
     // gc waits (its `@9` heads, say) is then seen and kept.
-    let _lock = store
-        .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
+    let _lock =
+        store.lock(|| errln!("waiting for another osms process to release the store lock..."))?;
     let seeds: Vec<u64> = match &args.seeds {
         Some(s) => s.clone(),
         None => {
@@ -80,10 +80,10 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
         };
         if ctx.verbose || args.dry_run {
             for h in &report.objects_removed {
-                println!("{verb} object {h}");
+                outln!("{verb} object {h}");
             }
         }
-        eprintln!(
+        errln!(
             "osms gc: {verb} {} objects ({}) and {} index records; kept {} objects reachable from profiles {} at seeds {:?}{}",
             report.objects_removed.len(),
             human_bytes(report.bytes_removed),

@@ -152,41 +152,45 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
         .seed
         .map(|s| s.to_string())
         .unwrap_or_else(|| "none (draws no random numbers)".into());
-    println!("key           {}", r.key);
-    println!("content hash  {}", r.content_hash);
-    println!(
+    outln!("key           {}", r.key);
+    outln!("content hash  {}", r.content_hash);
+    outln!(
         "stage         {} (kind {} v{})",
-        r.stage, r.kind, r.code_version
+        r.stage,
+        r.kind,
+        r.code_version
     );
-    println!(
+    outln!(
         "type          {} (schema {})",
-        r.type_tag, header.schema_version
+        r.type_tag,
+        header.schema_version
     );
-    println!("seed          {seed}");
-    println!("size          {}", human_bytes(r.size_bytes));
-    println!(
+    outln!("seed          {seed}");
+    outln!("size          {}", human_bytes(r.size_bytes));
+    outln!(
         "built by      osms {} in {:.3}s",
-        r.osms_version, r.wall_time_secs
+        r.osms_version,
+        r.wall_time_secs
     );
-    println!("params        {}", r.params);
+    outln!("params        {}", r.params);
     for (slot, h) in &r.inputs {
-        println!("input         {slot} = {h}");
+        outln!("input         {slot} = {h}");
     }
     for k in &shown.also_keys {
-        println!("also key      {k}");
+        outln!("also key      {k}");
     }
-    println!("summary");
+    outln!("summary");
     match &shown.summary {
         serde_json::Value::Object(map) => {
             for (k, v) in map {
-                println!("  {k}: {v}");
+                outln!("  {k}: {v}");
             }
         }
-        other => println!("  {other}"),
+        other => outln!("  {other}"),
     }
     if let Some(text) = text {
-        println!();
-        print!("{text}");
+        outln!();
+        out!("{text}");
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -205,9 +209,13 @@ pub fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
     if json {
         print_json(&records)?;
     } else {
-        println!(
+        outln!(
             "{:<24} {:>6} {:<12} {:<12} {:>10}  type",
-            "stage", "seed", "key", "hash", "size"
+            "stage",
+            "seed",
+            "key",
+            "hash",
+            "size"
         );
         for r in &records {
             let stage = match r.shard {
@@ -215,7 +223,7 @@ pub fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
                 None => r.stage.clone(),
             };
             let seed = r.seed.map(|s| s.to_string()).unwrap_or_else(|| "-".into());
-            println!(
+            outln!(
                 "{stage:<24} {seed:>6} {:<12} {:<12} {:>10}  {}",
                 r.key.short(),
                 r.content_hash.short(),
@@ -224,10 +232,10 @@ pub fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
             );
         }
         let total: u64 = records.iter().map(|r| r.size_bytes).sum();
-        eprintln!("{} artifacts, {}", records.len(), human_bytes(total));
+        errln!("{} artifacts, {}", records.len(), human_bytes(total));
     }
     for (path, reason) in bad {
-        eprintln!(
+        errln!(
             "warning: unreadable index record {}: {reason}",
             path.display()
         );
@@ -240,7 +248,7 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
     if json {
         print_json(&infos)?;
     } else if infos.is_empty() {
-        println!("no stage kinds are registered in this build of osms");
+        outln!("no stage kinds are registered in this build of osms");
     } else {
         for k in infos {
             let shape = if k.itemised {
@@ -249,11 +257,13 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
                 ""
             };
             let rng = if k.uses_rng { ", seeded" } else { "" };
-            println!(
+            outln!(
                 "{} v{} -> {}{shape}{rng}",
-                k.name, k.code_version, k.output_tag
+                k.name,
+                k.code_version,
+                k.output_tag
             );
-            println!(
+            outln!(
                 "    inputs: {}",
                 if k.inputs.is_empty() {
                     "none".to_string()
@@ -277,7 +287,7 @@ pub fn kinds(registry: &Registry, json: bool) -> Result<ExitCode> {
                         .join(", ")
                 }
             );
-            println!("    {}", k.doc);
+            outln!("    {}", k.doc);
         }
     }
     Ok(ExitCode::SUCCESS)
@@ -318,7 +328,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
             print_json(&written)?;
         } else {
             for w in &written {
-                println!("{w}");
+                outln!("{w}");
             }
         }
         return Ok(ExitCode::SUCCESS);
@@ -359,7 +369,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
         print_json(&written)?;
     } else {
         for w in &written {
-            println!("{w}");
+            outln!("{w}");
         }
     }
     Ok(ExitCode::SUCCESS)

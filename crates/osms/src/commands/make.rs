@@ -96,13 +96,13 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         } else {
             format!(", {skipped} skipped")
         };
-        eprintln!(
+        errln!(
             "osms make: {what}, {cached} cached, {cut} cut off{failed_text}{skipped_text} (profile {}, seed {seeds_text}) in {:.2}s",
             plan.profile,
             started.elapsed().as_secs_f64()
         );
         if built > 0 && !args.dry_run {
-            eprintln!(
+            errln!(
                 "osms make: the builds used {:.0} core-s in {:.0} s: {:.0} % of {} cores",
                 cost.cpu_secs,
                 cost.wall_secs,
@@ -111,7 +111,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             );
         }
         if report.instances.is_empty() {
-            eprintln!(
+            errln!(
                 "hint: {} declares no stages yet",
                 ctx.pipeline_path.display()
             );
@@ -121,7 +121,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         if !args.dry_run && args.selection.set.is_empty() {
             write_reports(ctx, &plan, &store, &report, &seeds)?;
         } else if !args.dry_run && !ctx.quiet && has_report(&plan) {
-            eprintln!(
+            errln!(
                 "osms make: report/ left as pipeline.toml makes it, since --set is in force; \
                  `osms export report --set ... --out DIR` writes this variant's"
             );
@@ -135,7 +135,7 @@ pub(crate) fn failure_exit(failed: &[&str]) -> ExitCode {
     if failed.is_empty() {
         return ExitCode::SUCCESS;
     }
-    eprintln!(
+    errln!(
         "error: {} stage(s) failed: {}",
         failed.len(),
         failed.join(", ")
@@ -180,19 +180,19 @@ fn print_estimate(e: &osms_make::Estimate) {
         return;
     }
     if e.unmeasured.len() == e.instances.len() {
-        eprintln!(
+        errln!(
             "no core-hour estimate: no profile has a build of these stages to scale; build a \
              smaller profile first (e.g. `osms make -p tiny`)"
         );
         return;
     }
-    eprintln!(
+    errln!(
         "estimate for profile {} (core-hours, scaled from measured builds; see docs/slurm.md):",
         e.profile
     );
     for i in &e.instances {
         match (&i.core_hours, &i.measured) {
-            (Some(h), Some(m)) => eprintln!(
+            (Some(h), Some(m)) => errln!(
                 "  {:<28} {:>10.2}  ({} work {:.0} vs {:.0} on {}: {:.1} core-s{}{})",
                 i.instance,
                 h,
@@ -208,12 +208,12 @@ fn print_estimate(e: &osms_make::Estimate) {
                 },
                 if m.stale { ", stale build" } else { "" }
             ),
-            _ => eprintln!("  {:<28} {:>10}  (no measured build)", i.instance, "?"),
+            _ => errln!("  {:<28} {:>10}  (no measured build)", i.instance, "?"),
         }
     }
-    eprintln!("  {:<28} {:>10.2}", "total", e.total_core_hours);
+    errln!("  {:<28} {:>10.2}", "total", e.total_core_hours);
     if !e.unmeasured.is_empty() {
-        eprintln!(
+        errln!(
             "  not in the total ({} unmeasured): build a smaller profile first, e.g. `osms make -p tiny`",
             e.unmeasured.len()
         );
@@ -312,7 +312,7 @@ fn write_reports(
         let dir = report::default_dir(ctx, &stage.name);
         let written = report::write(ctx, plan, store, &stage.name, seeds, &dir)?;
         if !ctx.quiet {
-            eprintln!(
+            errln!(
                 "osms make: wrote {} ({} files)",
                 dir.join("index.md").display(),
                 written.len()

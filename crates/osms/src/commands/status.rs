@@ -31,7 +31,7 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
         print_json(&value)?;
     } else if !ctx.quiet {
         if not_up_to_date == 0 {
-            println!(
+            outln!(
                 "Everything is up to date ({} stages, profile {}).",
                 statuses.len(),
                 plan.profile
@@ -45,7 +45,7 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
                 match s.state {
                     State::Cached => {
                         if ctx.verbose {
-                            println!("{:<8} {} {hash}", "cached", s.instance);
+                            outln!("{:<8} {} {hash}", "cached", s.instance);
                         }
                     }
                     State::Stale | State::Missing => {
@@ -54,20 +54,20 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
                         } else {
                             "missing"
                         };
-                        println!("{state:<8} {}: {}", s.instance, describe(&s.reasons));
+                        outln!("{state:<8} {}: {}", s.instance, describe(&s.reasons));
                     }
                 }
             }
             match &cluster {
                 Ok(cluster) => {
                     for c in cluster {
-                        println!("{:<8} {}", "slurm", describe_cluster(c));
+                        outln!("{:<8} {}", "slurm", describe_cluster(c));
                     }
                 }
-                Err(e) => println!("{:<8} cannot ask Slurm: {e}", "slurm"),
+                Err(e) => outln!("{:<8} cannot ask Slurm: {e}", "slurm"),
             }
             let cached = statuses.len() - not_up_to_date;
-            println!(
+            outln!(
                 "{not_up_to_date} of {} stages not up to date, {cached} cached (profile {}).",
                 statuses.len(),
                 plan.profile
@@ -118,7 +118,7 @@ pub fn why(ctx: &Context, args: &WhyArgs) -> Result<ExitCode> {
     } else {
         let mut out = String::new();
         draw(&lineage, "", true, true, &mut out);
-        print!("{out}");
+        out!("{out}");
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -47,7 +47,7 @@ pub fn run(ctx: &Context, args: &RunTaskArgs) -> Result<ExitCode> {
         Some(i) => format!("shard {i} of {}", spec.instance),
         None => spec.instance.clone(),
     };
-    eprintln!(
+    errln!(
         "osms run-task: {what} (key {}) on {}, {} threads",
         key.short(),
         host_name(),
@@ -56,23 +56,23 @@ pub fn run(ctx: &Context, args: &RunTaskArgs) -> Result<ExitCode> {
     let outcome = run_task(&plan, &store, &spec, args.shard, &NoProgress)?;
     let secs = started.elapsed().as_secs_f64();
     match outcome {
-        TaskOutcome::AlreadyBuilt { content_hash } => eprintln!(
+        TaskOutcome::AlreadyBuilt { content_hash } => errln!(
             "osms run-task: {} is already in the store ({})",
             spec.instance,
             content_hash.short()
         ),
-        TaskOutcome::Built { content_hash, .. } => eprintln!(
+        TaskOutcome::Built { content_hash, .. } => errln!(
             "osms run-task: built {} -> {} in {secs:.2}s",
             spec.instance,
             content_hash.short()
         ),
         TaskOutcome::Shard(ShardRun::Computed { items }) => {
-            eprintln!("osms run-task: {what}: {items} items in {secs:.2}s")
+            errln!("osms run-task: {what}: {items} items in {secs:.2}s")
         }
         TaskOutcome::Shard(ShardRun::Stored) => {
-            eprintln!("osms run-task: {what} was already in the store")
+            errln!("osms run-task: {what} was already in the store")
         }
-        TaskOutcome::Shard(ShardRun::NoSuchShard { shards }) => eprintln!(
+        TaskOutcome::Shard(ShardRun::NoSuchShard { shards }) => errln!(
             "osms run-task: {what}: the stage has only {shards} shards (fewer items than shards); nothing to do"
         ),
     }

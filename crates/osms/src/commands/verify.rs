@@ -11,8 +11,8 @@ use crate::context::Context;
 pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
     let store = ctx.store()?;
     // Exclusive: a concurrent make could otherwise show as a missing object mid-write.
-    let _lock = store
-        .lock(|| eprintln!("waiting for another osms process to release the store lock..."))?;
+    let _lock =
+        store.lock(|| errln!("waiting for another osms process to release the store lock..."))?;
     let report = store.verify()?;
     let experiments = experiment_problems(&store)?;
     let problems = report.problems.len() + experiments.len();
@@ -24,7 +24,7 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
         for p in &report.problems {
             match p {
                 VerifyProblem::DamagedObject { hash, actual, path } => {
-                    println!(
+                    outln!(
                         "damaged  {} (its bytes hash to {}) at {}",
                         hash.short(),
                         actual.short(),
@@ -32,23 +32,23 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
                     )
                 }
                 VerifyProblem::ForeignObject { path, reason } => {
-                    println!("foreign  {}: {reason}", path.display())
+                    outln!("foreign  {}: {reason}", path.display())
                 }
-                VerifyProblem::StrayFile { path } => println!("stray    {}", path.display()),
+                VerifyProblem::StrayFile { path } => outln!("stray    {}", path.display()),
                 VerifyProblem::MissingObject { key, stage, hash } => {
-                    println!(
+                    outln!(
                         "missing  object {} of {stage} (key {})",
                         hash.short(),
                         key.short()
                     )
                 }
                 VerifyProblem::BadRecord { path, reason } => {
-                    println!("bad      index record {}: {reason}", path.display())
+                    outln!("bad      index record {}: {reason}", path.display())
                 }
             }
         }
         for p in &experiments {
-            println!(
+            outln!(
                 "missing  {} {} of experiment `{}` ({}): {}",
                 p.what,
                 p.hash.short(),
@@ -62,19 +62,19 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
         } else {
             format!("{problems} problem(s)")
         };
-        eprintln!(
+        errln!(
             "osms verify: {} objects ({}) and {} records checked: {verdict}",
             report.objects_checked,
             human_bytes(report.bytes_checked),
             report.records_checked
         );
         if !experiments.is_empty() {
-            eprintln!(
+            errln!(
                 "hint: an experiment names instances the store no longer holds; `osms exp run NAME --force ...` records it again"
             );
         }
         if !report.problems.is_empty() {
-            eprintln!(
+            errln!(
                 "hint: `osms make` rebuilds damaged or missing stage outputs; `osms gc` removes stray \
                  objects and the shards of finished stages"
             );

@@ -40,6 +40,6 @@ pub fn dump(ctx: &Context, args: &WorldDumpArgs) -> Result<ExitCode> {
     };
     let spec: WorldSpec =
         serde_json::from_value(stage.params.json.clone()).context("the world stage's params")?;
-    print!("{}", mjcf::world_xml(&spec, variant));
+    out!("{}", mjcf::world_xml(&spec, variant));
     Ok(ExitCode::SUCCESS)
 }

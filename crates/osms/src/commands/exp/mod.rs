@@ -115,7 +115,7 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         .cloned()
         .collect();
     if !reads_held_out.is_empty() && !ctx.quiet {
-        eprintln!(
+        errln!(
             "warning: experiment `{}` reads the held-out stage(s) {}: choosing a knob on them leaks the final tables' conditions\nhint: target a development stream (`[pipeline] experiment_targets`: {})",
             args.name,
             reads_held_out.join(", "),
@@ -129,7 +129,7 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
     if !ctx.quiet && points.len() > 1 {
         for (k, p) in points.iter().enumerate() {
             let shown: Vec<String> = p.iter().map(|o| o.to_string()).collect();
-            eprintln!("point {k}: {}", shown.join(" "));
+            errln!("point {k}: {}", shown.join(" "));
         }
     }
 
@@ -169,7 +169,7 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
     let failed = report.failed();
     if args.dry_run {
         if !ctx.quiet {
-            eprintln!(
+            errln!(
                 "osms exp run {}: {} point(s); {would} instance(s) would be built, {cached} cached (nothing recorded)",
                 args.name,
                 points.len()
@@ -221,7 +221,7 @@ fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         print_json(&serde_json::json!({ "experiment": exp, "make": report }))?;
     }
     if !ctx.quiet {
-        eprintln!(
+        errln!(
             "osms exp run {}: {} point(s), {built} built, {cached} cached{} in {:.2}s; `osms exp show {}` compares",
             args.name,
             exp.points.len(),
@@ -287,10 +287,10 @@ fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
     }
     if exps.is_empty() {
         if !ctx.quiet {
-            eprintln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
+            errln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
         }
     } else {
-        print!("{}", t.markdown_with(Layout::plain("experiment")));
+        out!("{}", t.markdown_with(Layout::plain("experiment")));
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -587,23 +587,23 @@ fn show(ctx: &Context, args: &ExpShowArgs) -> Result<ExitCode> {
     if !ctx.quiet {
         for r in &rows {
             for why in &r.unreadable {
-                eprintln!("warning: {}: {why}", r.label());
+                errln!("warning: {}: {why}", r.label());
             }
         }
     }
     if args.json {
         print_json(&serde_json::json!({ "rows": rows }))?;
     } else if args.csv {
-        print!(
+        out!(
             "{}",
             table(&rows, &args.metrics, args.ci).wide_csv("experiment")
         );
     } else if rows.is_empty() {
         if !ctx.quiet {
-            eprintln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
+            errln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
         }
     } else {
-        print!(
+        out!(
             "{}",
             table(&rows, &args.metrics, args.ci).markdown_with(Layout::plain("experiment"))
         );
@@ -723,14 +723,18 @@ fn diff(ctx: &Context, args: &ExpDiffArgs) -> Result<ExitCode> {
         deltas.push(m, vec![Cell::opt(v.a), Cell::opt(v.b), Cell::opt(v.delta)]);
     }
     if d.params.is_empty() {
-        println!("the same knobs\n");
+        outln!("the same knobs\n");
     } else {
-        println!("{}", knobs.markdown_with(Layout::plain("knob")));
+        outln!("{}", knobs.markdown_with(Layout::plain("knob")));
     }
-    println!("{}", deltas.markdown_with(Layout::plain("metric")));
-    println!(
+    outln!("{}", deltas.markdown_with(Layout::plain("metric")));
+    outln!(
         "shared instances: {} ({} in {}, {} in {})",
-        d.shared_instances, d.instances.0, d.a, d.instances.1, d.b
+        d.shared_instances,
+        d.instances.0,
+        d.a,
+        d.instances.1,
+        d.b
     );
     Ok(ExitCode::SUCCESS)
 }
@@ -852,7 +856,7 @@ fn paired(store: &Store, args: &ExpDiffArgs, stage: &str) -> Result<ExitCode> {
     };
     let mean = |v: &[f64]| 100.0 * v.iter().sum::<f64>() / v.len().max(1) as f64;
     for s in [&d.a, &d.b] {
-        println!(
+        outln!(
             "{}: {} evaluation(s) of {stage}: {} (mean {:.1} %)",
             s.label,
             s.evaluations.len(),
@@ -861,7 +865,7 @@ fn paired(store: &Store, args: &ExpDiffArgs, stage: &str) -> Result<ExitCode> {
         );
     }
     let x = &d.difference;
-    println!(
+    outln!(
         "b - a: {:+.1} points, 95 % [{:+.1}, {:+.1}] (paired on {} conditions; seeds {} and {})",
         100.0 * x.estimate,
         100.0 * x.low,
@@ -884,7 +888,7 @@ fn rm(ctx: &Context, args: &ExpRmArgs) -> Result<ExitCode> {
     for name in &args.names {
         experiment::remove(&store, name)?;
         if !ctx.quiet {
-            eprintln!("osms exp rm: forgot `{name}`; `osms gc` removes what only it kept");
+            errln!("osms exp rm: forgot `{name}`; `osms gc` removes what only it kept");
         }
     }
     Ok(ExitCode::SUCCESS)

@@ -86,10 +86,10 @@ pub(super) fn plot(ctx: &Context, args: &ExpPlotArgs) -> Result<ExitCode> {
     if !ctx.quiet {
         for r in &rows {
             for why in &r.unreadable {
-                eprintln!("warning: {}: {why}", r.label());
+                errln!("warning: {}: {why}", r.label());
             }
             if !r.failed.is_empty() {
-                eprintln!(
+                errln!(
                     "warning: {}: incomplete ({} failed), its metrics are partial",
                     r.label(),
                     r.failed.join(", ")
@@ -124,7 +124,7 @@ pub(super) fn plot(ctx: &Context, args: &ExpPlotArgs) -> Result<ExitCode> {
         print_json(&serde_json::json!({ "files": files, "plot": data }))?;
     } else if !ctx.quiet {
         for f in &files {
-            eprintln!("wrote {}", f.display());
+            errln!("wrote {}", f.display());
         }
     }
     Ok(ExitCode::SUCCESS)
