@@ -112,3 +112,29 @@ fn logs_in_a_file_carry_no_colour() {
     );
     assert!(!err.contains('\u{1b}'), "{err:?}");
 }
+
+/// A damaged object: `verify` names the stage whose output it is, and `make` rebuilds it.
+#[test]
+fn verify_names_the_stage_of_a_damaged_object_and_make_rebuilds_it() {
+    let p = Project::engine();
+    assert!(p.run(bin(), &["make", "-q"]).status.success());
+    let store = p.open_store();
+    let (records, _) = store.records().expect("records");
+    let r = records
+        .iter()
+        .find(|r| r.shard.is_none() && r.parts.is_empty())
+        .expect("a plain stage output");
+    let path = store.object_path(&r.content_hash);
+    let mut bytes = std::fs::read(&path).expect("read");
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x55;
+    std::fs::write(&path, &bytes).expect("damage");
+    let o = p.run(bin(), &["verify"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let named = format!("output of {} (key {})", r.stage, r.key.short());
+    assert!(out.contains(&named), "{out}");
+    assert!(p.run(bin(), &["make", "-q"]).status.success());
+    let o = p.run(bin(), &["verify"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
+}

@@ -39,7 +39,7 @@ impl Stamp {
 
 #[derive(Debug, Default, Serialize, Deserialize)]
 pub(crate) struct StatCache {
-    entries: BTreeMap<Hash, Stamp>,
+    pub(crate) entries: BTreeMap<Hash, Stamp>,
     #[serde(skip)]
     dirty: bool,
 }

@@ -110,6 +110,9 @@ pub enum VerifyProblem {
         hash: Hash,
         actual: Hash,
         path: PathBuf,
+        /// The records whose output (or one of whose parts) it is, as `(stage, key)`: the
+        /// stages `osms make` rebuilds.
+        used_by: Vec<(String, Hash)>,
     },
     ForeignObject {
         path: PathBuf,
@@ -430,13 +433,7 @@ impl Store {
             Err(e) => return Err(Error::io(&path, e)),
         };
         let mut guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
-        let cache = guard.get_or_insert_with(|| {
-            self.read_state(STAT_CACHE)
-                .ok()
-                .flatten()
-                .map(|b| StatCache::from_bytes(&b))
-                .unwrap_or_default()
-        });
+        let cache = guard.get_or_insert_with(|| self.load_stat_cache());
         if cache.trusts(hash, &stamp) {
             return Ok(ObjectState::Present);
         }
@@ -446,6 +443,14 @@ impl Store {
             _ => cache.forget(hash),
         }
         Ok(state)
+    }
+
+    fn load_stat_cache(&self) -> StatCache {
+        self.read_state(STAT_CACHE)
+            .ok()
+            .flatten()
+            .map(|b| StatCache::from_bytes(&b))
+            .unwrap_or_default()
     }
 
     /// Forgets that an object was verified, so the next [`Store::object_state_cached`]
@@ -554,9 +559,12 @@ impl Store {
             report.bytes_checked += bytes.len() as u64;
             let actual = Hash::of(&bytes);
             if actual != hash {
-                report
-                    .problems
-                    .push(VerifyProblem::DamagedObject { hash, actual, path });
+                report.problems.push(VerifyProblem::DamagedObject {
+                    hash,
+                    actual,
+                    path,
+                    used_by: Vec::new(),
+                });
             } else if let Err(e) = read_header(&bytes) {
                 report.problems.push(VerifyProblem::ForeignObject {
                     path,
@@ -573,8 +581,17 @@ impl Store {
                 .problems
                 .push(VerifyProblem::BadRecord { path, reason });
         }
-        for r in records {
+        for r in &records {
             for hash in std::iter::once(&r.content_hash).chain(&r.parts) {
+                for p in &mut report.problems {
+                    if let VerifyProblem::DamagedObject {
+                        hash: h, used_by, ..
+                    } = p
+                        && h == hash
+                    {
+                        used_by.push((r.stage.clone(), r.key));
+                    }
+                }
                 if !intact.contains(hash) && !self.object_path(hash).exists() {
                     report.problems.push(VerifyProblem::MissingObject {
                         key: r.key,
@@ -583,6 +600,26 @@ impl Store {
                     });
                 }
             }
+        }
+        // What verify found damaged, `make` must not take on the stat cache's word: bit rot
+        // under the filesystem (a failing disk) leaves the file's metadata as it was.
+        let damaged: Vec<Hash> = report
+            .problems
+            .iter()
+            .filter_map(|p| match p {
+                VerifyProblem::DamagedObject { hash, .. } => Some(*hash),
+                _ => None,
+            })
+            .collect();
+        if !damaged.is_empty() {
+            {
+                let mut guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
+                let cache = guard.get_or_insert_with(|| self.load_stat_cache());
+                for h in &damaged {
+                    cache.forget(h);
+                }
+            }
+            self.save_stat_cache()?;
         }
         Ok(report)
     }
@@ -777,6 +814,51 @@ mod tests {
 
         fs::remove_file(&path).expect("remove");
         assert!(matches!(store.get(&hash), Err(Error::Missing { .. })));
+    }
+
+    /// Bit rot below the filesystem leaves an object's metadata as it was, so the stat cache
+    /// would go on vouching for it; once `verify` has seen the damage, it no longer does, and
+    /// verify names the stage whose output the object is.
+    #[test]
+    fn what_verify_finds_damaged_the_stat_cache_no_longer_vouches_for() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let root = dir.path().join("s");
+        let store = Store::open(&root).expect("open");
+        let bytes = encode(&Blob((0..100).collect())).expect("encode");
+        let hash = store.put(&bytes).expect("put");
+        let key = Hash::of(b"key");
+        store.put_record(&record(key, hash)).expect("record");
+        let path = store.object_path(&hash);
+        let mut damaged = bytes.clone();
+        damaged[20] ^= 1;
+        fs::write(&path, &damaged).expect("write");
+        // The rot as a disk would do it: the cache holds the file's stamp as it is now, as if
+        // it had been verified before the bytes changed under it.
+        let stamp = Stamp::of(&fs::metadata(&path).expect("stat"));
+        let mut cache = StatCache::default();
+        cache.entries.insert(hash, stamp);
+        store
+            .write_beside(&root.join("state").join(STAT_CACHE), &cache.to_bytes())
+            .expect("write the cache");
+        let vouched = Store::open(&root).expect("open");
+        assert_eq!(
+            vouched.object_state_cached(&hash).expect("state"),
+            ObjectState::Present,
+            "the scenario: the cache vouches for the rotten object"
+        );
+
+        let report = Store::open(&root).expect("open").verify().expect("verify");
+        match &report.problems[..] {
+            [VerifyProblem::DamagedObject { used_by, .. }] => {
+                assert_eq!(used_by, &[("s".to_string(), key)]);
+            }
+            other => panic!("{other:?}"),
+        }
+        let after = Store::open(&root).expect("open");
+        assert!(matches!(
+            after.object_state_cached(&hash).expect("state"),
+            ObjectState::Damaged { .. }
+        ));
     }
 
     #[test]

@@ -23,9 +23,23 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
     } else {
         for p in &report.problems {
             match p {
-                VerifyProblem::DamagedObject { hash, actual, path } => {
+                VerifyProblem::DamagedObject {
+                    hash,
+                    actual,
+                    path,
+                    used_by,
+                } => {
+                    let by = if used_by.is_empty() {
+                        "no stage's output (`osms gc` removes it)".to_string()
+                    } else {
+                        used_by
+                            .iter()
+                            .map(|(stage, key)| format!("{stage} (key {})", key.short()))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    };
                     outln!(
-                        "damaged  {} (its bytes hash to {}) at {}",
+                        "damaged  {} (its bytes hash to {}) at {}: output of {by}",
                         hash.short(),
                         actual.short(),
                         path.display()
