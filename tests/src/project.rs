@@ -137,3 +137,11 @@ pub fn outcomes(report: &MakeReport) -> BTreeMap<String, &'static str> {
         })
         .collect()
 }
+
+/// The error of the first failed instance of `report`.
+pub fn first_failure(report: &MakeReport) -> Option<String> {
+    report.instances.iter().find_map(|r| match &r.outcome {
+        Outcome::Failed { error } => Some(error.clone()),
+        _ => None,
+    })
+}

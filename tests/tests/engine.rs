@@ -2,7 +2,7 @@
 //! seed sweeps; status reasons; failures; and every kind of bad pipeline declaration.
 
 use osms_make::{ItemStage, MakeOptions, Reason, Registry, State};
-use osms_tests::project::{ENGINE_PIPELINE, Silent, hashes, outcomes};
+use osms_tests::project::{ENGINE_PIPELINE, Silent, first_failure, hashes, outcomes};
 use osms_tests::stages::{NumbersKind, NumbersParams};
 use osms_tests::{Project, registry};
 
@@ -487,10 +487,10 @@ impl osms_make::Observer for BlockRecord {
     fn finished(&self, _: &osms_make::InstanceReport) {}
 }
 
-/// A store error while recording one build ends the make with that error, but only after the
-/// build in flight beside it is recorded: its work is not thrown away.
+/// A store error while recording one build fails that stage (issue 75: never the whole make),
+/// and the build in flight beside it is recorded: its work is not thrown away.
 #[test]
-fn a_store_error_recording_one_build_still_records_the_build_beside_it() {
+fn a_store_error_recording_one_build_fails_that_stage_and_keeps_the_build_beside_it() {
     // `numbers` sleeps (about 1.2 s); `reference` (no inputs, quick) starts beside it and its
     // record cannot be written.
     let p = Project::new(&ENGINE_PIPELINE.replace(
@@ -526,8 +526,18 @@ fn a_store_error_recording_one_build_still_records_the_build_beside_it() {
         stages: 2,
         dry_run: false,
     };
-    let err = osms_make::make(&plan, &store, &opts, &observer).expect_err("a store error");
-    assert!(err.to_string().contains(&hex), "{err}");
+    let report = osms_make::make(&plan, &store, &opts, &observer).expect("a report");
+    let o = outcomes(&report);
+    assert_eq!(o["reference"], "failed");
+    assert_eq!(o["numbers@0"], "built");
+    let err = first_failure(&report).expect("the failure");
+    assert!(
+        err.contains(&format!(
+            "cannot record the output of this build (key {})",
+            reference.short()
+        )),
+        "{err}"
+    );
     assert!(
         store.record(&numbers).expect("read").is_some(),
         "the build in flight beside the failed record was thrown away"
@@ -553,10 +563,7 @@ fn a_failing_stage_skips_its_dependents(stages: usize) {
     }
     assert_eq!(o["drops@0"], "built");
     assert_eq!(o["reference"], "built");
-    let err = report.instances.iter().find_map(|r| match &r.outcome {
-        osms_make::Outcome::Failed { error } => Some(error.clone()),
-        _ => None,
-    });
+    let err = first_failure(&report);
     assert!(err.is_some_and(|e| e.contains("item 4 failed on purpose")));
 }
 
@@ -594,14 +601,7 @@ fn a_panicking_stage_fails_alone_and_leaves_no_record() {
         ] {
             assert_eq!(o[built], "built", "{params}: {built}");
         }
-        let err = report
-            .instances
-            .iter()
-            .find_map(|r| match &r.outcome {
-                osms_make::Outcome::Failed { error } => Some(error.clone()),
-                _ => None,
-            })
-            .expect("a failure");
+        let err = first_failure(&report).expect("a failure");
         assert!(
             err.starts_with("stage panicked: ") && err.contains(message),
             "{params}: {err}"
@@ -873,10 +873,7 @@ fn batched_items_are_the_items_one_by_one() {
     p.registry = registry_with(NumbersBatched { short: true });
     let report = p.make(Some("tiny"), &[0], 2);
     assert_eq!(outcomes(&report)["numbers@0"], "failed");
-    let err = report.instances.iter().find_map(|r| match &r.outcome {
-        osms_make::Outcome::Failed { error } => Some(error.clone()),
-        _ => None,
-    });
+    let err = first_failure(&report);
     assert!(
         err.as_deref().is_some_and(|e| {
             e.contains("items 0..4 came back as 3 items")

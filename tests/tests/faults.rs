@@ -138,3 +138,108 @@ fn verify_names_the_stage_of_a_damaged_object_and_make_rebuilds_it() {
     let o = p.run(bin(), &["verify"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stdout));
 }
+
+/// Whether `strace` can trace here (installed, and ptrace allowed); otherwise the check is
+/// logged as skipped (`scripts/test` lists it), never passed silently.
+fn strace_usable(check: &str) -> bool {
+    let ok = std::process::Command::new("strace")
+        .args(["-qq", "-o", "/dev/null", "true"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok {
+        osms_tests::golden::Mode::from_env().log_skip(&format!(
+            "tests/faults.rs {check}: strace cannot trace here"
+        ));
+    }
+    ok
+}
+
+/// A record that cannot be written (ENOSPC injected on its rename) fails its stage, not the
+/// make: the stages that need it are skipped, the others build, `--json` still reports, exit 1;
+/// the next make builds what is missing and nothing else.
+#[test]
+fn a_record_that_cannot_be_written_fails_its_stage_and_the_make_goes_on() {
+    if !strace_usable("a_record_that_cannot_be_written_fails_its_stage_and_the_make_goes_on") {
+        return;
+    }
+    let p = Project::engine();
+    assert!(p.run(bin(), &["make", "-q"]).status.success());
+    let status: serde_json::Value =
+        serde_json::from_slice(&p.run(bin(), &["status", "--json"]).stdout).expect("json");
+    let key = |instance: &str| -> String {
+        status
+            .as_array()
+            .expect("items")
+            .iter()
+            .find(|i| i["instance"] == instance)
+            .and_then(|i| i["key"].as_str())
+            .expect("a key")
+            .to_string()
+    };
+    // Two records garbled, so both stages build again, their objects already stored: the
+    // main thread's first rename is total@0's record, the one strace fails; sign_total@0's
+    // comes after it.
+    let (total, sign_total) = (key("total@0"), key("sign_total@0"));
+    for k in [&total, &sign_total] {
+        let path = p
+            .store
+            .join("index")
+            .join(&k[..2])
+            .join(format!("{k}.json"));
+        std::fs::write(&path, "garbled").expect("garble");
+    }
+    let mut strace = std::process::Command::new("strace");
+    strace
+        .args(["-f", "-qq", "-o", "/dev/null", "-e", "trace=rename"])
+        .args(["-e", "inject=rename:error=ENOSPC:when=1", BIN])
+        .arg("--pipeline")
+        .arg(&p.pipeline)
+        .arg("--store")
+        .arg(&p.store)
+        .args(["make", "--json", "--jobs", "1"])
+        .env("OSMS_NO_PROGRESS", "1")
+        .env("OSMS_STAGES", "1");
+    let o = strace.output().expect("run strace");
+    let err = stderr(&o);
+    no_panic(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let short = &total[..12];
+    assert!(
+        err.contains(&format!(
+            "FAILED total@0: cannot record the output of this build (key {short}): I/O error on"
+        )),
+        "{err}"
+    );
+    assert!(
+        err.contains("hint: no space left on the store's filesystem: free space and run `osms make` again; nothing built so far is lost"),
+        "{err}"
+    );
+    assert!(
+        err.contains("skipped report@0 (input total@0 failed)"),
+        "{err}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("--json report");
+    let outcome = |instance: &str| {
+        report["instances"]
+            .as_array()
+            .expect("instances")
+            .iter()
+            .find(|i| i["instance"] == instance)
+            .map(|i| i["outcome"].clone())
+            .expect("reported")
+    };
+    assert_eq!(outcome("total@0"), "failed", "{report}");
+    assert_eq!(outcome("sign_total@0"), "built", "{report}");
+
+    let o = p.run(bin(), &["make", "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let again: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let built: Vec<&str> = again["instances"]
+        .as_array()
+        .expect("instances")
+        .iter()
+        .filter(|i| i["outcome"] == "built")
+        .map(|i| i["instance"].as_str().expect("name"))
+        .collect();
+    assert_eq!(built, ["total@0"], "{again}");
+}

@@ -299,7 +299,23 @@ fn make_locked(
                 None => match find(plan, store, &heads, id, &name, &key, &input_hashes) {
                     Ok(found) => found,
                     Err(e) => {
-                        fatal.get_or_insert(e);
+                        unavailable.insert(id, name.clone());
+                        let r = InstanceReport {
+                            instance: name,
+                            key: Some(key),
+                            content_hash: None,
+                            outcome: Outcome::Failed {
+                                error: storage_failure(
+                                    &format!("cannot look up key {} in the store", key.short()),
+                                    &e,
+                                    None,
+                                ),
+                            },
+                            wall_time_secs: 0.0,
+                            cpu_secs: 0.0,
+                        };
+                        observer.finished(&r);
+                        report.instances.push(r);
                         continue;
                     }
                 },
@@ -309,12 +325,13 @@ fn make_locked(
                     let cut_off = inputs.iter().any(|i| built.contains(&i.id));
                     available.insert(id, rec.content_hash);
                     // A dry run holds no lock, so it writes nothing but the stat cache.
+                    // The artifact is whole; a head that cannot be written only leaves
+                    // `status` an older reason to give later.
                     if !opts.dry_run
                         && plan.record_heads
                         && let Err(e) = heads.update(&name, &rec)
                     {
-                        fatal.get_or_insert(e);
-                        continue;
+                        tracing::warn!("`{name}`: cannot update its head in the store: {e}");
                     }
                     let r = cached_report(name, key, &rec, cut_off);
                     observer.finished(&r);
@@ -547,9 +564,30 @@ fn settle(
                 done.cpu_secs,
             );
             rec.parts = parts;
-            store.put_record(&rec)?;
-            if plan.record_heads {
-                heads.update(&name, &rec)?;
+            let recorded = store.put_record(&rec).map_err(Error::from).and_then(|()| {
+                if plan.record_heads {
+                    heads.update(&name, &rec)?;
+                }
+                Ok(())
+            });
+            if let Err(e) = recorded {
+                return Ok(InstanceReport {
+                    instance: name,
+                    key: Some(key),
+                    content_hash: None,
+                    outcome: Outcome::Failed {
+                        error: storage_failure(
+                            &format!(
+                                "cannot record the output of this build (key {})",
+                                key.short()
+                            ),
+                            &e,
+                            None,
+                        ),
+                    },
+                    wall_time_secs,
+                    cpu_secs: done.cpu_secs,
+                });
             }
             InstanceReport {
                 instance: name,
@@ -654,7 +692,14 @@ impl Objects for StoreObjects<'_> {
         Ok(self.0.get(hash)?)
     }
     fn put(&self, bytes: &[u8]) -> Result<Hash, StageError> {
-        Ok(self.0.put(bytes)?)
+        self.0.put(bytes).map_err(|e| {
+            storage_failure(
+                "cannot store an item of this build",
+                &e,
+                Some(bytes.len() as u64),
+            )
+            .into()
+        })
     }
 }
 
@@ -780,7 +825,49 @@ pub(crate) fn build(
         )
         .into());
     }
-    Ok((store.put(&bytes)?, bytes.len() as u64, out.parts))
+    let stored = store.put(&bytes).map_err(|e| {
+        storage_failure(
+            &format!(
+                "cannot store the output of this build (key {})",
+                key.short()
+            ),
+            &e,
+            Some(bytes.len() as u64),
+        )
+    })?;
+    Ok((stored, bytes.len() as u64, out.parts))
+}
+
+/// A store operation that failed for a stage, as its failure message: what could not be done,
+/// the filesystem's error, and what to do about it.
+pub(crate) fn storage_failure(
+    what: &str,
+    e: &(dyn std::error::Error + 'static),
+    bytes: Option<u64>,
+) -> String {
+    let mut kind = None;
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        if let Some(io) = c.downcast_ref::<std::io::Error>() {
+            kind = Some(io.kind());
+            break;
+        }
+        cause = c.source();
+    }
+    let hint = match kind {
+        Some(std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded) => format!(
+            "no space left on the store's filesystem{}: free space and run `osms make` again; nothing built so far is lost",
+            bytes
+                .map(|b| format!(" (this output needs ≈ {})", osms_core::table::human_bytes(b)))
+                .unwrap_or_default()
+        ),
+        Some(std::io::ErrorKind::ReadOnlyFilesystem) => {
+            "the store's filesystem is read-only: remount it read-write, or build into another --store".to_string()
+        }
+        Some(_) => "the store's filesystem returned an error: check the disk (`dmesg`), then run `osms make` again; nothing built so far is lost, and `osms verify` checks what the store holds".to_string(),
+        None => "run `osms make` again; `osms verify` checks what the store holds".to_string(),
+    };
+    format!("{what}: {e}\nhint: {hint}")
 }
 
 /// The record of `key`; an unreadable one is a reason to rebuild, as a missing one is.
@@ -885,7 +972,14 @@ impl ShardIo for StoreShards<'_> {
             *last = now;
             used
         };
-        let content_hash = self.store.put(&bytes)?;
+        let failed = |e: &osms_store::Error| {
+            storage_failure(
+                &format!("cannot store shard {index} (items {start}..{end}) of this build"),
+                e,
+                Some(bytes.len() as u64),
+            )
+        };
+        let content_hash = self.store.put(&bytes).map_err(|e| failed(&e))?;
         let mut rec = record(
             self.plan,
             self.id,
@@ -905,7 +999,7 @@ impl ShardIo for StoreShards<'_> {
         // The items' objects stay with the shard through a gc, for the resume.
         rec.parts = items;
         rec.type_tag = "shard".to_string();
-        self.store.put_record(&rec)?;
+        self.store.put_record(&rec).map_err(|e| failed(&e))?;
         Ok(())
     }
 }
