@@ -243,3 +243,101 @@ fn a_record_that_cannot_be_written_fails_its_stage_and_the_make_goes_on() {
         .collect();
     assert_eq!(built, ["total@0"], "{again}");
 }
+
+/// A read-only bind mount of a store, unmounted on drop.
+struct ReadOnlyMount(std::path::PathBuf);
+
+impl ReadOnlyMount {
+    /// `None` (and the check logged as skipped) where this process cannot mount.
+    fn of(store: &Path, at: &Path, check: &str) -> Option<Self> {
+        std::fs::create_dir_all(at).expect("mount point");
+        let mount = |args: &[&str]| {
+            std::process::Command::new("mount")
+                .args(args)
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success())
+        };
+        let (s, a) = (store.to_str().expect("utf-8"), at.to_str().expect("utf-8"));
+        if !mount(&["--bind", s, a]) {
+            osms_tests::golden::Mode::from_env()
+                .log_skip(&format!("tests/faults.rs {check}: cannot bind-mount here"));
+            return None;
+        }
+        let guard = ReadOnlyMount(at.to_path_buf());
+        assert!(mount(&["-o", "remount,ro,bind", a]), "remount read-only");
+        Some(guard)
+    }
+}
+
+impl Drop for ReadOnlyMount {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+/// A store on a read-only mount (an archived or shared store) serves every read, verify and a
+/// fully cached make, even with a stale stat cache; building into it fails with a clear error.
+#[test]
+fn a_read_only_store_serves_reads_and_refuses_builds_clearly() {
+    let p = Project::engine();
+    assert!(p.run(bin(), &["make", "-q"]).status.success());
+    // Objects younger than the stat cache's racy window are never cached; once older, a status
+    // records them, and removing the cache makes the read-only run re-hash and try to save it.
+    std::thread::sleep(std::time::Duration::from_millis(2_500));
+    assert!(p.run(bin(), &["status", "-q"]).status.success());
+    let cache = p.store.join("state").join("statcache");
+    assert!(cache.is_file(), "the stat cache was saved");
+    std::fs::remove_file(&cache).expect("stale cache");
+    let at = p.dir.path().join("ro");
+    let check = "a_read_only_store_serves_reads_and_refuses_builds_clearly";
+    let Some(_mount) = ReadOnlyMount::of(&p.store, &at, check) else {
+        return;
+    };
+    let ro = at.to_str().expect("utf-8");
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(bin())
+            .arg("--pipeline")
+            .arg(&p.pipeline)
+            .args(["--store", ro])
+            .args(args)
+            .env("OSMS_NO_PROGRESS", "1")
+            .env_remove("OSMS_LOG")
+            .output()
+            .expect("run osms");
+        no_panic(&o);
+        o
+    };
+    for args in [
+        &["status"][..],
+        &["ls"],
+        &["show", "total"],
+        &["why", "total"],
+        &["make", "--dry-run"],
+        &["make"],
+        &["verify"],
+        &["gc", "--dry-run"],
+    ] {
+        let o = run(args);
+        assert!(o.status.success(), "osms {args:?}: {}", stderr(&o));
+    }
+    assert!(!cache.exists(), "nothing was written");
+    let o = run(&["make", "--set", "reference.params.n=6"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(&format!(
+            "FAILED reference: store {ro} is read-only: cannot build `reference` (params changed"
+        )),
+        "{}",
+        stderr(&o)
+    );
+    let o = run(&["gc"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(&format!(
+            "store {ro} is read-only: gc cannot remove anything"
+        )),
+        "{}",
+        stderr(&o)
+    );
+}

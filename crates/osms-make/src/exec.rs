@@ -329,6 +329,7 @@ fn make_locked(
                     // `status` an older reason to give later.
                     if !opts.dry_run
                         && plan.record_heads
+                        && !store.is_read_only()
                         && let Err(e) = heads.update(&name, &rec)
                     {
                         tracing::warn!("`{name}`: cannot update its head in the store: {e}");
@@ -348,6 +349,25 @@ fn make_locked(
                     key: Some(key),
                     content_hash: None,
                     outcome: Outcome::WouldBuild { reason },
+                    wall_time_secs: 0.0,
+                    cpu_secs: 0.0,
+                };
+                observer.finished(&r);
+                report.instances.push(r);
+                continue;
+            }
+            if store.is_read_only() {
+                unavailable.insert(id, name.clone());
+                let r = InstanceReport {
+                    instance: name.clone(),
+                    key: Some(key),
+                    content_hash: None,
+                    outcome: Outcome::Failed {
+                        error: format!(
+                            "store {} is read-only: cannot build `{name}` ({reason})\nhint: build into a store that can be written (--store DIR); a read-only store serves what it holds",
+                            store.root().display()
+                        ),
+                    },
                     wall_time_secs: 0.0,
                     cpu_secs: 0.0,
                 };
@@ -485,7 +505,7 @@ fn make_locked(
     report
         .instances
         .sort_by_key(|r| plan_order.get(&r.instance).copied().unwrap_or(usize::MAX));
-    store.save_stat_cache()?;
+    store.save_stat_cache();
     Ok(report)
 }
 

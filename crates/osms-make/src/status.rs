@@ -113,7 +113,7 @@ pub fn status(
         }
         out.push(st);
     }
-    store.save_stat_cache()?;
+    store.save_stat_cache();
     Ok(out)
 }
 

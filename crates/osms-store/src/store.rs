@@ -22,7 +22,7 @@ use std::collections::BTreeSet;
 use std::fs::{self, File, OpenOptions};
 use std::io::{ErrorKind, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use osms_core::read_header;
@@ -152,10 +152,13 @@ pub struct GcReport {
 /// An index file that did not parse, and why.
 pub type UnreadableRecord = (PathBuf, String);
 
-/// Held while a process may write to the store; released on drop.
+/// Held while a process may write to the store; released on drop. On a store that cannot be
+/// written (a read-only mount, no write permission) it holds nothing: such a process can only
+/// read, so it cannot race a writer; what it reads is what a writer had renamed into place,
+/// whole, since every object and record is written through a temporary file.
 #[derive(Debug)]
 pub struct StoreLock {
-    _file: File,
+    _file: Option<File>,
 }
 
 #[derive(Debug, Clone)]
@@ -164,6 +167,8 @@ pub struct Store {
     /// Where writes in flight go: `tmp/`, or a cluster task's own directory below it.
     tmp: PathBuf,
     stat_cache: Arc<Mutex<Option<StatCache>>>,
+    /// Set when taking the lock found the store cannot be written.
+    read_only: Arc<AtomicBool>,
 }
 
 const STAT_CACHE: &str = "statcache";
@@ -199,6 +204,7 @@ impl Store {
             tmp: root.join("tmp"),
             root,
             stat_cache: Arc::default(),
+            read_only: Arc::default(),
         };
         let marker = store.root.join(MARKER);
         if !marker.is_file() {
@@ -265,6 +271,7 @@ impl Store {
             root: self.root.clone(),
             tmp,
             stat_cache: Arc::default(),
+            read_only: Arc::default(),
         })
     }
 
@@ -313,12 +320,24 @@ impl Store {
     /// lock holder writes there, so anything in it is debris from a killed process).
     pub fn lock(&self, on_wait: impl FnOnce()) -> Result<StoreLock> {
         let path = self.root.join("lock");
-        let file = OpenOptions::new()
+        let file = match OpenOptions::new()
             .create(true)
             .truncate(false)
             .write(true)
             .open(&path)
-            .map_err(|e| Error::io(&path, e))?;
+        {
+            Ok(file) => file,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    ErrorKind::ReadOnlyFilesystem | ErrorKind::PermissionDenied
+                ) =>
+            {
+                self.read_only.store(true, Ordering::Relaxed);
+                return Ok(StoreLock { _file: None });
+            }
+            Err(e) => return Err(Error::io(&path, e)),
+        };
         match file.try_lock() {
             Ok(()) => {}
             Err(fs::TryLockError::WouldBlock) => {
@@ -328,7 +347,7 @@ impl Store {
             Err(fs::TryLockError::Error(e)) => return Err(Error::io(&path, e)),
         }
         self.clear_tmp()?;
-        Ok(StoreLock { _file: file })
+        Ok(StoreLock { _file: Some(file) })
     }
 
     /// Removes the files in `tmp/`; the task directories below it belong to cluster tasks that
@@ -462,16 +481,23 @@ impl Store {
         }
     }
 
-    /// Saves what [`Store::object_state_cached`] learnt. Losing an update (two processes saving
-    /// at once) only costs a re-hash later.
-    pub fn save_stat_cache(&self) -> Result<()> {
+    /// Whether taking the lock found that this store cannot be written (a read-only mount, no
+    /// write permission): it serves reads, and nothing can be built into it.
+    pub fn is_read_only(&self) -> bool {
+        self.read_only.load(Ordering::Relaxed)
+    }
+
+    /// Saves what [`Store::object_state_cached`] learnt, if it can: losing an update (two
+    /// processes saving at once, a full disk, a read-only store) only costs a re-hash later.
+    /// Returns whether it was saved (or had nothing to save).
+    pub fn save_stat_cache(&self) -> bool {
         let guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
         match guard.as_ref() {
             // `status` saves it without holding the lock.
-            Some(cache) if cache.is_dirty() => {
-                self.write_beside(&self.root.join("state").join(STAT_CACHE), &cache.to_bytes())
-            }
-            _ => Ok(()),
+            Some(cache) if cache.is_dirty() => self
+                .write_beside(&self.root.join("state").join(STAT_CACHE), &cache.to_bytes())
+                .is_ok(),
+            _ => true,
         }
     }
 
@@ -619,7 +645,8 @@ impl Store {
                     cache.forget(h);
                 }
             }
-            self.save_stat_cache()?;
+            // Best effort: where it cannot be saved (a read-only store), nothing is built either.
+            self.save_stat_cache();
         }
         Ok(report)
     }
@@ -1008,7 +1035,7 @@ mod tests {
             store.object_state_cached(&hash).expect("state"),
             ObjectState::Present
         );
-        store.save_stat_cache().expect("save");
+        assert!(store.save_stat_cache());
         let reopened = Store::open(dir.path()).expect("open");
         assert_eq!(
             reopened.object_state_cached(&hash).expect("state"),

@@ -316,7 +316,7 @@ pub fn make_slurm(
         }
         clean_task_dirs(store, &queue)?;
     }
-    store.save_stat_cache()?;
+    store.save_stat_cache();
     Ok(report)
 }
 

@@ -31,6 +31,12 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
     // gc waits (its `@9` heads, say) is then seen and kept.
     let _lock =
         store.lock(|| errln!("waiting for another osms process to release the store lock..."))?;
+    if store.is_read_only() && !args.dry_run {
+        anyhow::bail!(
+            "store {} is read-only: gc cannot remove anything from it\nhint: `osms gc --dry-run` lists what a gc would remove",
+            store.root().display()
+        );
+    }
     let seeds: Vec<u64> = match &args.seeds {
         Some(s) => s.clone(),
         None => {
