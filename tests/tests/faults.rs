@@ -341,3 +341,74 @@ fn a_read_only_store_serves_reads_and_refuses_builds_clearly() {
         stderr(&o)
     );
 }
+
+/// A tmpfs of `size`, unmounted on drop.
+struct Tmpfs(std::path::PathBuf);
+
+impl Tmpfs {
+    fn of(at: &Path, size: &str, check: &str) -> Option<Self> {
+        std::fs::create_dir_all(at).expect("mount point");
+        let mounted = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(at)
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        if !mounted {
+            osms_tests::golden::Mode::from_env().log_skip(&format!(
+                "tests/faults.rs {check}: cannot mount a tmpfs here"
+            ));
+            return None;
+        }
+        Some(Tmpfs(at.to_path_buf()))
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+/// On a full disk, `status` and a make with everything cached still work (the stat cache is
+/// saved only where it can be): nothing had to be written.
+#[test]
+fn a_full_disk_with_everything_cached_still_answers() {
+    let p = Project::engine();
+    let disk = p.dir.path().join("disk");
+    let check = "a_full_disk_with_everything_cached_still_answers";
+    let Some(_tmpfs) = Tmpfs::of(&disk, "8m", check) else {
+        return;
+    };
+    let store = disk.join("store");
+    let run = |args: &[&str]| {
+        let o = std::process::Command::new(bin())
+            .arg("--pipeline")
+            .arg(&p.pipeline)
+            .arg("--store")
+            .arg(&store)
+            .args(args)
+            .env("OSMS_NO_PROGRESS", "1")
+            .env_remove("OSMS_LOG")
+            .output()
+            .expect("run osms");
+        no_panic(&o);
+        o
+    };
+    assert!(run(&["make", "-q"]).status.success());
+    // Old enough for the stat cache, which is then gone: status re-hashes and tries to save.
+    std::thread::sleep(std::time::Duration::from_millis(2_500));
+    let _ = std::fs::remove_file(store.join("state").join("statcache"));
+    {
+        use std::io::Write;
+        let mut fill = std::fs::File::create(disk.join("fill")).expect("fill");
+        let block = vec![7u8; 1 << 16];
+        while fill.write_all(&block).is_ok() {}
+        while fill.write_all(&block[..1]).is_ok() {}
+    }
+    for args in [&["status"][..], &["make"], &["verify"], &["ls"]] {
+        let o = run(args);
+        assert!(o.status.success(), "osms {args:?}: {}", stderr(&o));
+    }
+    assert!(!store.join("state").join("statcache").exists());
+}
