@@ -22,6 +22,23 @@ fn no_panic(o: &Output) {
     assert_ne!(o.status.code(), Some(101), "{err}");
 }
 
+/// `osms ARGS` on the project's pipeline with the store at `store` (a mount of the project's
+/// own store, or one on a filesystem of the test's), checked for panics.
+fn run_on(p: &Project, store: &Path, args: &[&str]) -> Output {
+    let o = std::process::Command::new(bin())
+        .arg("--pipeline")
+        .arg(&p.pipeline)
+        .arg("--store")
+        .arg(store)
+        .args(args)
+        .env("OSMS_NO_PROGRESS", "1")
+        .env_remove("OSMS_LOG")
+        .output()
+        .expect("run osms");
+    no_panic(&o);
+    o
+}
+
 /// `osms … | head -1`: the reader is gone before osms writes, so its first write to stdout
 /// fails with EPIPE; osms ends quietly with 141, as a C tool killed by SIGPIPE.
 #[test]
@@ -295,19 +312,7 @@ fn a_read_only_store_serves_reads_and_refuses_builds_clearly() {
         return;
     };
     let ro = at.to_str().expect("utf-8");
-    let run = |args: &[&str]| {
-        let o = std::process::Command::new(bin())
-            .arg("--pipeline")
-            .arg(&p.pipeline)
-            .args(["--store", ro])
-            .args(args)
-            .env("OSMS_NO_PROGRESS", "1")
-            .env_remove("OSMS_LOG")
-            .output()
-            .expect("run osms");
-        no_panic(&o);
-        o
-    };
+    let run = |args: &[&str]| run_on(&p, &at, args);
     for args in [
         &["status"][..],
         &["ls"],
@@ -381,20 +386,7 @@ fn a_full_disk_with_everything_cached_still_answers() {
         return;
     };
     let store = disk.join("store");
-    let run = |args: &[&str]| {
-        let o = std::process::Command::new(bin())
-            .arg("--pipeline")
-            .arg(&p.pipeline)
-            .arg("--store")
-            .arg(&store)
-            .args(args)
-            .env("OSMS_NO_PROGRESS", "1")
-            .env_remove("OSMS_LOG")
-            .output()
-            .expect("run osms");
-        no_panic(&o);
-        o
-    };
+    let run = |args: &[&str]| run_on(&p, &store, args);
     assert!(run(&["make", "-q"]).status.success());
     // Old enough for the stat cache, which is then gone: status re-hashes and tries to save.
     std::thread::sleep(std::time::Duration::from_millis(2_500));
@@ -411,4 +403,39 @@ fn a_full_disk_with_everything_cached_still_answers() {
         assert!(o.status.success(), "osms {args:?}: {}", stderr(&o));
     }
     assert!(!store.join("state").join("statcache").exists());
+}
+
+/// A make that will not fit: before it starts, a warning says how much space the stages it
+/// builds took when last measured (here: the tiny profile's builds, scaled to `small`).
+#[test]
+fn a_make_that_will_not_fit_is_warned_about_before_it_starts() {
+    let p = Project::engine();
+    let disk = p.dir.path().join("disk");
+    let check = "a_make_that_will_not_fit_is_warned_about_before_it_starts";
+    let Some(_tmpfs) = Tmpfs::of(&disk, "8m", check) else {
+        return;
+    };
+    let store = disk.join("store");
+    let run = |args: &[&str]| run_on(&p, &store, args);
+    assert!(run(&["make", "-q", "-p", "tiny"]).status.success());
+    let dry = run(&["make", "--dry-run"]);
+    assert!(stderr(&dry).contains("to store)"), "{}", stderr(&dry));
+    {
+        use std::io::Write;
+        let mut fill = std::fs::File::create(disk.join("fill")).expect("fill");
+        let block = vec![7u8; 1 << 16];
+        while fill.write_all(&block).is_ok() {}
+        while fill.write_all(&block[..1]).is_ok() {}
+    }
+    let o = run(&["make"]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let warned = err
+        .find("warning: the store's filesystem has 0 B free, and this make will store ≈ ")
+        .unwrap_or_else(|| panic!("{err}"));
+    assert!(warned < err.find("building").unwrap_or(usize::MAX), "{err}");
+    assert!(
+        err.contains("hint: free space or use another --store first"),
+        "{err}"
+    );
 }

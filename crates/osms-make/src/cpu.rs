@@ -25,6 +25,19 @@ fn clock_secs(clock: libc::clockid_t) -> Option<f64> {
     (rc == 0).then_some(ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
 }
 
+/// Bytes an unprivileged process may still write on the filesystem holding `path`
+/// (`statvfs`'s available blocks), or `None` where the kernel does not say.
+#[allow(unsafe_code)]
+pub fn free_bytes(path: &std::path::Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).ok()?;
+    // SAFETY: an all-zero statvfs is a valid value of the plain C struct the call fills in.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `c` is a NUL-terminated path and `st` a valid, writable statvfs.
+    let rc = unsafe { libc::statvfs(c.as_ptr(), &mut st) };
+    (rc == 0).then(|| st.f_bavail as u64 * st.f_frsize as u64)
+}
+
 /// A rayon pool that can say how much CPU time its threads have used.
 pub(crate) struct MeteredPool {
     pub(crate) pool: rayon::ThreadPool,

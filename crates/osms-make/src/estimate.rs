@@ -58,6 +58,9 @@ pub struct Measured {
     pub threads_assumed: bool,
     /// The instance's last build, from inputs that have changed since (same params).
     pub stale: bool,
+    /// Bytes the build stored: its output's object and its parts' (items, shards), as they
+    /// are on disk now (parts shared with other builds counted here too).
+    pub bytes: u64,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -67,6 +70,8 @@ pub struct InstanceEstimate {
     pub work: f64,
     /// `None`: no profile has a build of this stage to scale.
     pub core_hours: Option<f64>,
+    /// Bytes it will store, scaled the same way (`None` with `core_hours`).
+    pub bytes: Option<f64>,
     pub measured: Option<Measured>,
 }
 
@@ -74,6 +79,8 @@ pub struct InstanceEstimate {
 pub struct Estimate {
     pub profile: String,
     pub total_core_hours: f64,
+    /// What the measured instances will store: an upper bound where objects are shared.
+    pub total_bytes: f64,
     pub instances: Vec<InstanceEstimate>,
     /// Instances no profile has measured (not in the total).
     pub unmeasured: Vec<String>,
@@ -121,6 +128,11 @@ pub fn estimate(
             if core_secs <= 0.0 || work <= 0.0 {
                 continue;
             }
+            let bytes = std::iter::once(&rec.content_hash)
+                .chain(&rec.parts)
+                .filter_map(|h| std::fs::metadata(store.object_path(h)).ok())
+                .map(|m| m.len())
+                .sum();
             measured
                 .entry(st.instance.clone())
                 .or_default()
@@ -132,12 +144,14 @@ pub fn estimate(
                     core_secs_per_unit: core_secs / work,
                     threads_assumed,
                     stale,
+                    bytes,
                 });
         }
     }
     let mut out = Estimate {
         profile: target.profile.clone(),
         total_core_hours: 0.0,
+        total_bytes: 0.0,
         instances: Vec::new(),
         unmeasured: Vec::new(),
     };
@@ -158,15 +172,18 @@ pub fn estimate(
         let core_hours = best
             .as_ref()
             .map(|m| m.core_secs * scale.work / m.work / 3600.0);
+        let bytes = best.as_ref().map(|m| m.bytes as f64 * scale.work / m.work);
         match core_hours {
             Some(h) => out.total_core_hours += h,
             None => out.unmeasured.push(name.clone()),
         }
+        out.total_bytes += bytes.unwrap_or(0.0);
         out.instances.push(InstanceEstimate {
             instance: name,
             kind: target.stages[id.stage].info.name.to_string(),
             work: scale.work,
             core_hours,
+            bytes,
             measured: best,
         });
     }

@@ -19,7 +19,7 @@ mod plan;
 pub mod slurm;
 mod status;
 
-pub use cpu::thread_secs as thread_cpu_secs;
+pub use cpu::{free_bytes, thread_secs as thread_cpu_secs};
 pub use error::{Error, Invalid, Location, Result};
 pub use estimate::{Estimate, InstanceEstimate, Measured, estimate, scales};
 pub use exec::{

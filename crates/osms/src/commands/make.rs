@@ -10,7 +10,7 @@ use osms_make::{MakeOptions, Outcome, Plan};
 
 use crate::EXIT_FAILURE;
 use crate::cli::MakeArgs;
-use crate::commands::{print_json, report};
+use crate::commands::{human_bytes, print_json, report};
 use crate::context::Context;
 use crate::progress::MakeObserver;
 
@@ -38,6 +38,9 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     let observer = MakeObserver::of(ctx);
     let config = executor_config(&plan)?;
     let executor = args.executor.or(config.kind).unwrap_or(ExecutorKind::Local);
+    if !args.dry_run && !ctx.quiet {
+        warn_if_short_of_space(ctx, &plan, &store, &opts, &seeds);
+    }
     // A dry run submits nothing: it is the same plan whatever the executor.
     let report = if executor == ExecutorKind::Slurm && !args.dry_run {
         let launch = launch(ctx, &store, &config)?;
@@ -211,11 +214,61 @@ fn print_estimate(e: &osms_make::Estimate) {
             _ => errln!("  {:<28} {:>10}  (no measured build)", i.instance, "?"),
         }
     }
-    errln!("  {:<28} {:>10.2}", "total", e.total_core_hours);
+    errln!(
+        "  {:<28} {:>10.2}  (≈ {} to store)",
+        "total",
+        e.total_core_hours,
+        human_bytes(e.total_bytes as u64)
+    );
     if !e.unmeasured.is_empty() {
         errln!(
             "  not in the total ({} unmeasured): build a smaller profile first, e.g. `osms make -p tiny`",
             e.unmeasured.len()
+        );
+    }
+}
+
+/// Before a make, warns when the store's filesystem has less free space than what the stages
+/// to build stored when last measured (scaled as `--dry-run`'s estimate): a stage that runs out
+/// fails, and nothing built before it is lost, but a long make is better not started. Best
+/// effort: whatever cannot be estimated is left out, and nothing here stops the make.
+fn warn_if_short_of_space(
+    ctx: &Context,
+    plan: &Plan,
+    store: &osms_store::Store,
+    opts: &MakeOptions,
+    seeds: &[u64],
+) {
+    let dry = MakeOptions {
+        dry_run: true,
+        ..opts.clone()
+    };
+    let Ok(report) = osms_make::make(plan, store, &dry, &osms_make::Silent) else {
+        return;
+    };
+    if !report
+        .instances
+        .iter()
+        .any(|i| matches!(i.outcome, Outcome::WouldBuild { .. }))
+    {
+        return;
+    }
+    let Ok(e) = estimate(ctx, plan, store, &report, seeds) else {
+        return;
+    };
+    let Some(free) = osms_make::free_bytes(store.root()) else {
+        return;
+    };
+    if (free as f64) < e.total_bytes {
+        errln!(
+            "warning: the store's filesystem has {} free, and this make will store ≈ {} (scaled from the last builds of the same stages{})\nhint: free space or use another --store first: a stage that runs out of space fails, and nothing built before it is lost",
+            human_bytes(free),
+            human_bytes(e.total_bytes as u64),
+            if e.unmeasured.is_empty() {
+                String::new()
+            } else {
+                format!("; {} never measured, not counted", e.unmeasured.len())
+            }
         );
     }
 }
