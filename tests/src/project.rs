@@ -93,11 +93,16 @@ impl Project {
 
     /// The command [`Project::run`] runs, for a test that sets its own stdio or environment.
     pub fn command(&self, bin: &Path, args: &[&str]) -> Command {
+        self.command_on(bin, &self.store, args)
+    }
+
+    /// [`Project::command`] with the store at `store` (a mount of the project's own, say).
+    pub fn command_on(&self, bin: &Path, store: &Path, args: &[&str]) -> Command {
         let mut c = Command::new(bin);
         c.arg("--pipeline")
             .arg(&self.pipeline)
             .arg("--store")
-            .arg(&self.store)
+            .arg(store)
             .args(args)
             .env("OSMS_NO_PROGRESS", "1")
             // One build at a time unless a test asks for more: the snapshots record the log

@@ -25,16 +25,7 @@ fn no_panic(o: &Output) {
 /// `osms ARGS` on the project's pipeline with the store at `store` (a mount of the project's
 /// own store, or one on a filesystem of the test's), checked for panics.
 fn run_on(p: &Project, store: &Path, args: &[&str]) -> Output {
-    let o = std::process::Command::new(bin())
-        .arg("--pipeline")
-        .arg(&p.pipeline)
-        .arg("--store")
-        .arg(store)
-        .args(args)
-        .env("OSMS_NO_PROGRESS", "1")
-        .env_remove("OSMS_LOG")
-        .output()
-        .expect("run osms");
+    let o = p.command_on(bin(), store, args).output().expect("run osms");
     no_panic(&o);
     o
 }
@@ -261,36 +252,61 @@ fn a_record_that_cannot_be_written_fails_its_stage_and_the_make_goes_on() {
     assert_eq!(built, ["total@0"], "{again}");
 }
 
-/// A read-only bind mount of a store, unmounted on drop.
-struct ReadOnlyMount(std::path::PathBuf);
+/// A filesystem mounted for a test, unmounted on drop. Its constructors return `None` (and log
+/// the check as skipped) where this process cannot mount.
+struct Mount(std::path::PathBuf);
 
-impl ReadOnlyMount {
-    /// `None` (and the check logged as skipped) where this process cannot mount.
-    fn of(store: &Path, at: &Path, check: &str) -> Option<Self> {
+/// Runs `mount ARGS`; whether it succeeded.
+fn mount(args: &[&str]) -> bool {
+    std::process::Command::new("mount")
+        .args(args)
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+impl Mount {
+    /// `store` bind-mounted read-only at `at`.
+    fn read_only(store: &Path, at: &Path, check: &str) -> Option<Self> {
         std::fs::create_dir_all(at).expect("mount point");
-        let mount = |args: &[&str]| {
-            std::process::Command::new("mount")
-                .args(args)
-                .stderr(Stdio::null())
-                .status()
-                .is_ok_and(|s| s.success())
-        };
         let (s, a) = (store.to_str().expect("utf-8"), at.to_str().expect("utf-8"));
         if !mount(&["--bind", s, a]) {
             osms_tests::golden::Mode::from_env()
                 .log_skip(&format!("tests/faults.rs {check}: cannot bind-mount here"));
             return None;
         }
-        let guard = ReadOnlyMount(at.to_path_buf());
+        let guard = Mount(at.to_path_buf());
         assert!(mount(&["-o", "remount,ro,bind", a]), "remount read-only");
         Some(guard)
     }
+
+    /// A tmpfs of `size` at `at`.
+    fn tmpfs(at: &Path, size: &str, check: &str) -> Option<Self> {
+        std::fs::create_dir_all(at).expect("mount point");
+        let a = at.to_str().expect("utf-8");
+        if !mount(&["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs", a]) {
+            osms_tests::golden::Mode::from_env().log_skip(&format!(
+                "tests/faults.rs {check}: cannot mount a tmpfs here"
+            ));
+            return None;
+        }
+        Some(Mount(at.to_path_buf()))
+    }
 }
 
-impl Drop for ReadOnlyMount {
+impl Drop for Mount {
     fn drop(&mut self) {
         let _ = std::process::Command::new("umount").arg(&self.0).status();
     }
+}
+
+/// Fills the filesystem holding `dir` to the last byte.
+fn fill_disk(dir: &Path) {
+    use std::io::Write;
+    let mut fill = std::fs::File::create(dir.join("fill")).expect("fill");
+    let block = vec![7u8; 1 << 16];
+    while fill.write_all(&block).is_ok() {}
+    while fill.write_all(&block[..1]).is_ok() {}
 }
 
 /// A store on a read-only mount (an archived or shared store) serves every read, verify and a
@@ -308,7 +324,7 @@ fn a_read_only_store_serves_reads_and_refuses_builds_clearly() {
     std::fs::remove_file(&cache).expect("stale cache");
     let at = p.dir.path().join("ro");
     let check = "a_read_only_store_serves_reads_and_refuses_builds_clearly";
-    let Some(_mount) = ReadOnlyMount::of(&p.store, &at, check) else {
+    let Some(_mount) = Mount::read_only(&p.store, &at, check) else {
         return;
     };
     let ro = at.to_str().expect("utf-8");
@@ -347,34 +363,6 @@ fn a_read_only_store_serves_reads_and_refuses_builds_clearly() {
     );
 }
 
-/// A tmpfs of `size`, unmounted on drop.
-struct Tmpfs(std::path::PathBuf);
-
-impl Tmpfs {
-    fn of(at: &Path, size: &str, check: &str) -> Option<Self> {
-        std::fs::create_dir_all(at).expect("mount point");
-        let mounted = std::process::Command::new("mount")
-            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
-            .arg(at)
-            .stderr(Stdio::null())
-            .status()
-            .is_ok_and(|s| s.success());
-        if !mounted {
-            osms_tests::golden::Mode::from_env().log_skip(&format!(
-                "tests/faults.rs {check}: cannot mount a tmpfs here"
-            ));
-            return None;
-        }
-        Some(Tmpfs(at.to_path_buf()))
-    }
-}
-
-impl Drop for Tmpfs {
-    fn drop(&mut self) {
-        let _ = std::process::Command::new("umount").arg(&self.0).status();
-    }
-}
-
 /// On a full disk, `status` and a make with everything cached still work (the stat cache is
 /// saved only where it can be): nothing had to be written.
 #[test]
@@ -382,7 +370,7 @@ fn a_full_disk_with_everything_cached_still_answers() {
     let p = Project::engine();
     let disk = p.dir.path().join("disk");
     let check = "a_full_disk_with_everything_cached_still_answers";
-    let Some(_tmpfs) = Tmpfs::of(&disk, "8m", check) else {
+    let Some(_tmpfs) = Mount::tmpfs(&disk, "8m", check) else {
         return;
     };
     let store = disk.join("store");
@@ -391,13 +379,7 @@ fn a_full_disk_with_everything_cached_still_answers() {
     // Old enough for the stat cache, which is then gone: status re-hashes and tries to save.
     std::thread::sleep(std::time::Duration::from_millis(2_500));
     let _ = std::fs::remove_file(store.join("state").join("statcache"));
-    {
-        use std::io::Write;
-        let mut fill = std::fs::File::create(disk.join("fill")).expect("fill");
-        let block = vec![7u8; 1 << 16];
-        while fill.write_all(&block).is_ok() {}
-        while fill.write_all(&block[..1]).is_ok() {}
-    }
+    fill_disk(&disk);
     for args in [&["status"][..], &["make"], &["verify"], &["ls"]] {
         let o = run(args);
         assert!(o.status.success(), "osms {args:?}: {}", stderr(&o));
@@ -412,7 +394,7 @@ fn a_make_that_will_not_fit_is_warned_about_before_it_starts() {
     let p = Project::engine();
     let disk = p.dir.path().join("disk");
     let check = "a_make_that_will_not_fit_is_warned_about_before_it_starts";
-    let Some(_tmpfs) = Tmpfs::of(&disk, "8m", check) else {
+    let Some(_tmpfs) = Mount::tmpfs(&disk, "8m", check) else {
         return;
     };
     let store = disk.join("store");
@@ -420,13 +402,7 @@ fn a_make_that_will_not_fit_is_warned_about_before_it_starts() {
     assert!(run(&["make", "-q", "-p", "tiny"]).status.success());
     let dry = run(&["make", "--dry-run"]);
     assert!(stderr(&dry).contains("to store)"), "{}", stderr(&dry));
-    {
-        use std::io::Write;
-        let mut fill = std::fs::File::create(disk.join("fill")).expect("fill");
-        let block = vec![7u8; 1 << 16];
-        while fill.write_all(&block).is_ok() {}
-        while fill.write_all(&block[..1]).is_ok() {}
-    }
+    fill_disk(&disk);
     let o = run(&["make"]);
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");

@@ -458,7 +458,8 @@ pub fn files(stem: &str, markdown: String, csv: String, json: Vec<u8>) -> Vec<(S
     ]
 }
 
-fn csv_field(s: &str) -> String {
+/// A CSV field, quoted where it holds a comma, a quote or a newline.
+pub fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {

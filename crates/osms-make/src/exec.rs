@@ -173,16 +173,13 @@ fn make_locked(
     let slots = opts.stages.clamp(1, jobs);
     let mut running: BTreeMap<InstanceId, Running> = BTreeMap::new();
     let (done_tx, done_rx) = mpsc::channel::<Finished>();
-    // A store error while recording a build: no new build starts, the builds in flight are
-    // still recorded (or their failures reported), then the make ends with it.
-    let mut fatal: Option<Error> = None;
     std::thread::scope(|scope| -> Result<()> {
         loop {
             // The first queued instance whose inputs are all settled (available, or given up on):
             // with one slot that is always the queue's head, the order a sequential make keeps.
             // An instance whose key is being built waits for that build and then finds it
             // cached: instances that share a key build once, at any number of stages.
-            let ready = if fatal.is_none() && running.len() < slots {
+            let ready = if running.len() < slots {
                 queue.iter().position(|&id| {
                     let inputs = plan.input_instances(id, &opts.seeds);
                     let settled = inputs.iter().all(|input| {
@@ -206,9 +203,6 @@ fn make_locked(
             };
             let Some(position) = ready else {
                 if running.is_empty() {
-                    if let Some(e) = fatal.take() {
-                        return Err(e);
-                    }
                     if let Some(&id) = queue.front() {
                         return Err(Error::usage(format!(
                             "internal: `{}` waits for inputs that nothing builds",
@@ -224,15 +218,7 @@ fn make_locked(
                     continue;
                 };
                 let id = done.id;
-                let name = run.name.clone();
-                let r = match settle(plan, store, &heads, run, done) {
-                    Ok(r) => r,
-                    Err(e) => {
-                        tracing::error!("recording `{name}` failed: {e}");
-                        fatal.get_or_insert(e);
-                        continue;
-                    }
-                };
+                let r = settle(plan, store, &heads, run, done);
                 match r.content_hash {
                     Some(content_hash) => {
                         available.insert(id, content_hash);
@@ -300,20 +286,12 @@ fn make_locked(
                     Ok(found) => found,
                     Err(e) => {
                         unavailable.insert(id, name.clone());
-                        let r = InstanceReport {
-                            instance: name,
-                            key: Some(key),
-                            content_hash: None,
-                            outcome: Outcome::Failed {
-                                error: storage_failure(
-                                    &format!("cannot look up key {} in the store", key.short()),
-                                    &e,
-                                    None,
-                                ),
-                            },
-                            wall_time_secs: 0.0,
-                            cpu_secs: 0.0,
-                        };
+                        let error = storage_failure(
+                            &format!("cannot look up key {} in the store", key.short()),
+                            &e,
+                            None,
+                        );
+                        let r = failed_report(name, key, error, 0.0, 0.0);
                         observer.finished(&r);
                         report.instances.push(r);
                         continue;
@@ -358,19 +336,11 @@ fn make_locked(
             }
             if store.is_read_only() {
                 unavailable.insert(id, name.clone());
-                let r = InstanceReport {
-                    instance: name.clone(),
-                    key: Some(key),
-                    content_hash: None,
-                    outcome: Outcome::Failed {
-                        error: format!(
-                            "store {} is read-only: cannot build `{name}` ({reason})\nhint: build into a store that can be written (--store DIR); a read-only store serves what it holds",
-                            store.root().display()
-                        ),
-                    },
-                    wall_time_secs: 0.0,
-                    cpu_secs: 0.0,
-                };
+                let error = format!(
+                    "store {} is read-only: cannot build `{name}` ({reason})\nhint: build into a store that can be written (--store DIR); a read-only store serves what it holds",
+                    store.root().display()
+                );
+                let r = failed_report(name, key, error, 0.0, 0.0);
                 observer.finished(&r);
                 report.instances.push(r);
                 continue;
@@ -556,14 +526,14 @@ struct Finished {
 }
 
 /// Stores a finished build's record (and head) if it succeeded, and reports it: a report with
-/// a content hash is a build, one without a failure.
+/// a content hash is a build, one without a failure (its own, or that of recording it).
 fn settle(
     plan: &Plan,
     store: &Store,
     heads: &Heads,
     run: Running,
     done: Finished,
-) -> Result<InstanceReport> {
+) -> InstanceReport {
     let Running {
         name,
         key,
@@ -571,7 +541,7 @@ fn settle(
         input_hashes,
     } = run;
     let wall_time_secs = done.wall_time_secs;
-    Ok(match done.result {
+    match done.result {
         Ok((content_hash, size_bytes, parts)) => {
             let mut rec = record(
                 plan,
@@ -591,23 +561,15 @@ fn settle(
                 Ok(())
             });
             if let Err(e) = recorded {
-                return Ok(InstanceReport {
-                    instance: name,
-                    key: Some(key),
-                    content_hash: None,
-                    outcome: Outcome::Failed {
-                        error: storage_failure(
-                            &format!(
-                                "cannot record the output of this build (key {})",
-                                key.short()
-                            ),
-                            &e,
-                            None,
-                        ),
-                    },
-                    wall_time_secs,
-                    cpu_secs: done.cpu_secs,
-                });
+                let error = storage_failure(
+                    &format!(
+                        "cannot record the output of this build (key {})",
+                        key.short()
+                    ),
+                    &e,
+                    None,
+                );
+                return failed_report(name, key, error, wall_time_secs, done.cpu_secs);
             }
             InstanceReport {
                 instance: name,
@@ -618,17 +580,26 @@ fn settle(
                 cpu_secs: done.cpu_secs,
             }
         }
-        Err(e) => InstanceReport {
-            instance: name,
-            key: Some(key),
-            content_hash: None,
-            outcome: Outcome::Failed {
-                error: e.to_string(),
-            },
-            wall_time_secs,
-            cpu_secs: done.cpu_secs,
-        },
-    })
+        Err(e) => failed_report(name, key, e.to_string(), wall_time_secs, done.cpu_secs),
+    }
+}
+
+/// The report of an instance that failed with `error`.
+fn failed_report(
+    instance: String,
+    key: Hash,
+    error: String,
+    wall_time_secs: f64,
+    cpu_secs: f64,
+) -> InstanceReport {
+    InstanceReport {
+        instance,
+        key: Some(key),
+        content_hash: None,
+        outcome: Outcome::Failed { error },
+        wall_time_secs,
+        cpu_secs,
+    }
 }
 
 /// An instance's artifact in the store, or why it must be built.

@@ -18,7 +18,7 @@
 //! one object write the same bytes, and a rename over it is harmless) and the records of its own
 //! keys, through a temp directory of its own that the lock holder's clean-up leaves alone.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fs::{self, File, OpenOptions};
 use std::io::{ErrorKind, Write};
 use std::path::{Path, PathBuf};
@@ -476,9 +476,9 @@ impl Store {
     /// re-hashes it (its bytes were found damaged although its metadata did not change).
     pub fn distrust(&self, hash: &Hash) {
         let mut guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(cache) = guard.as_mut() {
-            cache.forget(hash);
-        }
+        guard
+            .get_or_insert_with(|| self.load_stat_cache())
+            .forget(hash);
     }
 
     /// Whether taking the lock found that this store cannot be written (a read-only mount, no
@@ -600,6 +600,15 @@ impl Store {
                 intact.insert(hash);
             }
         }
+        // Damaged object -> the records it belongs to, filled in below.
+        let mut damaged: BTreeMap<Hash, Vec<(String, Hash)>> = report
+            .problems
+            .iter()
+            .filter_map(|p| match p {
+                VerifyProblem::DamagedObject { hash, .. } => Some((*hash, Vec::new())),
+                _ => None,
+            })
+            .collect();
         let (records, bad) = self.records()?;
         report.records_checked = (records.len() + bad.len()) as u64;
         for (path, reason) in bad {
@@ -609,14 +618,8 @@ impl Store {
         }
         for r in &records {
             for hash in std::iter::once(&r.content_hash).chain(&r.parts) {
-                for p in &mut report.problems {
-                    if let VerifyProblem::DamagedObject {
-                        hash: h, used_by, ..
-                    } = p
-                        && h == hash
-                    {
-                        used_by.push((r.stage.clone(), r.key));
-                    }
+                if let Some(users) = damaged.get_mut(hash) {
+                    users.push((r.stage.clone(), r.key));
                 }
                 if !intact.contains(hash) && !self.object_path(hash).exists() {
                     report.problems.push(VerifyProblem::MissingObject {
@@ -627,27 +630,16 @@ impl Store {
                 }
             }
         }
-        // What verify found damaged, `make` must not take on the stat cache's word: bit rot
-        // under the filesystem (a failing disk) leaves the file's metadata as it was.
-        let damaged: Vec<Hash> = report
-            .problems
-            .iter()
-            .filter_map(|p| match p {
-                VerifyProblem::DamagedObject { hash, .. } => Some(*hash),
-                _ => None,
-            })
-            .collect();
-        if !damaged.is_empty() {
-            {
-                let mut guard = self.stat_cache.lock().unwrap_or_else(|p| p.into_inner());
-                let cache = guard.get_or_insert_with(|| self.load_stat_cache());
-                for h in &damaged {
-                    cache.forget(h);
-                }
+        for p in &mut report.problems {
+            if let VerifyProblem::DamagedObject { hash, used_by, .. } = p {
+                *used_by = damaged.remove(hash).unwrap_or_default();
+                // `make` must not take the stat cache's word for it: bit rot under the
+                // filesystem (a failing disk) leaves the file's metadata as it was.
+                self.distrust(hash);
             }
-            // Best effort: where it cannot be saved (a read-only store), nothing is built either.
-            self.save_stat_cache();
         }
+        // Best effort: where it cannot be saved (a read-only store), nothing is built either.
+        self.save_stat_cache();
         Ok(report)
     }
 

@@ -239,6 +239,9 @@ fn warn_if_short_of_space(
     opts: &MakeOptions,
     seeds: &[u64],
 ) {
+    let Some(free) = osms_make::free_bytes(store.root()) else {
+        return;
+    };
     let dry = MakeOptions {
         dry_run: true,
         ..opts.clone()
@@ -254,9 +257,6 @@ fn warn_if_short_of_space(
         return;
     }
     let Ok(e) = estimate(ctx, plan, store, &report, seeds) else {
-        return;
-    };
-    let Some(free) = osms_make::free_bytes(store.root()) else {
         return;
     };
     if (free as f64) < e.total_bytes {

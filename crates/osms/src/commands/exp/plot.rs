@@ -8,12 +8,12 @@ use std::process::ExitCode;
 
 use anyhow::{Context as _, Result, bail};
 use osms_core::stats::{MeanSd, normal_quantile, wilson_bounds};
-use osms_core::table::Unit;
+use osms_core::table::{Unit, csv_field as field};
 use osms_make::experiment;
 use osms_report::plot::{Figure, Mark, Panel, Point, Series};
 use serde::Serialize;
 
-use super::{Row, point_row, point_spec, rows_of, unit_of, unknown_experiment};
+use super::{Row, point_spec, row_named, rows_of, unit_of, unknown_experiment};
 use crate::cli::ExpPlotArgs;
 use crate::commands::print_json;
 use crate::context::Context;
@@ -69,18 +69,13 @@ pub(super) fn plot(ctx: &Context, args: &ExpPlotArgs) -> Result<ExitCode> {
     let store = ctx.store()?;
     let mut rows = Vec::new();
     for spec in &args.names {
-        let (name, point) = point_spec(spec)?;
-        let exp =
-            experiment::load(&store, name)?.ok_or_else(|| unknown_experiment(&store, name))?;
-        match point {
-            None => rows.extend(rows_of(ctx, &store, &exp, &args.metrics)?),
-            Some(k) if k < exp.points.len() => {
-                rows.push(point_row(ctx, &store, &exp, k, &args.metrics)?)
+        match point_spec(spec)? {
+            (name, None) => {
+                let exp = experiment::load(&store, name)?
+                    .ok_or_else(|| unknown_experiment(&store, name))?;
+                rows.extend(rows_of(ctx, &store, &exp, &args.metrics)?);
             }
-            Some(k) => bail!(
-                "experiment `{name}` has points 0 to {}, not {k}",
-                exp.points.len().saturating_sub(1)
-            ),
+            (_, Some(_)) => rows.push(row_named(ctx, &store, spec, &args.metrics)?),
         }
     }
     if !ctx.quiet {
@@ -349,13 +344,6 @@ pub(super) fn figure(data: &PlotData, spec: &PlotSpec, names: &[String]) -> Figu
 
 /// `metric,series,x,y,low,high,values,rollouts`, a line per point.
 pub(super) fn csv(data: &PlotData) -> String {
-    let field = |s: &str| {
-        if s.contains([',', '"', '\n']) {
-            format!("\"{}\"", s.replace('"', "\"\""))
-        } else {
-            s.to_string()
-        }
-    };
     let opt = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     let mut out = String::from("metric,series,x,y,low,high,values,rollouts\n");
     for s in &data.series {
