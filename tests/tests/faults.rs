@@ -252,6 +252,74 @@ fn a_record_that_cannot_be_written_fails_its_stage_and_the_make_goes_on() {
     assert_eq!(built, ["total@0"], "{again}");
 }
 
+/// An I/O error on reading a cached object that a stage needs: that stage fails, naming the
+/// input, the stage whose output it is, the object, the filesystem's error and what to do;
+/// once the disk reads again, the next make builds it.
+#[test]
+fn an_unreadable_input_fails_the_stage_that_reads_it_and_says_whose_it_is() {
+    let check = "an_unreadable_input_fails_the_stage_that_reads_it_and_says_whose_it_is";
+    if !strace_usable(check) {
+        return;
+    }
+    let p = Project::engine();
+    assert!(p.run(bin(), &["make", "-q"]).status.success());
+    // Once the objects are older than the stat cache's racy window, a status vouches for them,
+    // so the make reads reference's object only as report@0's input (a lookup that re-hashes
+    // it fails reference itself, with the same hint).
+    std::thread::sleep(std::time::Duration::from_millis(2_500));
+    let status: serde_json::Value =
+        serde_json::from_slice(&p.run(bin(), &["status", "--json"]).stdout).expect("json");
+    let field = |instance: &str, name: &str| -> String {
+        status
+            .as_array()
+            .expect("items")
+            .iter()
+            .find(|i| i["instance"] == instance)
+            .and_then(|i| i[name].as_str())
+            .expect("a field")
+            .to_string()
+    };
+    // report@0 builds again (its record garbled) and reads reference's object, which fails.
+    let key = field("report@0", "key");
+    let record = p
+        .store
+        .join("index")
+        .join(&key[..2])
+        .join(format!("{key}.json"));
+    std::fs::write(&record, "garbled").expect("garble");
+    let hash = field("reference", "content_hash");
+    let object = p.store.join("objects").join(&hash[..2]).join(&hash);
+    let o = std::process::Command::new("strace")
+        .args(["-f", "-qq", "-o", "/dev/null", "-P"])
+        .arg(&object)
+        .args(["-e", "trace=openat", "-e", "inject=openat:error=EIO", BIN])
+        .arg("--pipeline")
+        .arg(&p.pipeline)
+        .arg("--store")
+        .arg(&p.store)
+        .args(["make", "--jobs", "1"])
+        .env("OSMS_NO_PROGRESS", "1")
+        .output()
+        .expect("run strace");
+    no_panic(&o);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!(
+            "FAILED report@0: cannot read input `reference` (the output of reference, object {}): I/O error on",
+            &hash[..12]
+        )),
+        "{err}"
+    );
+    assert!(err.contains("Input/output error"), "{err}");
+    assert!(
+        err.contains("hint: the store's filesystem returned an error: check the disk"),
+        "{err}"
+    );
+    let o = p.run(bin(), &["make", "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
 /// A filesystem mounted for a test, unmounted on drop. Its constructors return `None` (and log
 /// the check as skipped) where this process cannot mount.
 struct Mount(std::path::PathBuf);
@@ -414,4 +482,93 @@ fn a_make_that_will_not_fit_is_warned_about_before_it_starts() {
         err.contains("hint: free space or use another --store first"),
         "{err}"
     );
+}
+
+/// A teacher killed mid-training (as by a full disk's failed write, an OOM kill or a lost node)
+/// resumes from its last checkpoint, not from iteration 0, and ends with the bytes of a
+/// training that ran through; `osms ls` shows the checkpoint while the build is unfinished.
+#[test]
+fn a_killed_teacher_resumes_from_its_checkpoint_to_the_same_bytes() {
+    let shipped = Path::new(env!("CARGO_BIN_EXE_osms-shipped"));
+    let pipeline = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
+    let dir = tempfile::tempdir().expect("temp dir");
+    let osms = |store: &str, args: &[&str]| {
+        let mut c = std::process::Command::new(shipped);
+        c.arg("--pipeline")
+            .arg(&pipeline)
+            .arg("--store")
+            .arg(dir.path().join(store))
+            .args([
+                "make",
+                "teacher",
+                "-p",
+                "tiny",
+                "--set",
+                "teacher.ppo.iterations=40",
+                "--set",
+                "teacher.checkpoint_every=1",
+            ])
+            .args(args)
+            .env("OSMS_NO_PROGRESS", "1")
+            .env_remove("OSMS_LOG")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        c
+    };
+    let checkpoint = |store: &osms_store::Store| {
+        store
+            .records()
+            .expect("records")
+            .0
+            .into_iter()
+            .find(|r| r.type_tag == osms_make::CHECKPOINT_TAG && r.stage == "teacher")
+    };
+    let mut child = osms("killed", &[]).spawn().expect("start osms");
+    let killed_after = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            panic!("the training ended ({status}) before a checkpoint was seen");
+        }
+        if let Ok(store) = osms_store::Store::open_existing(dir.path().join("killed"))
+            && let Some(r) = checkpoint(&store)
+        {
+            child.kill().expect("kill -9");
+            child.wait().expect("reap");
+            break r.shard.expect("a checkpoint names its build").end;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!((1..40).contains(&killed_after), "{killed_after}");
+    let store = osms_store::Store::open_existing(dir.path().join("killed")).expect("store");
+    let r = checkpoint(&store).expect("the checkpoint outlives the kill");
+    let done = r.shard.expect("shard").end;
+    assert!(done >= killed_after, "{done} < {killed_after}");
+    let resumed = osms("killed", &["--json"]).output().expect("run osms");
+    no_panic(&resumed);
+    assert!(resumed.status.success(), "{}", stderr(&resumed));
+    assert!(
+        stderr(&resumed).contains(&format!(
+            "teacher: resuming from its checkpoint after {done} steps"
+        )),
+        "{}",
+        stderr(&resumed)
+    );
+    let through = osms("through", &["--json"]).output().expect("run osms");
+    assert!(through.status.success(), "{}", stderr(&through));
+    assert!(
+        !stderr(&through).contains("resuming"),
+        "{}",
+        stderr(&through)
+    );
+    let teacher_hash = |o: &Output| {
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        report["instances"]
+            .as_array()
+            .expect("instances")
+            .iter()
+            .find(|i| i["instance"] == "teacher")
+            .and_then(|i| i["content_hash"].as_str())
+            .expect("teacher's hash")
+            .to_string()
+    };
+    assert_eq!(teacher_hash(&resumed), teacher_hash(&through));
 }

@@ -1997,6 +1997,35 @@ fn paired_experiments_compare_rollout_by_rollout(made: &Made) {
     ]);
     assert_eq!(swept["difference"], d["difference"], "{swept}");
     assert_eq!(swept["b"]["evaluations"].as_array().map(Vec::len), Some(3));
+    // Two stages of one experiment (Ours-IL against Naive-IL, say): here the student against
+    // its teacher, on the same dev conditions and seeds.
+    let against = json(&[
+        "exp",
+        "diff",
+        "swept",
+        "swept",
+        "--paired",
+        "dev_teacher:dev_student",
+        "--json",
+    ]);
+    let teacher: Vec<f64> = against["a"]["success"]
+        .as_array()
+        .expect("teacher's evaluations")
+        .iter()
+        .map(|x| x.as_f64().expect("rate"))
+        .collect();
+    assert!(!teacher.is_empty(), "{against}");
+    let teacher_mean = teacher.iter().sum::<f64>() / teacher.len() as f64;
+    let x = against["difference"]["estimate"]
+        .as_f64()
+        .expect("estimate");
+    assert!((x - (mean - teacher_mean)).abs() < 1e-12, "{against}");
+    assert!(
+        osms(&["exp", "diff", "three", "three", "--paired", "dev_student:"])
+            .status
+            .code()
+            == Some(1)
+    );
     // `exp plot`: a line per target over the swept knob, each point the seeds' mean with the
     // pooled rollouts behind its interval; the figure and its numbers on disk.
     let plots = tempfile::tempdir().expect("plot dir");

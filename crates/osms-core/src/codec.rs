@@ -38,12 +38,21 @@ pub struct Header {
 }
 
 pub fn encode<A: Artifact>(artifact: &A) -> Result<Vec<u8>> {
-    let tag = A::TYPE_TAG;
+    encode_as(A::TYPE_TAG, A::SCHEMA_VERSION, artifact)
+}
+
+/// Encodes `value` under the header of type `tag`: for values that are written through a
+/// borrowed view of an [`Artifact`] (which [`decode`] then reads as the owned type).
+pub fn encode_as<T: Serialize + ?Sized>(
+    tag: &str,
+    schema_version: u16,
+    value: &T,
+) -> Result<Vec<u8>> {
     assert!(
         !tag.is_empty() && tag.len() <= MAX_TAG_LEN && tag.is_ascii(),
         "artifact type tag `{tag}` must be 1..={MAX_TAG_LEN} ASCII bytes"
     );
-    let raw = postcard::to_stdvec(artifact).map_err(|source| Error::Encode {
+    let raw = postcard::to_stdvec(value).map_err(|source| Error::Encode {
         tag: tag.to_string(),
         source,
     })?;
@@ -54,7 +63,7 @@ pub fn encode<A: Artifact>(artifact: &A) -> Result<Vec<u8>> {
     let mut out = Vec::with_capacity(MAGIC.len() + 5 + tag.len() + packed.len());
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    out.extend_from_slice(&A::SCHEMA_VERSION.to_le_bytes());
+    out.extend_from_slice(&schema_version.to_le_bytes());
     out.push(tag.len() as u8);
     out.extend_from_slice(tag.as_bytes());
     out.extend_from_slice(&packed);

@@ -14,6 +14,6 @@ pub mod rng;
 pub mod stats;
 pub mod table;
 
-pub use codec::{Artifact, FORMAT_VERSION, Header, MAGIC, decode, encode, read_header};
+pub use codec::{Artifact, FORMAT_VERSION, Header, MAGIC, decode, encode, encode_as, read_header};
 pub use error::{Error, Result};
 pub use params::NoParams;

@@ -15,8 +15,10 @@ use serde::Serialize;
 use crate::cpu::{self, MeteredPool};
 use crate::error::{Error, Result};
 use crate::heads::{Heads, Reason};
-use crate::kind::{InputBytes, Objects, Progress, RunEnv, ShardIo, StageError};
-use crate::plan::{InputInstance, InstanceId, Plan, shard_key, shard_ranges};
+use crate::kind::{
+    CHECKPOINT_TAG, CheckpointIo, InputBytes, Objects, Progress, RunEnv, ShardIo, StageError,
+};
+use crate::plan::{InputInstance, InstanceId, Plan, checkpoint_key, shard_key, shard_ranges};
 
 /// Options of one `make`.
 #[derive(Debug, Clone)]
@@ -712,7 +714,19 @@ pub(crate) fn load_inputs(
                     hash: *hash,
                 });
             }
-            Err(e) => return Ok(Err(e.into())),
+            Err(e) => {
+                return Ok(Err(storage_failure(
+                    &format!(
+                        "cannot read input `{}` (the output of {}, object {})",
+                        input.slot,
+                        plan.display(input.id),
+                        hash.short()
+                    ),
+                    &e,
+                    None,
+                )
+                .into()));
+            }
         };
         let producer = &plan.stages[input.id.stage];
         if let Err(e) = producer.kind.check_output(&bytes, &StoreObjects(store)) {
@@ -764,8 +778,11 @@ where
         stage_key: key,
         input_hashes,
         shards: stage.shards,
+        checkpoint_every: stage.checkpoint_every,
         pool,
         cpu_at_last_save: Mutex::new(pool.secs()),
+        started: (Instant::now(), pool.secs()),
+        resumed: Mutex::new((0.0, 0.0)),
     };
     let env = RunEnv {
         stage: &stream_name,
@@ -776,6 +793,7 @@ where
         objects: &StoreObjects(store),
         progress,
         shards: &shards,
+        checkpoints: &shards,
     };
     panic::catch_unwind(AssertUnwindSafe(|| {
         pool.pool.install(|| f(stage.kind.as_ref(), &env))
@@ -918,8 +936,9 @@ pub(crate) fn record(
     }
 }
 
-/// Shards of an itemised stage live in the store as artifacts of their own, so a killed make
-/// resumes from the last finished shard.
+/// Shards of an itemised stage, and the latest checkpoint of a long one, live in the store as
+/// records of their own (kept by `gc` until the stage's own record exists), so a killed make
+/// resumes from the last finished shard or checkpoint.
 struct StoreShards<'a> {
     plan: &'a Plan,
     store: &'a Store,
@@ -927,10 +946,16 @@ struct StoreShards<'a> {
     stage_key: Hash,
     input_hashes: &'a [(String, Hash)],
     shards: u32,
+    checkpoint_every: Option<u32>,
     pool: &'a MeteredPool,
     /// The pool's CPU seconds when the previous shard was saved (or the build began): shards
     /// are computed one after another, so the difference is the shard's cost.
     cpu_at_last_save: Mutex<f64>,
+    /// When the build began, and the pool's CPU seconds then.
+    started: (Instant, f64),
+    /// The wall and CPU seconds of the checkpoint this build resumed from: a checkpoint's
+    /// record counts everything spent to reach it, over every attempt.
+    resumed: Mutex<(f64, f64)>,
 }
 
 impl ShardIo for StoreShards<'_> {
@@ -991,6 +1016,61 @@ impl ShardIo for StoreShards<'_> {
         rec.parts = items;
         rec.type_tag = "shard".to_string();
         self.store.put_record(&rec).map_err(|e| failed(&e))?;
+        Ok(())
+    }
+}
+
+impl CheckpointIo for StoreShards<'_> {
+    fn every(&self) -> Option<u32> {
+        self.checkpoint_every
+    }
+
+    fn load(&self) -> Option<(u64, Vec<u8>)> {
+        let rec = self.store.record(&checkpoint_key(&self.stage_key)).ok()??;
+        let done = rec.shard?.end;
+        let bytes = self.store.get(&rec.content_hash).ok()?;
+        *self.resumed.lock().unwrap_or_else(PoisonError::into_inner) =
+            (rec.wall_time_secs, rec.cpu_secs.unwrap_or(0.0));
+        Some((done, bytes))
+    }
+
+    fn save(&self, done: u64, bytes: Vec<u8>) -> Result<(), StageError> {
+        let failed = |e: &osms_store::Error| {
+            storage_failure(
+                &format!("cannot store this build's checkpoint after {done} steps"),
+                e,
+                Some(bytes.len() as u64),
+            )
+        };
+        let (wall_before, cpu_before) =
+            *self.resumed.lock().unwrap_or_else(PoisonError::into_inner);
+        let content_hash = self.store.put(&bytes).map_err(|e| failed(&e))?;
+        let mut rec = record(
+            self.plan,
+            self.id,
+            checkpoint_key(&self.stage_key),
+            content_hash,
+            self.input_hashes,
+            bytes.len() as u64,
+            wall_before + self.started.0.elapsed().as_secs_f64(),
+            cpu_before + (self.pool.secs() - self.started.1),
+        );
+        rec.shard = Some(ShardOf {
+            stage_key: self.stage_key,
+            start: 0,
+            end: done,
+            index: None,
+        });
+        rec.type_tag = CHECKPOINT_TAG.to_string();
+        let previous = self.store.record(&rec.key).ok().flatten();
+        self.store.put_record(&rec).map_err(|e| failed(&e))?;
+        // A student's checkpoint is several times its output: the one it replaces goes now,
+        // not at the next gc. Best effort: what stays, gc removes.
+        if let Some(old) = previous.filter(|old| old.content_hash != content_hash)
+            && let Err(e) = self.store.remove_if_unreferenced(&old.content_hash)
+        {
+            tracing::warn!("cannot remove the previous checkpoint: {e}");
+        }
         Ok(())
     }
 }

@@ -28,13 +28,14 @@ pub use exec::{
 };
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
-    Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest, Member, NoProgress, Numerics,
-    Objects, ParamError, ParsedParams, Progress, Registry, RunOutput, Scale, ShardRun, Sharded,
-    Slot, Stage, StageError, Summarize, assemble, items_one_by_one,
+    CHECKPOINT_TAG, CheckpointIo, Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest,
+    Member, NoProgress, Numerics, Objects, ParamError, ParsedParams, Progress, Registry, RunOutput,
+    Scale, ShardRun, Sharded, Slot, Stage, StageError, Summarize, assemble, items_one_by_one,
 };
 pub use pipeline::{Pipeline, StageSpec};
 pub use plan::{
-    FoldRef, InputInstance, InstanceId, Plan, PlannedInput, PlannedStage, shard_key, shard_ranges,
+    FoldRef, InputInstance, InstanceId, Plan, PlannedInput, PlannedStage, checkpoint_key,
+    shard_key, shard_ranges,
 };
 pub use status::{InstanceStatus, Lineage, State, status, why};
 

@@ -14,10 +14,13 @@ pub enum Field {
     Param(Vec<String>),
     Shards,
     Seed,
+    /// How often a long stage checkpoints (not part of its key: the output is the same).
+    CheckpointEvery,
 }
 
-/// One `STAGE.PATH=VALUE`. `PATH` is `shards`, `seed`, or a dotted path into the stage's
-/// params (`params.` in front is allowed, and needed for a param named `shards` or `seed`).
+/// One `STAGE.PATH=VALUE`. `PATH` is `shards`, `seed`, `checkpoint_every`, or a dotted path
+/// into the stage's params (`params.` in front is allowed, and needed for a param of one of
+/// those names).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Override {
     pub stage: String,
@@ -36,6 +39,7 @@ impl Override {
             Field::Param(p) => p.join("."),
             Field::Shards => "shards".into(),
             Field::Seed => "seed".into(),
+            Field::CheckpointEvery => "checkpoint_every".into(),
         }
     }
 
@@ -116,6 +120,7 @@ impl FromStr for Override {
         let field = match parts.as_slice() {
             ["shards"] => Field::Shards,
             ["seed"] => Field::Seed,
+            ["checkpoint_every"] => Field::CheckpointEvery,
             ["params", rest @ ..] if !rest.is_empty() => {
                 Field::Param(rest.iter().map(|s| s.to_string()).collect())
             }
@@ -217,6 +222,7 @@ mod tests {
     #[test]
     fn paths_name_params_or_stage_fields() {
         assert_eq!(parse("s.shards=2").field, Field::Shards);
+        assert_eq!(parse("s.checkpoint_every=5").field, Field::CheckpointEvery);
         assert_eq!(parse("s.seed=3").field, Field::Seed);
         assert_eq!(
             parse("s.params.seed=3").field,

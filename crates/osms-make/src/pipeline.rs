@@ -14,6 +14,7 @@
 //! inputs = { world = "world" }# input slot -> upstream stage
 //! shards = 4                  # itemised kinds only: items split into 4 artifacts
 //! seed = 7                    # optional: a fixed seed, shared by every run of a seed sweep
+//! checkpoint_every = 50       # optional: long kinds checkpoint every 50 of their steps
 //! params = { n = 1000 }
 //!
 //! [stages.student]
@@ -97,6 +98,7 @@ struct RawStage {
     shards: Option<u32>,
     folds: Option<u32>,
     seed: Option<u64>,
+    checkpoint_every: Option<u32>,
 }
 
 /// `[profiles.NAME]`: the profile's run seeds (an array, so it cannot be mistaken for a stage's
@@ -149,6 +151,7 @@ struct RawOverlay {
     params: toml::Table,
     shards: Option<u32>,
     folds: Option<u32>,
+    checkpoint_every: Option<u32>,
 }
 
 /// One stage as declared, with the chosen profile applied.
@@ -162,6 +165,9 @@ pub struct StageSpec {
     /// `Some(n)`: the stage has n instances per run seed, `name#0` .. `name#n-1`.
     pub folds: Option<u32>,
     pub fixed_seed: Option<u64>,
+    /// How many of its steps (PPO iterations, training steps) a kind that checkpoints runs
+    /// between checkpoints; `None`: the kind's own default. Not part of the stage's key.
+    pub checkpoint_every: Option<u32>,
     /// The params as `[stages.NAME]` declares them, if the chosen profile overlays any: checked
     /// by themselves too, so a mistyped base value that a profile happens to overlay does not
     /// pass unseen.
@@ -293,6 +299,7 @@ impl Pipeline {
                     shards: s.shards.unwrap_or(1),
                     folds: s.folds,
                     fixed_seed: s.seed,
+                    checkpoint_every: s.checkpoint_every,
                     overrides: Vec::new(),
                 },
             );
@@ -321,6 +328,9 @@ impl Pipeline {
                 }
                 if let Some(folds) = overlay.folds {
                     stage.folds = Some(folds);
+                }
+                if let Some(every) = overlay.checkpoint_every {
+                    stage.checkpoint_every = Some(every);
                 }
             }
         }
@@ -362,6 +372,10 @@ impl Pipeline {
                     stage.shards = u32::try_from(o.integer("shards", 1)?).unwrap_or(u32::MAX)
                 }
                 Field::Seed => stage.fixed_seed = Some(o.integer("seed", 0)? as u64),
+                Field::CheckpointEvery => {
+                    stage.checkpoint_every =
+                        Some(u32::try_from(o.integer("checkpoint_every", 1)?).unwrap_or(u32::MAX))
+                }
             }
             stage.overrides.push(o.clone());
         }
@@ -478,6 +492,24 @@ shards = 3
         assert_eq!(small.profile, "small");
         assert_eq!(small.stages["gen"].params["n"].as_integer(), Some(100));
         assert_eq!(small.profiles, ["paper", "small", "tiny"]);
+    }
+
+    #[test]
+    fn checkpoint_intervals_come_from_the_stage_its_profile_and_set() {
+        let text = format!(
+            "{TEXT}[profiles.quick.gen]\ncheckpoint_every = 2\n[stages.long]\nkind = \"x\"\ncheckpoint_every = 50\n"
+        );
+        let p = parse(&text, Some("tiny")).expect("parse");
+        assert_eq!(p.stages["gen"].checkpoint_every, None);
+        assert_eq!(p.stages["long"].checkpoint_every, Some(50));
+        let mut quick = parse(&text, Some("quick")).expect("parse");
+        assert_eq!(quick.stages["gen"].checkpoint_every, Some(2));
+        let set: Override = "long.checkpoint_every=7".parse().expect("override");
+        quick.apply(&[set]).expect("apply");
+        assert_eq!(quick.stages["long"].checkpoint_every, Some(7));
+        let zero: Override = "long.checkpoint_every=0".parse().expect("override");
+        let err = quick.apply(&[zero]).expect_err("zero");
+        assert!(err.to_string().contains("at least 1"), "{err}");
     }
 
     #[test]

@@ -24,6 +24,8 @@ pub struct PlannedStage {
     /// `Some(n)`: instances `name#0` .. `name#n-1` per run seed.
     pub folds: Option<u32>,
     pub fixed_seed: Option<u64>,
+    /// `checkpoint_every` as declared (`None`: the kind's own interval).
+    pub checkpoint_every: Option<u32>,
     /// Whether the stage draws random numbers with these params.
     pub uses_rng: bool,
     /// The role its output plays (e.g. `d_m`), as its kind reads it from the params.
@@ -313,6 +315,15 @@ impl Plan {
                     Some("remove `shards` or set it to 1".into()),
                 ));
             }
+            if spec.checkpoint_every == Some(0) {
+                return Err(Error::invalid(
+                    pipeline
+                        .locate(&["stages", &name, "checkpoint_every"])
+                        .or_else(|| pipeline.locate(&["stages", &name])),
+                    format!("{stage_desc}: checkpoint_every must be at least 1"),
+                    Some("remove `checkpoint_every` to use the kind's own interval".into()),
+                ));
+            }
             let uses_rng = kind.draws_randomness(&params);
             if spec.fixed_seed.is_some() && !uses_rng {
                 return Err(Error::invalid(
@@ -356,6 +367,7 @@ impl Plan {
                 shards: spec.shards,
                 folds: spec.folds,
                 fixed_seed: spec.fixed_seed,
+                checkpoint_every: spec.checkpoint_every,
                 uses_rng,
                 role,
                 seed_dependent,
@@ -828,6 +840,14 @@ pub fn shard_key(stage_key: &Hash, start: u64, end: u64) -> Hash {
     h.update(stage_key.0.as_slice());
     h.update(&start.to_le_bytes());
     h.update(&end.to_le_bytes());
+    Hash::from(h.finalize())
+}
+
+/// The key of the checkpoint record of the build of `stage_key` (one per build: each
+/// checkpoint replaces the last).
+pub fn checkpoint_key(stage_key: &Hash) -> Hash {
+    let mut h = blake3::Hasher::new_derive_key("osms checkpoint key v1");
+    h.update(stage_key.0.as_slice());
     Hash::from(h.finalize())
 }
 

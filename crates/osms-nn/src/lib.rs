@@ -24,7 +24,7 @@ pub use layers::{
     Activation, Linear, LinearGrad, Mlp, MlpCache, MlpInference, flatten_grads, mse, weighted_mse,
 };
 pub use matrix::Matrix;
-pub use optim::{Adam, AdamConfig, Schedule, global_norm};
+pub use optim::{Adam, AdamConfig, AdamMoments, Schedule, global_norm};
 pub use unet::{Conv1d, ResBlock, ResCache, UNet1d, UNetCache};
 
 /// The numerics version of osms-nn: bump it whenever a kernel, layer, loss or optimiser change

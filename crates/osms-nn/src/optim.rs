@@ -72,6 +72,15 @@ pub struct Adam {
     v: Vec<Vec<f32>>,
 }
 
+/// What Adam learns as it runs (the step count and both moments), without its config and
+/// schedule, which come from params: what a training checkpoint keeps.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdamMoments {
+    pub step: u32,
+    m: Vec<Vec<f32>>,
+    v: Vec<Vec<f32>>,
+}
+
 /// The constants of one Adam update.
 #[derive(Clone, Copy)]
 struct AdamStep {
@@ -124,6 +133,23 @@ impl Adam {
             m: Vec::new(),
             v: Vec::new(),
         }
+    }
+
+    /// The step count and moments so far.
+    pub fn moments(&self) -> AdamMoments {
+        AdamMoments {
+            step: self.step,
+            m: self.m.clone(),
+            v: self.v.clone(),
+        }
+    }
+
+    /// Continues from `moments` (of an optimiser of the same parameters).
+    pub fn with_moments(mut self, moments: AdamMoments) -> Self {
+        self.step = moments.step;
+        self.m = moments.m;
+        self.v = moments.v;
+        self
     }
 
     /// One update of `params` with `grads` (same slices, same order every call). Returns the

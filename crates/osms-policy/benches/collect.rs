@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use osms_core::rng;
 use osms_policy::catch::{CatchTask, CatchTaskSpec, rollout};
-use osms_policy::{Agent, PpoConfig, Task, train};
+use osms_policy::{Agent, PpoConfig, PpoState, Task, train};
 use osms_sim::catcher::ScriptedCatcher;
 use osms_sim::{Action, Episode, N_ACTION, NoHooks, Policy, PolicyView, World, WorldSpec};
 
@@ -108,10 +108,11 @@ fn main() {
         };
         pool.install(|| {
             best(|| {
-                let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench"))
+                let agent = Agent::new(task.obs_len(), task.act_len(), &config, (0, "bench"))
                     .expect("a valid agent");
-                train(&task, &mut agent, &config, (0, "bench"), &|_| {}).expect("trains");
-                (agent.curve[0].steps as f64, ())
+                let mut state = PpoState::new(agent, &config);
+                train(&task, &mut state, &config, (0, "bench"), &|_| {}, None).expect("trains");
+                (state.agent.curve[0].steps as f64, ())
             })
         })
     };

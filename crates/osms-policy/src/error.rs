@@ -18,6 +18,10 @@ pub enum Error {
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// The checkpoint after `done` steps could not be stored (`why`, the store's own message,
+    /// says what happened and what to do).
+    #[error("{why}")]
+    Checkpoint { done: u32, why: String },
     #[error("event step {event_step} is past the rollout's {steps} steps")]
     EventPastEnd { event_step: usize, steps: usize },
     #[error("the rollout kept no privileged frames (record_privileged = false)")]

@@ -12,10 +12,13 @@
 use std::borrow::Cow;
 
 use osms_core::rng::{self, StreamRng};
-use osms_nn::{Activation, Adam, AdamConfig, DiagGaussian, Matrix, Mlp, Schedule, flatten_grads};
+use osms_nn::{
+    Activation, Adam, AdamConfig, AdamMoments, DiagGaussian, Matrix, Mlp, Schedule, flatten_grads,
+};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::checkpoint::Checkpoints;
 use crate::norm::RunningNorm;
 
 /// PPO's hyper-parameters; every default lives here.
@@ -334,27 +337,67 @@ pub fn gae(reward: &[f32], value: &[f32], gamma: f32, lambda: f32) -> (Vec<f32>,
     (adv, ret)
 }
 
-/// Trains `agent` on `task` for `config.iterations` more iterations. `streams` names the RNG
-/// streams (seed, stage name); `progress` sees each iteration's statistics.
-pub fn train<T: Task>(
-    task: &T,
-    agent: &mut Agent,
-    config: &PpoConfig,
-    streams: (u64, &str),
-    progress: &dyn Fn(&IterationStats),
-) -> crate::Result<()> {
-    let (seed, stage) = streams;
-    let (obs_len, act_len) = (task.obs_len(), task.act_len());
-    let mut actor_opt = Adam::new(
+/// Everything PPO carries from one iteration to the next, so a checkpoint of it resumes
+/// training exactly: the agent (weights, noise, observation statistics, curve) and both
+/// optimisers' moments. The episodes' and minibatches' streams are indexed by iteration and
+/// need no state.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PpoState {
+    pub agent: Agent,
+    actor_opt: AdamMoments,
+    critic_opt: AdamMoments,
+    /// The agent's iterations when this training began: the learning rate falls from there.
+    first: u32,
+}
+
+impl PpoState {
+    /// The state before `config.iterations` more iterations of training `agent`.
+    pub fn new(agent: Agent, config: &PpoConfig) -> Self {
+        let fresh = optimiser(config).moments();
+        PpoState {
+            first: agent.curve.len() as u32,
+            actor_opt: fresh.clone(),
+            critic_opt: fresh,
+            agent,
+        }
+    }
+
+    /// Iterations of this training done so far.
+    pub fn done(&self) -> u32 {
+        self.agent.curve.len() as u32 - self.first
+    }
+}
+
+/// The actor's and the critic's optimiser (their rate is set per iteration).
+fn optimiser(config: &PpoConfig) -> Adam {
+    Adam::new(
         AdamConfig {
             max_grad_norm: Some(config.max_grad_norm),
             ..AdamConfig::default()
         },
         Schedule::Constant { lr: config.lr },
-    );
-    let mut critic_opt = actor_opt.clone();
-    let first = agent.curve.len() as u32;
-    for iteration in first..first + config.iterations {
+    )
+}
+
+/// Trains `state`'s agent on `task` until it has done `config.iterations` iterations of this
+/// training (from where a checkpoint left it, or from the start). `streams` names the RNG
+/// streams (seed, stage name); `progress` sees each iteration's statistics.
+pub fn train<T: Task>(
+    task: &T,
+    state: &mut PpoState,
+    config: &PpoConfig,
+    streams: (u64, &str),
+    progress: &dyn Fn(&IterationStats),
+    checkpoints: Option<Checkpoints<'_, PpoState>>,
+) -> crate::Result<()> {
+    let (seed, stage) = streams;
+    let (obs_len, act_len) = (task.obs_len(), task.act_len());
+    let first = state.first;
+    let resumed_at = state.agent.curve.len() as u32;
+    let mut actor_opt = optimiser(config).with_moments(state.actor_opt.clone());
+    let mut critic_opt = optimiser(config).with_moments(state.critic_opt.clone());
+    for iteration in resumed_at..first + config.iterations {
+        let agent = &mut state.agent;
         let done = f64::from(iteration - first) / f64::from(config.iterations.max(2) - 1);
         let lr = (f64::from(config.lr) * (1.0 - done * (1.0 - f64::from(config.lr_final_fraction))))
             as f32;
@@ -475,7 +518,19 @@ pub fn train<T: Task>(
         for t in &trajectories {
             agent.obs_norm.update(&t.raw);
         }
+        if let Some(c) = &checkpoints
+            && c.due(iteration + 1 - first, config.iterations)
+        {
+            state.actor_opt = actor_opt.moments();
+            state.critic_opt = critic_opt.moments();
+            (c.save)(state).map_err(|why| crate::Error::Checkpoint {
+                done: iteration + 1 - first,
+                why,
+            })?;
+        }
     }
+    state.actor_opt = actor_opt.moments();
+    state.critic_opt = critic_opt.moments();
     Ok(())
 }
 

@@ -24,7 +24,7 @@
 //! demonstrations, frozen into the artifact.
 
 use osms_core::rng::{self, StreamRng};
-use osms_nn::{Adam, AdamConfig, Matrix, Schedule};
+use osms_nn::{Adam, AdamConfig, AdamMoments, Matrix, Schedule};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::{ArmAction, ControlSpec, targets};
 use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT, PRIVILEGED_PALM};
@@ -36,6 +36,7 @@ use osms_sim::{
 use serde::{Deserialize, Serialize};
 
 use crate::catch::{CatchTaskSpec, TeacherQuery};
+use crate::checkpoint::Checkpoints;
 use crate::flow::{FlowBatch, FlowNet, FlowSampler, UNetSpec, normals};
 use crate::ppo::Agent;
 use crate::{Error, Result, RunningNorm};
@@ -471,6 +472,21 @@ impl Sampler {
 /// At most this many held-out samples score each validation point.
 const VALIDATION_ROWS: usize = 1024;
 
+/// Everything a student's training carries from one gradient step to the next, for
+/// checkpoints (the normalisers and the validation set are recomputed from the demonstrations;
+/// minibatch `s` draws from its own stream).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StudentState {
+    /// Gradient steps done.
+    pub step: u32,
+    net: FlowNet,
+    ema: Option<FlowNet>,
+    opt: AdamMoments,
+    curve: Vec<StudentCurvePoint>,
+    loss_sum: f64,
+    loss_count: u32,
+}
+
 impl Student {
     /// Trains a student on `demos` with the conditional flow-matching loss. Weights draw from
     /// (seed, `stage`); minibatch `s` (rows drawn with replacement, noise and times) from
@@ -478,8 +494,22 @@ impl Student {
     pub fn train(
         demos: &[Demo],
         params: &StudentParams,
+        streams: (u64, &str),
+        progress: &dyn Fn(),
+    ) -> Result<Student> {
+        Self::train_resumable(demos, params, streams, progress, None, None)
+    }
+
+    /// [`Student::train`] from the state a checkpoint of the same training holds (if given),
+    /// handing its state to `checkpoints` as it goes; the result's bytes are the same whether
+    /// or not it was resumed.
+    pub fn train_resumable(
+        demos: &[Demo],
+        params: &StudentParams,
         (seed, stage): (u64, &str),
         progress: &dyn Fn(),
+        resume: Option<StudentState>,
+        checkpoints: Option<Checkpoints<'_, StudentState>>,
     ) -> Result<Student> {
         let p = params;
         p.check()?;
@@ -573,7 +603,22 @@ impl Student {
         );
         let (mut loss_sum, mut loss_count) = (0.0f64, 0u32);
         let mut ema = (p.ema_decay > 0.0).then(|| student.net.clone());
-        for s in 0..p.steps {
+        let mut first = 0;
+        if let Some(r) = resume {
+            if r.step > p.steps || r.ema.is_some() != ema.is_some() {
+                return Err(Error::Params(format!(
+                    "a checkpoint after {} steps does not fit a training of {} steps",
+                    r.step, p.steps
+                )));
+            }
+            first = r.step;
+            student.net = r.net;
+            student.curve = r.curve;
+            ema = r.ema;
+            opt = opt.with_moments(r.opt);
+            (loss_sum, loss_count) = (r.loss_sum, r.loss_count);
+        }
+        for s in first..p.steps {
             let lr = student.learning_rate(s);
             opt.schedule = Schedule::Constant { lr };
             let mut r = rng::stream(seed, stage, "batch", u64::from(s));
@@ -636,6 +681,20 @@ impl Student {
                 (loss_sum, loss_count) = (0.0, 0);
             }
             progress();
+            if let Some(c) = &checkpoints
+                && c.due(s + 1, p.steps)
+            {
+                let state = StudentState {
+                    step: s + 1,
+                    net: student.net.clone(),
+                    ema: ema.clone(),
+                    opt: opt.moments(),
+                    curve: student.curve.clone(),
+                    loss_sum,
+                    loss_count,
+                };
+                (c.save)(&state).map_err(|why| Error::Checkpoint { done: s + 1, why })?;
+            }
         }
         if let Some(ema) = ema {
             student.net = ema;
@@ -1781,6 +1840,37 @@ mod tests {
         );
         let again = Student::train(&demos, &params, (1, "s"), &|| {}).expect("train");
         assert_eq!(again, student, "same seed, same student");
+        // Resumed from a checkpoint taken mid-block of the curve's running loss (every 250
+        // steps: after 250 and 500), the same student.
+        let saved = std::sync::Mutex::new(Vec::new());
+        let save = |s: &StudentState| {
+            saved.lock().expect("lock").push(s.clone());
+            Ok(())
+        };
+        let every = Checkpoints {
+            every: 250,
+            save: &save,
+        };
+        let through =
+            Student::train_resumable(&demos, &params, (1, "s"), &|| {}, None, Some(every))
+                .expect("train");
+        assert_eq!(through, student, "checkpointing changes nothing");
+        let saved = saved.into_inner().expect("lock");
+        assert_eq!(saved.iter().map(|s| s.step).collect::<Vec<_>>(), [250, 500]);
+        for checkpoint in saved {
+            let step = checkpoint.step;
+            let encoded = postcard::to_stdvec(&checkpoint).expect("encodes");
+            let resumed = Student::train_resumable(
+                &demos,
+                &params,
+                (1, "s"),
+                &|| {},
+                Some(postcard::from_bytes(&encoded).expect("decodes")),
+                None,
+            )
+            .expect("resumes");
+            assert_eq!(resumed, student, "resumed after {step} steps");
+        }
         let other = Student::train(&demos, &params, (2, "s"), &|| {}).expect("train");
         assert_ne!(other.net, student.net);
     }

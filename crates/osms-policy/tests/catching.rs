@@ -3,7 +3,7 @@
 
 use osms_core::rng;
 use osms_policy::catch::{ActorInputs, CatchTask, CatchTaskSpec, OBS_LEN};
-use osms_policy::{Agent, PpoConfig, Task, TaskEpisode, train};
+use osms_policy::{Agent, Checkpoints, PpoConfig, PpoState, Task, TaskEpisode, train};
 use osms_sim::catcher::ScriptedCatcher;
 use osms_sim::{Episode, NoHooks, World, WorldSpec};
 
@@ -181,13 +181,114 @@ fn short_training(threads: usize) -> blake3::Hash {
         .build()
         .expect("pool");
     let agent = pool.install(|| {
-        let mut agent = Agent::new(task.obs_len(), task.act_len(), &config, (1, "test"))
+        let agent = Agent::new(task.obs_len(), task.act_len(), &config, (1, "test"))
             .expect("a valid agent");
-        train(&task, &mut agent, &config, (1, "test"), &|_| {}).expect("trains");
-        agent
+        let mut state = PpoState::new(agent, &config);
+        train(&task, &mut state, &config, (1, "test"), &|_| {}, None).expect("trains");
+        state.agent
     });
     assert_eq!(agent.curve.len(), 2);
     blake3::hash(&postcard::to_stdvec(&agent).expect("encodes"))
+}
+
+/// A training killed after any checkpoint and resumed from it ends with the same bytes as one
+/// that ran through; a checkpoint that cannot be stored stops training with its iteration.
+#[test]
+fn a_teacher_training_resumed_from_any_checkpoint_equals_an_uninterrupted_one() {
+    let world = world();
+    let task = CatchTask::new(&world, CatchTaskSpec::default(), 2, "test", "train").expect("task");
+    let config = PpoConfig {
+        iterations: 4,
+        episodes_per_iteration: 3,
+        hidden: vec![16],
+        epochs: 2,
+        minibatch: 64,
+        ..PpoConfig::default()
+    };
+    let fresh = || {
+        let agent = Agent::new(task.obs_len(), task.act_len(), &config, (2, "test"))
+            .expect("a valid agent");
+        PpoState::new(agent, &config)
+    };
+    let saved = std::sync::Mutex::new(Vec::new());
+    let save = |s: &PpoState| {
+        saved.lock().expect("lock").push(s.clone());
+        Ok(())
+    };
+    let mut through = fresh();
+    let every = Checkpoints {
+        every: 1,
+        save: &save,
+    };
+    train(
+        &task,
+        &mut through,
+        &config,
+        (2, "test"),
+        &|_| {},
+        Some(every),
+    )
+    .expect("trains");
+    let saved = saved.into_inner().expect("lock");
+    // After iterations 1, 2 and 3; none after the last.
+    assert_eq!(
+        saved.iter().map(PpoState::done).collect::<Vec<_>>(),
+        [1, 2, 3]
+    );
+    let bytes = |s: &PpoState| postcard::to_stdvec(&s.agent).expect("encodes");
+    for checkpoint in &saved {
+        let mut resumed: PpoState =
+            postcard::from_bytes(&postcard::to_stdvec(checkpoint).expect("encodes"))
+                .expect("decodes");
+        let ran = std::sync::Mutex::new(Vec::new());
+        train(
+            &task,
+            &mut resumed,
+            &config,
+            (2, "test"),
+            &|s| ran.lock().expect("lock").push(s.iteration),
+            None,
+        )
+        .expect("resumes");
+        assert_eq!(
+            ran.into_inner().expect("lock"),
+            (checkpoint.done()..4).collect::<Vec<_>>(),
+            "only the iterations after the checkpoint run"
+        );
+        assert_eq!(
+            bytes(&resumed),
+            bytes(&through),
+            "resumed after {}",
+            checkpoint.done()
+        );
+    }
+    // Without the optimisers' moments the resumed agent differs: the checkpoint must hold them.
+    let mut forgetful = PpoState::new(saved[0].agent.clone(), &config);
+    let shorter = PpoConfig {
+        iterations: 3,
+        ..config.clone()
+    };
+    train(&task, &mut forgetful, &shorter, (2, "test"), &|_| {}, None).expect("trains");
+    assert_ne!(bytes(&forgetful), bytes(&through));
+
+    let refuse = |_: &PpoState| Err("no space left".to_string());
+    let every_two = Checkpoints {
+        every: 2,
+        save: &refuse,
+    };
+    let err = train(
+        &task,
+        &mut fresh(),
+        &config,
+        (2, "test"),
+        &|_| {},
+        Some(every_two),
+    )
+    .expect_err("a failed checkpoint stops training");
+    assert!(
+        matches!(err, osms_policy::Error::Checkpoint { done: 2, .. }),
+        "{err}"
+    );
 }
 
 #[test]
@@ -335,9 +436,17 @@ fn a_condition_that_cannot_be_drawn_is_an_error_not_condition_zero() {
         hidden: vec![8],
         ..PpoConfig::default()
     };
-    let mut agent =
+    let agent =
         Agent::new(task.obs_len(), task.act_len(), &config, (0, "t")).expect("a valid agent");
-    let err = train(&task, &mut agent, &config, (0, "t"), &|_| {}).expect_err("training stops");
+    let err = train(
+        &task,
+        &mut PpoState::new(agent, &config),
+        &config,
+        (0, "t"),
+        &|_| {},
+        None,
+    )
+    .expect_err("training stops");
     assert!(
         matches!(
             err,

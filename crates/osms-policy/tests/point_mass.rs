@@ -3,7 +3,7 @@
 //! rerun and on 1 or 2 threads.
 
 use osms_core::rng;
-use osms_policy::{Agent, EpisodeStats, PpoConfig, Task, TaskEpisode, train};
+use osms_policy::{Agent, EpisodeStats, PpoConfig, PpoState, Task, TaskEpisode, train};
 
 /// x' = x + 0.1·a, a ∈ [-1, 1] (a velocity command), reward −|x'| for 20 steps.
 struct PointMass;
@@ -90,12 +90,23 @@ fn trained(threads: usize) -> Agent {
         .num_threads(threads)
         .build()
         .expect("pool");
-    pool.install(|| {
-        let config = config();
-        let mut agent = Agent::new(1, 1, &config, (3, "test")).expect("a valid agent");
-        train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {}).expect("trains");
-        agent
-    })
+    pool.install(|| train_with(&config()))
+}
+
+/// A fresh agent trained with `config`.
+fn train_with(config: &PpoConfig) -> Agent {
+    let agent = Agent::new(1, 1, config, (3, "test")).expect("a valid agent");
+    let mut state = PpoState::new(agent, config);
+    train(
+        &PointMass,
+        &mut state,
+        config,
+        (3, "point-mass"),
+        &|_| {},
+        None,
+    )
+    .expect("trains");
+    state.agent
 }
 
 fn hash(agent: &Agent) -> blake3::Hash {
@@ -137,9 +148,7 @@ fn a_rate_falling_to_zero_leaves_the_last_iteration_without_an_update() {
             lr_final_fraction,
             ..config()
         };
-        let mut agent = Agent::new(1, 1, &config, (3, "test")).expect("a valid agent");
-        train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {}).expect("trains");
-        agent
+        train_with(&config)
     };
     let weights = |a: &Agent| (a.actor.clone(), a.critic.clone(), a.log_std.clone());
     let once = run(1, 1.0);
@@ -164,9 +173,7 @@ fn a_kl_target_stops_an_iterations_epochs_early() {
             target_kl,
             ..config()
         };
-        let mut agent = Agent::new(1, 1, &config, (3, "test")).expect("a valid agent");
-        train(&PointMass, &mut agent, &config, (3, "point-mass"), &|_| {}).expect("trains");
-        agent
+        train_with(&config)
     };
     let all = hash(&run(4, None));
     let one = hash(&run(1, None));

@@ -411,6 +411,27 @@ impl Store {
         Ok(hash)
     }
 
+    /// Removes the object `hash` if no record names it (as output or part): for objects a
+    /// build superseded itself, such as its previous checkpoint, which would otherwise wait
+    /// for `osms gc`. Whether it was removed. Callers hold the lock.
+    pub fn remove_if_unreferenced(&self, hash: &Hash) -> Result<bool> {
+        let (records, unreadable) = self.records()?;
+        // An unreadable record might name it: keep it for gc, which sees the same.
+        if !unreadable.is_empty()
+            || records
+                .iter()
+                .any(|r| r.content_hash == *hash || r.parts.contains(hash))
+        {
+            return Ok(false);
+        }
+        let path = self.object_path(hash);
+        match fs::remove_file(&path) {
+            Ok(()) => Ok(true),
+            Err(e) if e.kind() == ErrorKind::NotFound => Ok(false),
+            Err(e) => Err(Error::io(&path, e)),
+        }
+    }
+
     /// Reads an object and checks its bytes against its name.
     pub fn get(&self, hash: &Hash) -> Result<Vec<u8>> {
         let path = self.object_path(hash);
@@ -833,6 +854,28 @@ mod tests {
 
         fs::remove_file(&path).expect("remove");
         assert!(matches!(store.get(&hash), Err(Error::Missing { .. })));
+    }
+
+    #[test]
+    fn only_objects_no_record_names_are_removed() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path().join("s")).expect("open");
+        let put = |n: u32| {
+            store
+                .put(&encode(&Blob(vec![n])).expect("encode"))
+                .expect("put")
+        };
+        let (output, part, loose) = (put(1), put(2), put(3));
+        let mut r = record(Hash::of(b"key"), output);
+        r.parts = vec![part];
+        store.put_record(&r).expect("record");
+        for named in [output, part] {
+            assert!(!store.remove_if_unreferenced(&named).expect("scan"));
+            assert!(store.get(&named).is_ok());
+        }
+        assert!(store.remove_if_unreferenced(&loose).expect("scan"));
+        assert!(matches!(store.get(&loose), Err(Error::Missing { .. })));
+        assert!(!store.remove_if_unreferenced(&loose).expect("already gone"));
     }
 
     /// Bit rot below the filesystem leaves an object's metadata as it was, so the stat cache

@@ -174,7 +174,8 @@ pub struct ExpDiffArgs {
     pub metrics: Vec<String>,
     /// Compare STAGE's success rollout by rollout instead: every evaluation of STAGE in A (each
     /// point and run seed one seed) against every one in B, paired by condition (all on the
-    /// same condition set), with a 95 % interval that holds the seeds' spread
+    /// same condition set), with a 95 % interval that holds the seeds' spread. `A_STAGE:B_STAGE`
+    /// compares two stages (A and B may then name the same experiment)
     #[arg(long, value_name = "STAGE")]
     pub paired: Option<String>,
     #[arg(long)]

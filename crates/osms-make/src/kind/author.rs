@@ -137,6 +137,17 @@ pub trait Objects: Sync {
     fn put(&self, bytes: &[u8]) -> Result<Hash, StageError>;
 }
 
+/// Where a long build keeps its latest checkpoint, under its stage key, so a build killed or
+/// failed midway (a full disk, an I/O error) resumes from it instead of starting over.
+pub trait CheckpointIo: Sync {
+    /// The pipeline's `checkpoint_every` for the stage, if it declares one.
+    fn every(&self) -> Option<u32>;
+    /// The latest checkpoint of this stage key, as (steps done, bytes), if one is stored intact.
+    fn load(&self) -> Option<(u64, Vec<u8>)>;
+    /// Stores `bytes` as the checkpoint after `done` steps, replacing the previous one.
+    fn save(&self, done: u64, bytes: Vec<u8>) -> Result<(), StageError>;
+}
+
 /// A stage that computes one artifact.
 pub trait Stage: Send + Sync + 'static {
     const KIND: &'static str;
@@ -357,6 +368,24 @@ pub struct Ctx<'a, P> {
     pub(super) inputs: &'a BTreeMap<String, Vec<InputBytes>>,
     pub(super) objects: &'a dyn Objects,
     pub(super) progress: &'a dyn Progress,
+    pub(super) checkpoints: &'a dyn CheckpointIo,
+}
+
+/// The type tag of checkpoints and of their records (whose `shard` names the build, and whose
+/// `end` is the steps done).
+pub const CHECKPOINT_TAG: &str = "checkpoint";
+
+/// What a checkpoint holds: the state's type, so a checkpoint of another shape (a code change
+/// within one code version) is not misread, and the state.
+#[derive(Serialize, serde::Deserialize)]
+struct CheckpointBytes<T> {
+    type_name: String,
+    state: T,
+}
+
+impl<T: Serialize + DeserializeOwned> Artifact for CheckpointBytes<T> {
+    const TYPE_TAG: &'static str = CHECKPOINT_TAG;
+    const SCHEMA_VERSION: u16 = 1;
 }
 
 impl<P> Ctx<'_, P> {
@@ -513,5 +542,52 @@ impl<P> Ctx<'_, P> {
 
     pub fn progress(&self) -> &dyn Progress {
         self.progress
+    }
+
+    /// Every how many of its steps a kind that checkpoints writes one: the stage's
+    /// `checkpoint_every` in pipeline.toml, else the kind's `default`.
+    pub fn checkpoint_every(&self, default: u32) -> u32 {
+        self.checkpoints.every().unwrap_or(default).max(1)
+    }
+
+    /// The state the last checkpoint of this very build (same stage key) holds, with the steps
+    /// it had done: a build that was killed or failed resumes from it. One that does not decode
+    /// as `T` is ignored with a warning, and the build starts over.
+    pub fn resume<T: Serialize + DeserializeOwned>(&self) -> Option<(u64, T)> {
+        let (done, bytes) = self.checkpoints.load()?;
+        match decode::<CheckpointBytes<T>>(&bytes) {
+            Ok(c) if c.type_name == std::any::type_name::<T>() => {
+                tracing::info!(
+                    "{}: resuming from its checkpoint after {done} steps",
+                    self.stage
+                );
+                Some((done, c.state))
+            }
+            _ => {
+                tracing::warn!(
+                    "{}: ignoring a checkpoint that does not decode as {}; starting over",
+                    self.stage,
+                    std::any::type_name::<T>()
+                );
+                None
+            }
+        }
+    }
+
+    /// Stores `state` as this build's checkpoint after `done` steps. It must hold everything
+    /// the rest of the build reads, so that a resumed build's bytes equal an uninterrupted
+    /// one's.
+    pub fn checkpoint<T: Serialize>(&self, done: u64, state: &T) -> Result<(), StageError> {
+        let view = CheckpointBytes {
+            type_name: std::any::type_name::<T>().to_string(),
+            state,
+        };
+        let bytes = osms_core::encode_as(
+            CHECKPOINT_TAG,
+            <CheckpointBytes<()> as Artifact>::SCHEMA_VERSION,
+            &view,
+        )
+        .map_err(|e| format!("cannot encode the checkpoint after {done} steps: {e}"))?;
+        self.checkpoints.save(done, bytes)
     }
 }

@@ -15,8 +15,8 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use super::author::{
-    Ctx, Fold, InputBytes, ItemStage, Numerics, Objects, Progress, Scale, Sharded as _, Slot,
-    Stage, StageError, Summarize,
+    CheckpointIo, Ctx, Fold, InputBytes, ItemStage, Numerics, Objects, Progress, Scale,
+    Sharded as _, Slot, Stage, StageError, Summarize,
 };
 use super::stored::{Manifest, ShardItems, StoredItem, assemble, load_item};
 
@@ -58,6 +58,7 @@ pub struct RunEnv<'a> {
     pub objects: &'a dyn Objects,
     pub progress: &'a dyn Progress,
     pub shards: &'a dyn ShardIo,
+    pub checkpoints: &'a dyn CheckpointIo,
 }
 
 /// What a kind's run produced: the encoded artifact and, for itemised kinds, the shard objects
@@ -230,6 +231,7 @@ impl RunEnv<'_> {
             inputs: self.inputs,
             objects: self.objects,
             progress: self.progress,
+            checkpoints: self.checkpoints,
         }
     }
 }

@@ -16,8 +16,8 @@ mod registry;
 mod stored;
 
 pub use author::{
-    Ctx, Fold, InputBytes, ItemStage, Member, NoProgress, Numerics, Objects, Progress, Scale,
-    Sharded, Slot, Stage, StageError, Summarize, items_one_by_one,
+    CHECKPOINT_TAG, CheckpointIo, Ctx, Fold, InputBytes, ItemStage, Member, NoProgress, Numerics,
+    Objects, Progress, Scale, Sharded, Slot, Stage, StageError, Summarize, items_one_by_one,
 };
 pub use erased::{
     DynKind, KindInfo, ParamError, ParsedParams, RunEnv, RunOutput, ShardIo, ShardRun,

@@ -4,8 +4,13 @@ use osms_make::{Ctx, Numerics, Scale, Slot, Stage, StageError};
 
 use super::in_fold;
 use crate::artifacts::{Dataset, DemoSet, StudentArtifact};
-use crate::student::{ARM_STEP_RAD, Demo, Student, StudentParams};
+use crate::checkpoint::Checkpoints;
+use crate::student::{ARM_STEP_RAD, Demo, Student, StudentParams, StudentState};
 use osms_sim::control::ArmAction;
+
+/// Gradient steps between checkpoints (pipeline.toml's `checkpoint_every` overrides it): the
+/// default 15,000 steps take ≈ 20 minutes on 2 cores, so a kill loses ≈ 1.5 minutes.
+const CHECKPOINT_EVERY: u32 = 1_000;
 
 /// A flow-matching student trained on a dataset's rollouts. With `folds = F` instance `#f`
 /// trains on the items outside fold f (item index mod F ≠ f): the cross-fitted IL students π̄.
@@ -108,13 +113,28 @@ impl Stage for StudentStage {
         }
         let progress = ctx.progress();
         progress.set_total(u64::from(ctx.params.steps));
-        let student = Student::train(
+        let resume = ctx.resume::<StudentState>().map(|(_, state)| state);
+        progress.inc(resume.as_ref().map_or(0, |r| u64::from(r.step)));
+        let save = |s: &StudentState| {
+            ctx.checkpoint(u64::from(s.step), s)
+                .map_err(|e| e.to_string())
+        };
+        let checkpoints = Checkpoints {
+            every: ctx.checkpoint_every(CHECKPOINT_EVERY),
+            save: &save,
+        };
+        let student = Student::train_resumable(
             &demos,
             ctx.params,
             (ctx.seed().unwrap_or_default(), ctx.stage()),
             &|| progress.inc(1),
+            resume,
+            Some(checkpoints),
         )
-        .map_err(|e| format!("input `data`: {e}"))?;
+        .map_err(|e| match e {
+            crate::Error::Checkpoint { .. } => e.to_string(),
+            e => format!("input `data`: {e}"),
+        })?;
         Ok(StudentArtifact {
             student,
             fold: fold.map(|f| (f.index, f.count)),

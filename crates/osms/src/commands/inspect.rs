@@ -119,6 +119,10 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
     let bytes = store.get(&first.content_hash)?;
     let header = read_header(&bytes)?;
     let (summary, text) = match (ctx.registry.get(&first.kind), first.shard) {
+        (_, Some(shard)) if first.type_tag == osms_make::CHECKPOINT_TAG => (
+            serde_json::json!({ "checkpoint of": shard.stage_key, "steps done": shard.end }),
+            None,
+        ),
         (_, Some(shard)) => (
             serde_json::json!({ "shard of": shard.stage_key, "items": format!("{}..{}", shard.start, shard.end) }),
             None,
@@ -219,6 +223,9 @@ pub fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
         );
         for r in &records {
             let stage = match r.shard {
+                Some(s) if r.type_tag == osms_make::CHECKPOINT_TAG => {
+                    format!("{}[after {}]", r.stage, s.end)
+                }
                 Some(s) => format!("{}[{}..{}]", r.stage, s.start, s.end),
                 None => r.stage.clone(),
             };

@@ -759,9 +759,17 @@ struct PairedSide {
     success: Vec<f64>,
 }
 
-fn paired(store: &Store, args: &ExpDiffArgs, stage: &str) -> Result<ExitCode> {
+fn paired(store: &Store, args: &ExpDiffArgs, stages: &str) -> Result<ExitCode> {
+    // `A_STAGE:B_STAGE` pairs two stages (Ours-IL against Naive-IL, within one experiment too).
+    let (stage_a, stage_b) = match stages.split_once(':') {
+        Some((a, b)) if !a.is_empty() && !b.is_empty() => (a, b),
+        Some(_) => bail!(
+            "--paired `{stages}`: write STAGE, or A_STAGE:B_STAGE to compare two stages (e.g. `dev_student_naive:dev_student`)"
+        ),
+        None => (stages, stages),
+    };
     let mut conditions: Option<osms_store::Hash> = None;
-    let mut side = |spec: &str| -> Result<(PairedSide, Vec<Vec<f64>>)> {
+    let mut side = |spec: &str, stage: &str| -> Result<(PairedSide, Vec<Vec<f64>>)> {
         let (name, only) = point_spec(spec)?;
         let exp = experiment::load(store, name)?.ok_or_else(|| unknown_experiment(store, name))?;
         if let Some(k) = only.filter(|&k| k >= exp.points.len()) {
@@ -832,13 +840,13 @@ fn paired(store: &Store, args: &ExpDiffArgs, stage: &str) -> Result<ExitCode> {
             values,
         ))
     };
-    let (a, va) = side(&args.a)?;
-    let (b, vb) = side(&args.b)?;
+    let (a, va) = side(&args.a, stage_a)?;
+    let (b, vb) = side(&args.b, stage_b)?;
     let Some(difference) = osms_core::stats::paired_difference(&vb, &va) else {
-        bail!("`{stage}`: fewer than two conditions to pair");
+        bail!("`{stages}`: fewer than two conditions to pair");
     };
     let d = Paired {
-        stage: stage.to_string(),
+        stage: stages.to_string(),
         a,
         b,
         conditions: conditions.map(|c| c.to_string()).unwrap_or_default(),
@@ -855,7 +863,7 @@ fn paired(store: &Store, args: &ExpDiffArgs, stage: &str) -> Result<ExitCode> {
             .join(", ")
     };
     let mean = |v: &[f64]| 100.0 * v.iter().sum::<f64>() / v.len().max(1) as f64;
-    for s in [&d.a, &d.b] {
+    for (s, stage) in [(&d.a, stage_a), (&d.b, stage_b)] {
         outln!(
             "{}: {} evaluation(s) of {stage}: {} (mean {:.1} %)",
             s.label,
