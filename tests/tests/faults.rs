@@ -252,9 +252,10 @@ fn a_record_that_cannot_be_written_fails_its_stage_and_the_make_goes_on() {
     assert_eq!(built, ["total@0"], "{again}");
 }
 
-/// An I/O error on reading a cached object that a stage needs: that stage fails, naming the
-/// input, the stage whose output it is, the object, the filesystem's error and what to do;
-/// once the disk reads again, the next make builds it.
+/// An I/O error on reading a stored object: `show` and `export` name the artifact and say
+/// what to do, `verify` goes on and names the stage whose output it is, and the stage that
+/// needs it as an input fails, naming the input, its producer, the object and the
+/// filesystem's error; once the disk reads again, the next make builds it.
 #[test]
 fn an_unreadable_input_fails_the_stage_that_reads_it_and_says_whose_it_is() {
     let check = "an_unreadable_input_fails_the_stage_that_reads_it_and_says_whose_it_is";
@@ -289,19 +290,23 @@ fn an_unreadable_input_fails_the_stage_that_reads_it_and_says_whose_it_is() {
     std::fs::write(&record, "garbled").expect("garble");
     let hash = field("reference", "content_hash");
     let object = p.store.join("objects").join(&hash[..2]).join(&hash);
-    let o = std::process::Command::new("strace")
-        .args(["-f", "-qq", "-o", "/dev/null", "-P"])
-        .arg(&object)
-        .args(["-e", "trace=openat", "-e", "inject=openat:error=EIO", BIN])
-        .arg("--pipeline")
-        .arg(&p.pipeline)
-        .arg("--store")
-        .arg(&p.store)
-        .args(["make", "--jobs", "1"])
-        .env("OSMS_NO_PROGRESS", "1")
-        .output()
-        .expect("run strace");
-    no_panic(&o);
+    let unreadable = |args: &[&str]| {
+        let o = std::process::Command::new("strace")
+            .args(["-f", "-qq", "-o", "/dev/null", "-P"])
+            .arg(&object)
+            .args(["-e", "trace=openat", "-e", "inject=openat:error=EIO", BIN])
+            .arg("--pipeline")
+            .arg(&p.pipeline)
+            .arg("--store")
+            .arg(&p.store)
+            .args(args)
+            .env("OSMS_NO_PROGRESS", "1")
+            .output()
+            .expect("run strace");
+        no_panic(&o);
+        o
+    };
+    let o = unreadable(&["make", "--jobs", "1"]);
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
@@ -315,6 +320,42 @@ fn an_unreadable_input_fails_the_stage_that_reads_it_and_says_whose_it_is() {
     assert!(
         err.contains("hint: the store's filesystem returned an error: check the disk"),
         "{err}"
+    );
+    // Reading it directly: the artifact named, the hint, exit 1 (not an internal error).
+    for args in [
+        &["show", "reference"][..],
+        &["export", "reference", "--out", "x"],
+    ] {
+        let o = unreadable(args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "osms {args:?}: {err}");
+        assert!(
+            err.contains(&format!(
+                "cannot read the output of reference@7 (object {})",
+                &hash[..12]
+            )),
+            "{err}"
+        );
+        assert!(
+            err.contains("hint: the store's filesystem returned an error: check the disk"),
+            "{err}"
+        );
+    }
+    // verify goes on past it and says whose output it is (and the stat cache stops vouching
+    // for it, so a make would now fail `reference` itself when it re-hashes it).
+    let o = unreadable(&["verify"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains(&format!("unreadable {}", &hash[..12]))
+            && out.contains("Input/output error")
+            && out.contains(": output of reference (key"),
+        "{out}"
+    );
+    assert!(
+        stderr(&o).contains("check the disk (`dmesg`)"),
+        "{}",
+        stderr(&o)
     );
     let o = p.run(bin(), &["make", "--json"]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -480,6 +521,12 @@ fn a_make_that_will_not_fit_is_warned_about_before_it_starts() {
     assert!(warned < err.find("building").unwrap_or(usize::MAX), "{err}");
     assert!(
         err.contains("hint: free space or use another --store first"),
+        "{err}"
+    );
+    // Then the first write fails its stage with what it could not store and what to do.
+    assert!(err.contains(": cannot store "), "{err}");
+    assert!(
+        err.contains("hint: no space left on the store's filesystem"),
         "{err}"
     );
 }

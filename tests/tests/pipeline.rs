@@ -204,9 +204,90 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
     datasets_export_replay_and_render(&first);
     a_sweep_rebuilds_only_its_seeds_and_the_aggregates(&first, &text);
     paired_experiments_compare_rollout_by_rollout(&first);
+    long_builds_resume_from_their_checkpoints(&first);
     // Last: it builds a condition set into a store of its own beside this one.
     the_python_package_reproduces_osms_evaluations(&first, &text);
     golden::check("outputs_pipeline_tiny", first.outputs);
+}
+
+/// The closed-loop calibration and a student, killed after a checkpoint (a calibration
+/// checkpoints after every block of tuning conditions, a student every so many gradient
+/// steps), resume from it and end with the bytes of a build that ran through.
+fn long_builds_resume_from_their_checkpoints(made: &Made) {
+    let bin = env!("CARGO_BIN_EXE_osms-shipped");
+    let pipeline = made._dir.path().join("pipeline.toml");
+    let root = made.store.root();
+    let make = |stage: &str, sets: &[&str]| {
+        let mut c = std::process::Command::new(bin);
+        c.arg("--pipeline")
+            .arg(&pipeline)
+            .arg("--store")
+            .arg(root)
+            .args(["make", stage, "-p", "tiny", "--seed", "0", "--json"]);
+        for s in sets {
+            c.args(["--set", s]);
+        }
+        c.env("OSMS_NO_PROGRESS", "1")
+            .env_remove("OSMS_LOG")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped());
+        c
+    };
+    let built = |o: &std::process::Output, instance: &str| -> (Hash, String) {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let i = report["instances"]
+            .as_array()
+            .expect("instances")
+            .iter()
+            .find(|i| i["instance"] == instance || i["instance"] == format!("{instance}@0"))
+            .unwrap_or_else(|| panic!("{instance} in {report}"));
+        let key: Hash = i["key"].as_str().expect("key").parse().expect("a hash");
+        (key, i["content_hash"].as_str().expect("hash").to_string())
+    };
+    let index = |k: &Hash| {
+        let k = k.to_string();
+        root.join("index").join(&k[..2]).join(format!("{k}.json"))
+    };
+    for (stage, sets) in [
+        (
+            "error_model_calibrated",
+            &["error_model_calibrated.checkpoint_every=1"][..],
+        ),
+        (
+            "student_ours",
+            &[
+                "student_ours.steps=2000",
+                "student_ours.checkpoint_every=50",
+            ],
+        ),
+    ] {
+        // `stage`, or `stage@0` for one that depends on the run seed.
+        let instance = stage.to_string();
+        let (key, through) = built(&make(stage, sets).output().expect("run osms"), &instance);
+        // Forget the build and any checkpoint it left, then build again and kill it.
+        std::fs::write(index(&key), "garbled").expect("garble");
+        let _ = std::fs::remove_file(index(&osms_make::checkpoint_key(&key)));
+        let mut child = make(stage, sets).spawn().expect("start osms");
+        let done = loop {
+            if let Some(status) = child.try_wait().expect("wait") {
+                panic!("{instance} ended ({status}) before a checkpoint was seen");
+            }
+            if let Ok(Some(r)) = made.store.record(&osms_make::checkpoint_key(&key)) {
+                child.kill().expect("kill -9");
+                child.wait().expect("reap");
+                break r.shard.expect("a checkpoint names its build").end;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        };
+        let o = make(stage, sets).output().expect("run osms");
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(
+            err.contains(&format!("{stage}: resuming from its checkpoint after")),
+            "killed after {done} steps: {err}"
+        );
+        assert_eq!(built(&o, &instance), (key, through), "{instance}");
+    }
 }
 
 /// The tables and figures hold what their source artifacts say, and every file renders.

@@ -854,6 +854,12 @@ pub(crate) fn storage_failure(
     e: &(dyn std::error::Error + 'static),
     bytes: Option<u64>,
 ) -> String {
+    format!("{what}: {e}\nhint: {}", storage_hint(e, bytes))
+}
+
+/// What to do about a failed store operation, by the filesystem's error in `e`'s chain (with
+/// the bytes the operation needed, where known).
+pub fn storage_hint(e: &(dyn std::error::Error + 'static), bytes: Option<u64>) -> String {
     let mut kind = None;
     let mut cause = Some(e);
     while let Some(c) = cause {
@@ -863,7 +869,7 @@ pub(crate) fn storage_failure(
         }
         cause = c.source();
     }
-    let hint = match kind {
+    match kind {
         Some(std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded) => format!(
             "no space left on the store's filesystem{}: free space and run `osms make` again; nothing built so far is lost",
             bytes
@@ -875,8 +881,7 @@ pub(crate) fn storage_failure(
         }
         Some(_) => "the store's filesystem returned an error: check the disk (`dmesg`), then run `osms make` again; nothing built so far is lost, and `osms verify` checks what the store holds".to_string(),
         None => "run `osms make` again; `osms verify` checks what the store holds".to_string(),
-    };
-    format!("{what}: {e}\nhint: {hint}")
+    }
 }
 
 /// The record of `key`; an unreadable one is a reason to rebuild, as a missing one is.

@@ -24,7 +24,7 @@ pub use error::{Error, Invalid, Location, Result};
 pub use estimate::{Estimate, InstanceEstimate, Measured, estimate, scales};
 pub use exec::{
     InstanceReport, MakeOptions, MakeReport, Observer, Outcome, Silent, StoreObjects, make,
-    make_holding,
+    make_holding, storage_hint,
 };
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{

@@ -114,6 +114,15 @@ pub enum VerifyProblem {
         /// stages `osms make` rebuilds.
         used_by: Vec<(String, Hash)>,
     },
+    /// An object the filesystem would not read (EIO, say): not known to be damaged, but no
+    /// stage can read it either.
+    UnreadableObject {
+        hash: Hash,
+        path: PathBuf,
+        error: String,
+        /// As for damaged objects.
+        used_by: Vec<(String, Hash)>,
+    },
     ForeignObject {
         path: PathBuf,
         reason: String,
@@ -601,7 +610,18 @@ impl Store {
                 report.problems.push(VerifyProblem::StrayFile { path });
                 continue;
             };
-            let bytes = fs::read(&path).map_err(|e| Error::io(&path, e))?;
+            let bytes = match fs::read(&path) {
+                Ok(bytes) => bytes,
+                Err(e) => {
+                    report.problems.push(VerifyProblem::UnreadableObject {
+                        hash,
+                        path,
+                        error: e.to_string(),
+                        used_by: Vec::new(),
+                    });
+                    continue;
+                }
+            };
             report.objects_checked += 1;
             report.bytes_checked += bytes.len() as u64;
             let actual = Hash::of(&bytes);
@@ -626,7 +646,8 @@ impl Store {
             .problems
             .iter()
             .filter_map(|p| match p {
-                VerifyProblem::DamagedObject { hash, .. } => Some((*hash, Vec::new())),
+                VerifyProblem::DamagedObject { hash, .. }
+                | VerifyProblem::UnreadableObject { hash, .. } => Some((*hash, Vec::new())),
                 _ => None,
             })
             .collect();
@@ -652,7 +673,9 @@ impl Store {
             }
         }
         for p in &mut report.problems {
-            if let VerifyProblem::DamagedObject { hash, used_by, .. } = p {
+            if let VerifyProblem::DamagedObject { hash, used_by, .. }
+            | VerifyProblem::UnreadableObject { hash, used_by, .. } = p
+            {
                 *used_by = damaged.remove(hash).unwrap_or_default();
                 // `make` must not take the stat cache's word for it: bit rot under the
                 // filesystem (a failing disk) leaves the file's metadata as it was.

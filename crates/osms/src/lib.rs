@@ -43,6 +43,9 @@ pub fn main_with(registry: Registry) -> ExitCode {
         Ok(code) => code,
         Err(err) => {
             errln!("error: {}", render(&err));
+            if let Some(hint) = storage_hint(&err) {
+                errln!("hint: {hint}");
+            }
             ExitCode::from(exit_code_of(&err))
         }
     }
@@ -91,9 +94,19 @@ fn exit_code_of(err: &anyhow::Error) -> u8 {
                 EXIT_INTERNAL
             };
         }
-        if let Some(osms_store::Error::Io { .. }) = cause.downcast_ref::<osms_store::Error>() {
-            return EXIT_INTERNAL;
-        }
     }
     EXIT_FAILURE
+}
+
+/// What to do about a filesystem error under the store, if `err` holds one: a failing disk or
+/// a full one is the machine's trouble, not osms's (exit 1, as uv reports a failing cache).
+fn storage_hint(err: &anyhow::Error) -> Option<String> {
+    err.chain()
+        .find(|c| {
+            matches!(
+                c.downcast_ref::<osms_store::Error>(),
+                Some(osms_store::Error::Io { .. })
+            )
+        })
+        .map(|io| osms_make::storage_hint(io, None))
 }

@@ -174,6 +174,27 @@ fn draw_streams<P>(ctx: &Ctx<'_, P>, item: u32, q: usize) -> (StreamRng, StreamR
     )
 }
 
+/// The teacher under `model` on draw q of D_E item `item` (from [`draw_streams`]).
+fn teacher_draw<P>(
+    ctx: &Ctx<'_, P>,
+    l: &Loaded,
+    condition: &TaskCondition,
+    item: u32,
+    q: usize,
+    model: &ErrorModel,
+) -> (EvalRow, DeviationStats) {
+    let (dr, noise) = draw_streams(ctx, item, q);
+    teacher_under(
+        &l.world,
+        &l.teacher.task,
+        &l.teacher.agent,
+        condition.clone(),
+        dr,
+        model,
+        noise,
+    )
+}
+
 /// π̄_f's own rollouts on D_E item `item`, `draws` of them: draw q with the DR stream of the
 /// teacher's draw q and its policy noise from ("policy-q", item), the teacher queried at every
 /// state π̄ reaches. Its rows (without the impact trace) and its arm deviation from the teacher.
@@ -338,16 +359,7 @@ impl ItemStage for CalibrationStage {
                 let mut rows = Vec::with_capacity(ctx.params.draws);
                 let mut deviation = DeviationStats::default();
                 for q in 0..ctx.params.draws {
-                    let (dr, noise) = draw_streams(ctx, pair.item, q);
-                    let (row, d) = teacher_under(
-                        &l.world,
-                        &l.teacher.task,
-                        &l.teacher.agent,
-                        condition.clone(),
-                        dr,
-                        model,
-                        noise,
-                    );
+                    let (row, d) = teacher_draw(ctx, l, condition, pair.item, q, model);
                     rows.push(row);
                     deviation.add(&d);
                 }
@@ -384,6 +396,14 @@ impl ItemStage for CalibrationStage {
 /// output is the input's models plus `calibrated`, which validation then applies at the base's
 /// κ, and the search, pooled and per fold.
 pub struct CalibrateErrorModelStage;
+
+/// One tuning condition's fold, the teacher's successes under each scale of the grid over the
+/// draws, and π̄'s.
+type ConditionRow = (u32, Vec<usize>, usize);
+
+/// Tuning conditions between checkpoints (pipeline.toml's `checkpoint_every` overrides it):
+/// the default make's ≈ 500 take ≈ 10 minutes on 2 cores.
+const CHECKPOINT_EVERY: u32 = 100;
 impl Stage for CalibrateErrorModelStage {
     const KIND: &'static str = "calibrate_error_model";
     /// 2: π̄'s success on the tuning fold is over `draws` rollouts per condition with the
@@ -442,42 +462,48 @@ impl Stage for CalibrateErrorModelStage {
             .collect();
         let progress = ctx.progress();
         progress.set_total(tune.len() as u64);
-        // Per condition: its fold, its successes at each scale over the draws, π̄'s.
-        let successes: Vec<(u32, Vec<usize>, usize)> = tune
-            .par_iter()
-            .map(|&(fold, pair)| {
-                let condition = &l.conditions[&pair.item];
-                let student = student_draws(ctx, &l, fold, pair.item, p.draws);
-                let own = student.rows.iter().filter(|r| r.outcome.success()).count();
-                let row = models
-                    .iter()
-                    .map(|model| {
-                        (0..p.draws)
-                            .filter(|&q| {
-                                let (dr, noise) = draw_streams(ctx, pair.item, q);
-                                teacher_under(
-                                    &l.world,
-                                    &l.teacher.task,
-                                    &l.teacher.agent,
-                                    condition.clone(),
-                                    dr,
-                                    model,
-                                    noise,
-                                )
-                                .0
-                                .outcome
-                                .success()
-                            })
-                            .count()
-                    })
-                    .collect();
-                progress.inc(1);
-                (fold, row, own)
-            })
-            .collect();
+        // Per condition: its fold, its successes at each scale over the draws, π̄'s; computed
+        // in blocks of conditions, each block's rows checkpointed, so a killed build resumes
+        // after the last block (the rows do not depend on the blocks).
+        let mut successes: Vec<ConditionRow> = ctx
+            .resume::<Vec<ConditionRow>>()
+            .map(|(_, rows)| rows)
+            .filter(|rows| rows.len() <= tune.len())
+            .unwrap_or_default();
+        progress.inc(successes.len() as u64);
+        let block = ctx.checkpoint_every(CHECKPOINT_EVERY) as usize;
+        while successes.len() < tune.len() {
+            let end = (successes.len() + block).min(tune.len());
+            let rows: Vec<ConditionRow> = tune[successes.len()..end]
+                .par_iter()
+                .map(|&(fold, pair)| {
+                    let condition = &l.conditions[&pair.item];
+                    let student = student_draws(ctx, &l, fold, pair.item, p.draws);
+                    let own = student.rows.iter().filter(|r| r.outcome.success()).count();
+                    let row = models
+                        .iter()
+                        .map(|model| {
+                            (0..p.draws)
+                                .filter(|&q| {
+                                    teacher_draw(ctx, &l, condition, pair.item, q, model)
+                                        .0
+                                        .outcome
+                                        .success()
+                                })
+                                .count()
+                        })
+                        .collect();
+                    progress.inc(1);
+                    (fold, row, own)
+                })
+                .collect();
+            successes.extend(rows);
+            if successes.len() < tune.len() {
+                ctx.checkpoint(successes.len() as u64, &successes)?;
+            }
+        }
         let search = |of: &dyn Fn(u32) -> bool| -> Result<FoldSearch, StageError> {
-            let rows: Vec<&(u32, Vec<usize>, usize)> =
-                successes.iter().filter(|r| of(r.0)).collect();
+            let rows: Vec<&ConditionRow> = successes.iter().filter(|r| of(r.0)).collect();
             let rollouts = (rows.len() * p.draws) as f64;
             let grid: Vec<(f64, f64)> = p
                 .scales

@@ -105,7 +105,7 @@ fn load(ctx: &Context, target: &str, selection: &Selection) -> Result<Source> {
             record.instance()
         );
     }
-    let bytes = store.get(&record.content_hash)?;
+    let bytes = crate::commands::read_output(store, record)?;
     let objects = StoreObjects(store);
     let contents = match record.type_tag.as_str() {
         DATASET_TAG => Contents::Rollouts(Box::new(

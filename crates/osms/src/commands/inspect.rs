@@ -116,7 +116,7 @@ pub fn show(ctx: &Context, args: &ShowArgs) -> Result<ExitCode> {
         ..
     } = resolve(ctx, &args.hash, &args.selection)?;
     let first = &record;
-    let bytes = store.get(&first.content_hash)?;
+    let bytes = crate::commands::read_output(&store, first)?;
     let header = read_header(&bytes)?;
     let (summary, text) = match (ctx.registry.get(&first.kind), first.shard) {
         (_, Some(shard)) if first.type_tag == osms_make::CHECKPOINT_TAG => (
@@ -340,7 +340,7 @@ pub fn export(ctx: &Context, args: &ExportArgs) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
-    let bytes = store.get(&record.content_hash)?;
+    let bytes = crate::commands::read_output(&store, &record)?;
     let files = if record.shard.is_some() {
         Vec::new()
     } else if record.type_tag == Evaluation::TYPE_TAG {

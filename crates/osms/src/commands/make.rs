@@ -524,7 +524,8 @@ pub(crate) fn cost(
                 (kind, r.wall_time_secs, Some(r.cpu_secs))
             }),
     );
-    let cpu_secs = by_kind.iter().map(|k| k.cpu_secs).sum();
+    // A fold from +0: `sum` of nothing is −0.0, which a fully cached make's JSON printed.
+    let cpu_secs = by_kind.iter().fold(0.0, |total, k| total + k.cpu_secs);
     let machine = wall_secs * cores as f64;
     Cost {
         wall_secs,

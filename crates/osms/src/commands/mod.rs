@@ -15,7 +15,7 @@ mod world;
 
 use std::process::ExitCode;
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use osms_make::Registry;
 
 use crate::cli::{Cli, Command};
@@ -49,6 +49,20 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
 }
 
 /// Prints `value` as pretty JSON on stdout.
+/// The bytes of `record`'s output; a store that cannot read them names the artifact.
+pub(crate) fn read_output(
+    store: &osms_store::Store,
+    record: &osms_store::Record,
+) -> Result<Vec<u8>> {
+    store.get(&record.content_hash).with_context(|| {
+        format!(
+            "cannot read the output of {} (object {})",
+            record.instance(),
+            record.content_hash.short()
+        )
+    })
+}
+
 pub(crate) fn print_json(value: &impl serde::Serialize) -> Result<()> {
     outln!("{}", serde_json::to_string_pretty(value)?);
     Ok(())

@@ -58,7 +58,7 @@ pub fn write(
     let Some(kind) = ctx.registry.get(&record.kind) else {
         bail!("kind `{}` is not known to this osms", record.kind);
     };
-    let bytes = store.get(&record.content_hash)?;
+    let bytes = crate::commands::read_output(store, &record)?;
     let mut files = kind
         .files(&bytes, &StoreObjects(store))
         .map_err(|e| anyhow::anyhow!("{e}"))?;

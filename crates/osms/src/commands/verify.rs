@@ -21,6 +21,17 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
         value["experiment_problems"] = serde_json::to_value(&experiments)?;
         print_json(&value)?;
     } else {
+        let by = |used_by: &[(String, osms_store::Hash)]| {
+            if used_by.is_empty() {
+                "no stage's output (`osms gc` removes it)".to_string()
+            } else {
+                used_by
+                    .iter()
+                    .map(|(stage, key)| format!("{stage} (key {})", key.short()))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            }
+        };
         for p in &report.problems {
             match p {
                 VerifyProblem::DamagedObject {
@@ -28,23 +39,24 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
                     actual,
                     path,
                     used_by,
-                } => {
-                    let by = if used_by.is_empty() {
-                        "no stage's output (`osms gc` removes it)".to_string()
-                    } else {
-                        used_by
-                            .iter()
-                            .map(|(stage, key)| format!("{stage} (key {})", key.short()))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    };
-                    outln!(
-                        "damaged  {} (its bytes hash to {}) at {}: output of {by}",
-                        hash.short(),
-                        actual.short(),
-                        path.display()
-                    )
-                }
+                } => outln!(
+                    "damaged  {} (its bytes hash to {}) at {}: output of {}",
+                    hash.short(),
+                    actual.short(),
+                    path.display(),
+                    by(used_by)
+                ),
+                VerifyProblem::UnreadableObject {
+                    hash,
+                    path,
+                    error,
+                    used_by,
+                } => outln!(
+                    "unreadable {} at {} ({error}): output of {}",
+                    hash.short(),
+                    path.display(),
+                    by(used_by)
+                ),
                 VerifyProblem::ForeignObject { path, reason } => {
                     outln!("foreign  {}: {reason}", path.display())
                 }
@@ -85,6 +97,15 @@ pub fn run(ctx: &Context, json: bool) -> Result<ExitCode> {
         if !experiments.is_empty() {
             errln!(
                 "hint: an experiment names instances the store no longer holds; `osms exp run NAME --force ...` records it again"
+            );
+        }
+        if report
+            .problems
+            .iter()
+            .any(|p| matches!(p, VerifyProblem::UnreadableObject { .. }))
+        {
+            errln!(
+                "hint: the store's filesystem would not read some objects: check the disk (`dmesg`); once it reads again, `osms verify` checks them, and `osms make` rebuilds what is damaged"
             );
         }
         if !report.problems.is_empty() {
