@@ -162,6 +162,44 @@ fn strace_usable(check: &str) -> bool {
     ok
 }
 
+/// `osms ARGS` on the project run under `strace -f TRACE…` (the faults it injects), checked
+/// for panics.
+fn under_strace(p: &Project, trace: &[&str], args: &[&str]) -> Output {
+    let o = std::process::Command::new("strace")
+        .args(["-f", "-qq", "-o", "/dev/null"])
+        .args(trace)
+        .arg(BIN)
+        .arg("--pipeline")
+        .arg(&p.pipeline)
+        .arg("--store")
+        .arg(&p.store)
+        .args(args)
+        .env("OSMS_NO_PROGRESS", "1")
+        .env("OSMS_STAGES", "1")
+        .output()
+        .expect("run strace");
+    no_panic(&o);
+    o
+}
+
+/// Field `name` of `instance` in `osms status --json`'s output.
+fn status_field(status: &serde_json::Value, instance: &str, name: &str) -> String {
+    status
+        .as_array()
+        .expect("items")
+        .iter()
+        .find(|i| i["instance"] == instance)
+        .and_then(|i| i[name].as_str())
+        .expect("a field")
+        .to_string()
+}
+
+/// Garbles the index record of `key`, so its stage builds again.
+fn garble_record(p: &Project, key: &str) {
+    let path = p.open_store().record_path(&key.parse().expect("a key"));
+    std::fs::write(path, "garbled").expect("garble");
+}
+
 /// A record that cannot be written (ENOSPC injected on its rename) fails its stage, not the
 /// make: the stages that need it are skipped, the others build, `--json` still reports, exit 1;
 /// the next make builds what is missing and nothing else.
@@ -174,42 +212,25 @@ fn a_record_that_cannot_be_written_fails_its_stage_and_the_make_goes_on() {
     assert!(p.run(bin(), &["make", "-q"]).status.success());
     let status: serde_json::Value =
         serde_json::from_slice(&p.run(bin(), &["status", "--json"]).stdout).expect("json");
-    let key = |instance: &str| -> String {
-        status
-            .as_array()
-            .expect("items")
-            .iter()
-            .find(|i| i["instance"] == instance)
-            .and_then(|i| i["key"].as_str())
-            .expect("a key")
-            .to_string()
-    };
+    let key = |instance: &str| status_field(&status, instance, "key");
     // Two records garbled, so both stages build again, their objects already stored: the
     // main thread's first rename is total@0's record, the one strace fails; sign_total@0's
     // comes after it.
     let (total, sign_total) = (key("total@0"), key("sign_total@0"));
     for k in [&total, &sign_total] {
-        let path = p
-            .store
-            .join("index")
-            .join(&k[..2])
-            .join(format!("{k}.json"));
-        std::fs::write(&path, "garbled").expect("garble");
+        garble_record(&p, k);
     }
-    let mut strace = std::process::Command::new("strace");
-    strace
-        .args(["-f", "-qq", "-o", "/dev/null", "-e", "trace=rename"])
-        .args(["-e", "inject=rename:error=ENOSPC:when=1", BIN])
-        .arg("--pipeline")
-        .arg(&p.pipeline)
-        .arg("--store")
-        .arg(&p.store)
-        .args(["make", "--json", "--jobs", "1"])
-        .env("OSMS_NO_PROGRESS", "1")
-        .env("OSMS_STAGES", "1");
-    let o = strace.output().expect("run strace");
+    let o = under_strace(
+        &p,
+        &[
+            "-e",
+            "trace=rename",
+            "-e",
+            "inject=rename:error=ENOSPC:when=1",
+        ],
+        &["make", "--json", "--jobs", "1"],
+    );
     let err = stderr(&o);
-    no_panic(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
     let short = &total[..12];
     assert!(
@@ -270,41 +291,25 @@ fn an_unreadable_input_fails_the_stage_that_reads_it_and_says_whose_it_is() {
     std::thread::sleep(std::time::Duration::from_millis(2_500));
     let status: serde_json::Value =
         serde_json::from_slice(&p.run(bin(), &["status", "--json"]).stdout).expect("json");
-    let field = |instance: &str, name: &str| -> String {
-        status
-            .as_array()
-            .expect("items")
-            .iter()
-            .find(|i| i["instance"] == instance)
-            .and_then(|i| i[name].as_str())
-            .expect("a field")
-            .to_string()
-    };
+    let field = |instance: &str, name: &str| status_field(&status, instance, name);
     // report@0 builds again (its record garbled) and reads reference's object, which fails.
-    let key = field("report@0", "key");
-    let record = p
-        .store
-        .join("index")
-        .join(&key[..2])
-        .join(format!("{key}.json"));
-    std::fs::write(&record, "garbled").expect("garble");
+    garble_record(&p, &field("report@0", "key"));
     let hash = field("reference", "content_hash");
-    let object = p.store.join("objects").join(&hash[..2]).join(&hash);
+    let object = p.open_store().object_path(&hash.parse().expect("a hash"));
+    let object = object.to_str().expect("utf-8 path");
     let unreadable = |args: &[&str]| {
-        let o = std::process::Command::new("strace")
-            .args(["-f", "-qq", "-o", "/dev/null", "-P"])
-            .arg(&object)
-            .args(["-e", "trace=openat", "-e", "inject=openat:error=EIO", BIN])
-            .arg("--pipeline")
-            .arg(&p.pipeline)
-            .arg("--store")
-            .arg(&p.store)
-            .args(args)
-            .env("OSMS_NO_PROGRESS", "1")
-            .output()
-            .expect("run strace");
-        no_panic(&o);
-        o
+        under_strace(
+            &p,
+            &[
+                "-P",
+                object,
+                "-e",
+                "trace=openat",
+                "-e",
+                "inject=openat:error=EIO",
+            ],
+            args,
+        )
     };
     let o = unreadable(&["make", "--jobs", "1"]);
     let err = stderr(&o);
@@ -533,7 +538,7 @@ fn a_make_that_will_not_fit_is_warned_about_before_it_starts() {
 
 /// A teacher killed mid-training (as by a full disk's failed write, an OOM kill or a lost node)
 /// resumes from its last checkpoint, not from iteration 0, and ends with the bytes of a
-/// training that ran through; `osms ls` shows the checkpoint while the build is unfinished.
+/// training that ran through; the checkpoint's record outlives the kill.
 #[test]
 fn a_killed_teacher_resumes_from_its_checkpoint_to_the_same_bytes() {
     let shipped = Path::new(env!("CARGO_BIN_EXE_osms-shipped"));

@@ -245,10 +245,6 @@ fn long_builds_resume_from_their_checkpoints(made: &Made) {
         let key: Hash = i["key"].as_str().expect("key").parse().expect("a hash");
         (key, i["content_hash"].as_str().expect("hash").to_string())
     };
-    let index = |k: &Hash| {
-        let k = k.to_string();
-        root.join("index").join(&k[..2]).join(format!("{k}.json"))
-    };
     for (stage, sets) in [
         (
             "error_model_calibrated",
@@ -266,8 +262,8 @@ fn long_builds_resume_from_their_checkpoints(made: &Made) {
         let instance = stage.to_string();
         let (key, through) = built(&make(stage, sets).output().expect("run osms"), &instance);
         // Forget the build and any checkpoint it left, then build again and kill it.
-        std::fs::write(index(&key), "garbled").expect("garble");
-        let _ = std::fs::remove_file(index(&osms_make::checkpoint_key(&key)));
+        std::fs::write(made.store.record_path(&key), "garbled").expect("garble");
+        let _ = std::fs::remove_file(made.store.record_path(&osms_make::checkpoint_key(&key)));
         let mut child = make(stage, sets).spawn().expect("start osms");
         let done = loop {
             if let Some(status) = child.try_wait().expect("wait") {

@@ -317,7 +317,8 @@ impl Store {
         self.root.join("objects").join(&hex[..2]).join(hex)
     }
 
-    fn record_path(&self, key: &Hash) -> PathBuf {
+    /// Where the index record of `key` lives.
+    pub fn record_path(&self, key: &Hash) -> PathBuf {
         let hex = key.to_hex();
         self.root
             .join("index")

@@ -550,10 +550,10 @@ impl<P> Ctx<'_, P> {
         self.checkpoints.every().unwrap_or(default).max(1)
     }
 
-    /// The state the last checkpoint of this very build (same stage key) holds, with the steps
-    /// it had done: a build that was killed or failed resumes from it. One that does not decode
-    /// as `T` is ignored with a warning, and the build starts over.
-    pub fn resume<T: Serialize + DeserializeOwned>(&self) -> Option<(u64, T)> {
+    /// The state the last checkpoint of this very build (same stage key) holds: a build that
+    /// was killed or failed resumes from it. One that does not decode as `T` is ignored with a
+    /// warning, and the build starts over.
+    pub fn resume<T: Serialize + DeserializeOwned>(&self) -> Option<T> {
         let (done, bytes) = self.checkpoints.load()?;
         match decode::<CheckpointBytes<T>>(&bytes) {
             Ok(c) if c.type_name == std::any::type_name::<T>() => {
@@ -561,7 +561,7 @@ impl<P> Ctx<'_, P> {
                     "{}: resuming from its checkpoint after {done} steps",
                     self.stage
                 );
-                Some((done, c.state))
+                Some(c.state)
             }
             _ => {
                 tracing::warn!(

@@ -467,7 +467,6 @@ impl Stage for CalibrateErrorModelStage {
         // after the last block (the rows do not depend on the blocks).
         let mut successes: Vec<ConditionRow> = ctx
             .resume::<Vec<ConditionRow>>()
-            .map(|(_, rows)| rows)
             .filter(|rows| rows.len() <= tune.len())
             .unwrap_or_default();
         progress.inc(successes.len() as u64);

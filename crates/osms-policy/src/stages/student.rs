@@ -113,7 +113,7 @@ impl Stage for StudentStage {
         }
         let progress = ctx.progress();
         progress.set_total(u64::from(ctx.params.steps));
-        let resume = ctx.resume::<StudentState>().map(|(_, state)| state);
+        let resume = ctx.resume::<StudentState>();
         progress.inc(resume.as_ref().map_or(0, |r| u64::from(r.step)));
         let save = |s: &StudentState| {
             ctx.checkpoint(u64::from(s.step), s)

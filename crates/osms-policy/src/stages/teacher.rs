@@ -77,7 +77,7 @@ impl Stage for TeacherStage {
         let spec = p.task.realised();
         let task = CatchTask::new(&world, spec.clone(), seed, ctx.stage(), "train")?;
         let mut state = match ctx.resume::<PpoState>() {
-            Some((_, state)) => state,
+            Some(state) => state,
             None => {
                 let agent = Agent::asymmetric(
                     task.obs_len(),
