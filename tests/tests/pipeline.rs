@@ -616,7 +616,6 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
     let mut teacher: Teacher = load(made, "teacher");
-    teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
     teacher.task.rollout.record_privileged = true;
     let model = world.model(osms_sim::ObjectVariant::all()[0]);
     let robot_root = model
@@ -628,6 +627,12 @@ fn osw_alignment_holds_in_independent_replays(made: &Made) {
     let mut with_contact = 0;
     for name in ["d_m", "d_r"] {
         let d: Dataset = load_sharded(made, name);
+        // D_M runs under the paper DR, D_R without it (pipeline.toml, docs/deviations.md row 17).
+        teacher.task.rollout.dr = if name == "d_m" {
+            osms_sim::control::DrSpec::paper()
+        } else {
+            osms_sim::control::DrSpec::default()
+        };
         for item in &d.items {
             let r = &item.rollout;
             let stream = osms_core::rng::stream(
@@ -1426,7 +1431,8 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
 
     let world = load::<WorldArtifact>(made, "world").world().expect("world");
     let mut teacher: Teacher = load(made, "teacher");
-    teacher.task.rollout.dr = osms_sim::control::DrSpec::paper();
+    // D_R runs without DR (pipeline.toml, docs/deviations.md row 17), the teacher trained under it.
+    teacher.task.rollout.dr = osms_sim::control::DrSpec::default();
     teacher.task.rollout.record_privileged = true;
     let model = load::<ErrorModelArtifact>(made, "error_model").model;
     let d_r: Dataset = load_sharded(made, "d_r");
