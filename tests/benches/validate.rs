@@ -33,7 +33,7 @@ fn main() {
         .unwrap_or_else(|_| root.join("store"));
     let plan = Plan::new(
         &Pipeline::load(&root.join("pipeline.toml"), Some(&profile)).expect("pipeline"),
-        &osms::registry(),
+        &osms_kinds::registry(),
     )
     .expect("plan");
     let store = Store::open(&store_dir).expect("store");

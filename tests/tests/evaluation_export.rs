@@ -63,7 +63,7 @@ fn an_evaluation_exports_one_row_per_condition_in_condition_order() {
     std::fs::write(&pipeline, text).expect("write");
     let plan = Plan::new(
         &Pipeline::load(&pipeline, Some("tiny")).expect("load"),
-        &osms::registry(),
+        &osms_kinds::registry(),
     )
     .expect("plan");
     let store = Store::open(dir.path().join("store")).expect("store");

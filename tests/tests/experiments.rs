@@ -75,7 +75,7 @@ fn shipped_plan(profile: &str) -> (Plan, tempfile::TempDir, Store) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
     let plan = Plan::new(
         &Pipeline::load(&path, Some(profile)).expect("load"),
-        &osms::registry(),
+        &osms_kinds::registry(),
     )
     .expect("plan");
     let dir = tempfile::tempdir().expect("dir");
@@ -172,7 +172,7 @@ fn evaluate_rolls_out_the_scripted_catcher_as_eval_scripted_does() {
         std::fs::write(&path, variant).expect("write");
         let plan = Plan::new(
             &Pipeline::load(&path, Some("tiny")).expect("load"),
-            &osms::registry(),
+            &osms_kinds::registry(),
         )
         .expect("plan");
         made.push(build(&plan, &store, &["dev_scripted"])["dev_scripted"]);

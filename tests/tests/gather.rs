@@ -299,7 +299,7 @@ fn the_shipped_pipeline_refuses_an_artifact_of_the_wrong_type() {
     let path = dir.path().join("pipeline.toml");
     std::fs::write(&path, &miswired).expect("write");
     let pipeline = osms_make::Pipeline::load(&path, None).expect("parses");
-    let err = osms_make::Plan::new(&pipeline, &osms::registry())
+    let err = osms_make::Plan::new(&pipeline, &osms_kinds::registry())
         .err()
         .expect("refused")
         .to_string();
@@ -391,7 +391,7 @@ fn a_scripted_evaluation_without_domain_randomisation_is_shared_by_a_sweep() {
         let path = dir.path().join("pipeline.toml");
         std::fs::write(&path, text).expect("write");
         let pipeline = osms_make::Pipeline::load(&path, Some("tiny")).expect("parses");
-        osms_make::Plan::new(&pipeline, &osms::registry()).expect("plans")
+        osms_make::Plan::new(&pipeline, &osms_kinds::registry()).expect("plans")
     };
     let names = |plan: &osms_make::Plan| -> Vec<String> {
         plan.instances(&["eval_scripted".to_string()], &[0, 1, 2])

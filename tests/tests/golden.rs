@@ -72,7 +72,7 @@ fn stage_dag_of_the_tiny_profile() {
     // The shipped pipeline with the shipped kinds.
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
     let pipeline = Pipeline::load(&shipped, Some("tiny")).expect("pipeline.toml parses");
-    let registry: Registry = osms::registry();
+    let registry: Registry = osms_kinds::registry();
     let plan = Plan::new(&pipeline, &registry).expect("pipeline.toml plans");
     settings().bind(|| insta::assert_json_snapshot!("dag_pipeline_tiny", dag(&plan)));
 }

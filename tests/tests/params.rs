@@ -103,7 +103,7 @@ fn sweep() -> Vec<Accepted> {
 /// per kind, param and value.
 fn sweep_once() -> Vec<Accepted> {
     let pipeline = Pipeline::load(&shipped(), Some("tiny")).expect("load");
-    let registry = osms::registry();
+    let registry = osms_kinds::registry();
     let base = Plan::new(&pipeline, &registry).expect("the shipped pipeline plans");
     let mut accepted: BTreeMap<(String, String, &str), Accepted> = BTreeMap::new();
     let mut refused = 0;
@@ -214,7 +214,7 @@ fn build(
         .map(|s| s.parse().expect("override"))
         .collect();
     pipeline.apply(&overrides).expect("apply");
-    let plan = Plan::new(&pipeline, &osms::registry()).expect("plan");
+    let plan = Plan::new(&pipeline, &osms_kinds::registry()).expect("plan");
     let opts = MakeOptions {
         targets: vec![stage.to_string()],
         seeds: vec![0],

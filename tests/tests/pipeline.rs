@@ -36,7 +36,7 @@ fn make(text: &str, jobs: usize, teachers_from: Option<&Made>) -> Made {
     std::fs::write(&path, text).expect("write");
     let plan = Plan::new(
         &Pipeline::load(&path, Some("tiny")).expect("load"),
-        &osms::registry(),
+        &osms_kinds::registry(),
     )
     .expect("plan");
     let store = Store::open(dir.path().join("store")).expect("store");
@@ -79,7 +79,7 @@ fn remake_seeds(made: &Made, text: &str, seeds: &[u64]) -> (BTreeMap<String, Has
     std::fs::write(&path, text).expect("write");
     let plan = Plan::new(
         &Pipeline::load(&path, Some("tiny")).expect("load"),
-        &osms::registry(),
+        &osms_kinds::registry(),
     )
     .expect("plan");
     let opts = MakeOptions {
@@ -2582,7 +2582,7 @@ fn the_python_package_reproduces_osms_evaluations(made: &Made, text: &str) {
     std::fs::write(&pipeline, format!("{text}{PYTHON_IDENTITY_STAGES}")).expect("write");
     let plan = Plan::new(
         &Pipeline::load(&pipeline, Some("tiny")).expect("load"),
-        &osms::registry(),
+        &osms_kinds::registry(),
     )
     .expect("plan");
     let added = [

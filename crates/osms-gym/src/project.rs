@@ -47,7 +47,7 @@ impl Project {
             None => find_pipeline()?,
         };
         let loaded = Pipeline::load(&pipeline_path, profile)?;
-        let plan = Plan::new(&loaded, &osms::registry())?;
+        let plan = Plan::new(&loaded, &osms_kinds::registry())?;
         let store_path = match store {
             Some(s) => s.to_path_buf(),
             None => pipeline_path

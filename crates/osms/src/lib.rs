@@ -1,9 +1,9 @@
 //! The osms command line: make (local or Slurm), status, why, show, ls, export, verify, gc, exp
-//! (named experiments), doctor, kinds, export-dataset, replay, render and world dump; it registers
-//! every stage kind and writes report directories with their provenance.
+//! (named experiments), doctor, kinds, export-dataset, replay, render and world dump; it plans with
+//! the stage kinds of osms-kinds and writes report directories with their provenance.
 //!
 //! [`main_with`] runs the command line with any [`Registry`], so end-to-end tests can drive the
-//! same code with stage kinds of their own; [`registry`] holds the kinds osms ships.
+//! same code with stage kinds of their own; `osms_kinds::registry` holds the kinds osms ships.
 
 #[macro_use]
 mod term;
@@ -20,15 +20,6 @@ use osms_make::Registry;
 
 pub use context::Context;
 
-/// The stage kinds osms ships.
-pub fn registry() -> Registry {
-    let mut registry = Registry::new();
-    osms_sim::stages::register(&mut registry);
-    osms_policy::stages::register(&mut registry);
-    osms_method::stages::register(&mut registry);
-    osms_report::register(&mut registry);
-    registry
-}
 
 /// Exit codes, as uv: 0 success, 1 the user's input or the pipeline failed, 2 internal error.
 pub(crate) const EXIT_FAILURE: u8 = 1;

@@ -1,3 +1,3 @@
 fn main() -> std::process::ExitCode {
-    osms::main_with(osms::registry())
+    osms::main_with(osms_kinds::registry())
 }

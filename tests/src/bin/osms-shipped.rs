@@ -2,5 +2,5 @@
 //! crate, so end-to-end tests of the shipped pipeline can run it through `CARGO_BIN_EXE_`).
 
 fn main() -> std::process::ExitCode {
-    osms::main_with(osms::registry())
+    osms::main_with(osms_kinds::registry())
 }

@@ -411,7 +411,7 @@ mod tests {
     fn plan(text: &str) -> Plan {
         let pipeline = Pipeline::parse(Path::new("pipeline.toml"), text.to_string(), None)
             .expect("pipeline parses");
-        Plan::new(&pipeline, &crate::registry()).expect("plans")
+        Plan::new(&pipeline, &osms_kinds::registry()).expect("plans")
     }
 
     #[test]
