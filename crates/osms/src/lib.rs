@@ -20,7 +20,6 @@ use osms_make::Registry;
 
 pub use context::Context;
 
-
 /// Exit codes, as uv: 0 success, 1 the user's input or the pipeline failed, 2 internal error.
 pub(crate) const EXIT_FAILURE: u8 = 1;
 pub(crate) const EXIT_INTERNAL: u8 = 2;

@@ -1,16 +1,26 @@
-//! One file per verb.
+//! One file per verb (`exp` a folder of its subcommands), beside the helpers verbs share:
+//! `resolve` (what a target names), `rollout_source` (the rollouts a dataset command reads),
+//! `outdir` (replaceable output directories) and `report` (report directories).
 
-mod data;
 mod doctor;
 mod exp;
+mod export;
+mod export_dataset;
 mod gc;
-mod inspect;
+mod kinds;
+mod ls;
 mod make;
 mod outdir;
+mod render;
+mod replay;
 mod report;
+mod resolve;
+mod rollout_source;
+mod show;
 mod status;
 mod task;
 mod verify;
+mod why;
 mod world;
 
 use std::process::ExitCode;
@@ -25,20 +35,20 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
     // doctor and kinds must work without a pipeline.toml.
     match &cli.command {
         Command::Doctor(args) => return doctor::run(&cli.global, &registry, args.json),
-        Command::Kinds(args) => return inspect::kinds(&registry, args.json),
+        Command::Kinds(args) => return kinds::kinds(&registry, args.json),
         _ => {}
     }
     let ctx = Context::new(&cli.global, registry)?;
     match cli.command {
         Command::Make(args) => make::run(&ctx, &args),
         Command::Status(args) => status::status(&ctx, &args),
-        Command::Why(args) => status::why(&ctx, &args),
-        Command::Show(args) => inspect::show(&ctx, &args),
-        Command::Export(args) => inspect::export(&ctx, &args),
-        Command::ExportDataset(args) => data::export_dataset(&ctx, &args),
-        Command::Replay(args) => data::replay(&ctx, &args),
-        Command::Render(args) => data::render(&ctx, &args),
-        Command::Ls(args) => inspect::ls(&ctx, args.json),
+        Command::Why(args) => why::why(&ctx, &args),
+        Command::Show(args) => show::show(&ctx, &args),
+        Command::Export(args) => export::export(&ctx, &args),
+        Command::ExportDataset(args) => export_dataset::export_dataset(&ctx, &args),
+        Command::Replay(args) => replay::replay(&ctx, &args),
+        Command::Render(args) => render::render(&ctx, &args),
+        Command::Ls(args) => ls::ls(&ctx, args.json),
         Command::Verify(args) => verify::run(&ctx, args.json),
         Command::Gc(args) => gc::run(&ctx, &args),
         Command::Exp(command) => exp::run(&ctx, command),
@@ -48,7 +58,6 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
     }
 }
 
-/// Prints `value` as pretty JSON on stdout.
 /// The bytes of `record`'s output; a store that cannot read them names the artifact.
 pub(crate) fn read_output(
     store: &osms_store::Store,
@@ -63,6 +72,7 @@ pub(crate) fn read_output(
     })
 }
 
+/// Prints `value` as pretty JSON on stdout.
 pub(crate) fn print_json(value: &impl serde::Serialize) -> Result<()> {
     outln!("{}", serde_json::to_string_pretty(value)?);
     Ok(())
