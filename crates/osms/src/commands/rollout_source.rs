@@ -82,8 +82,7 @@ pub(super) enum Contents {
     Demos(DemoSet),
 }
 
-const DATASET_HINT: &str =
-    "stages of kind `collect`: d_m, d_e, d_r in the shipped pipeline";
+const DATASET_HINT: &str = "stages of kind `collect`: d_m, d_e, d_r in the shipped pipeline";
 
 pub(super) fn load(ctx: &Context, target: &str, selection: &Selection) -> Result<Source> {
     let resolved = resolve(ctx, target, selection)?;

@@ -13,7 +13,8 @@ use osms_make::experiment;
 use osms_report::plot::{Figure, Mark, Panel, Point, Series};
 use serde::Serialize;
 
-use super::{Row, point_spec, row_named, rows_of, unit_of, unknown_experiment};
+use super::rows::{Row, point_spec, row_named, rows_of, unit_of};
+use super::unknown_experiment;
 use crate::cli::ExpPlotArgs;
 use crate::commands::print_json;
 use crate::context::Context;
@@ -366,7 +367,7 @@ pub(super) fn csv(data: &PlotData) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::row;
+    use super::super::rows::tests::row;
     use super::*;
 
     fn spec(x: &str, by: Option<&str>, metrics: &[&str]) -> PlotSpec {
