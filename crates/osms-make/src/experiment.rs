@@ -3,13 +3,13 @@
 //! themselves are ordinary store entries; the record is what `exp show` reads and what keeps
 //! them from `gc` until `exp rm`.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
 use osms_store::{Hash, Store};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::exec::MakeReport;
+use crate::exec::{MakeOptions, MakeReport, Observer};
 use crate::overrides::Override;
 use crate::plan::Plan;
 
@@ -248,9 +248,146 @@ pub fn kept_keys(store: &Store) -> Result<Vec<Hash>> {
         .collect())
 }
 
+/// Refuses to record over experiment `name` unless `force`: a run that would replace another's
+/// record must say so.
+pub fn check_free(store: &Store, name: &str, force: bool) -> Result<()> {
+    if !force && load(store, name)?.is_some() {
+        return Err(Error::usage(format!(
+            "experiment `{name}` exists\nhint: `osms exp run {name} --force ...` replaces it, `osms exp rm {name}` forgets it"
+        )));
+    }
+    Ok(())
+}
+
+/// A sweep as one graph: the points' plans merged (`Plan::merge`: shared upstream work is one
+/// instance), each point's targets named in the merged plan, and the held-out stages the
+/// build reads.
+pub struct Sweep {
+    pub plan: Plan,
+    /// Point k's stage name -> the merged plan's stage index.
+    pub maps: Vec<BTreeMap<String, usize>>,
+    /// Point k's targets, as the merged plan names them.
+    pub point_targets: Vec<Vec<String>>,
+    /// The held-out stages (`[pipeline] held_out`) that any point's targets read.
+    pub reads_held_out: Vec<String>,
+}
+
+impl Sweep {
+    /// Names `targets` (as one point's plan names them) in each point of the merged `plan`.
+    pub fn new(
+        plan: Plan,
+        maps: Vec<BTreeMap<String, usize>>,
+        targets: &[String],
+        seeds: &[u64],
+    ) -> Result<Self> {
+        let point_targets: Vec<Vec<String>> = maps
+            .iter()
+            .map(|m| targets.iter().map(|t| plan.point_target(m, t)).collect())
+            .collect();
+        let all: Vec<String> = point_targets.iter().flatten().cloned().collect();
+        let read: BTreeSet<&str> = plan
+            .instances(&all, seeds)?
+            .iter()
+            .map(|id| plan.stages[id.stage].name.as_str())
+            .collect();
+        let reads_held_out = plan
+            .held_out
+            .iter()
+            .filter(|h| read.contains(h.as_str()))
+            .cloned()
+            .collect();
+        Ok(Sweep {
+            plan,
+            maps,
+            point_targets,
+            reads_held_out,
+        })
+    }
+
+    /// Every point's targets: what one make of the merged plan builds.
+    pub fn all_targets(&self) -> Vec<String> {
+        self.point_targets.iter().flatten().cloned().collect()
+    }
+}
+
+/// What an experiment records beside its points' instances.
+pub struct RunSpec<'a> {
+    pub name: &'a str,
+    pub profile: String,
+    /// The targets as given (or the pipeline's `experiment_targets`).
+    pub targets: Vec<String>,
+    pub seeds: Vec<u64>,
+    /// The `--set` overrides of every point.
+    pub set: &'a [Override],
+    pub axes: &'a [Axis],
+    /// Each point's sweep values (`points(axes)`).
+    pub points: &'a [Vec<Override>],
+    /// Replace an experiment of the same name.
+    pub force: bool,
+}
+
+/// Builds `sweep` with `opts` (not a dry run) and records the experiment, holding the store
+/// lock from the make through the record: a `gc` waiting for it would otherwise run in between
+/// and remove the instances the record is about to name. The name is checked again under the
+/// lock, as two runs of one name started together both passed `check_free`.
+pub fn run(
+    store: &Store,
+    sweep: &Sweep,
+    spec: &RunSpec<'_>,
+    opts: &MakeOptions,
+    observer: &dyn Observer,
+) -> Result<(Experiment, MakeReport)> {
+    let lock = store.lock(|| observer.waiting_for_lock())?;
+    if !spec.force && load(store, spec.name)?.is_some() {
+        return Err(Error::usage(format!(
+            "experiment `{name}` was recorded by another osms process while this one waited for the store lock\nhint: `osms exp run {name} --force ...` replaces it, or choose another name",
+            name = spec.name
+        )));
+    }
+    let report = crate::exec::make_holding(&sweep.plan, store, &lock, opts, observer)?;
+    let set: Vec<String> = spec.set.iter().map(|o| o.to_string()).collect();
+    let mut recorded = Vec::with_capacity(spec.points.len());
+    for (k, point) in spec.points.iter().enumerate() {
+        let target_stages: Vec<usize> = spec
+            .targets
+            .iter()
+            .filter_map(|t| {
+                sweep.maps[k]
+                    .get(t.split(['#', '@']).next().unwrap_or(t))
+                    .copied()
+            })
+            .collect();
+        let mut overrides = set.clone();
+        overrides.extend(point.iter().map(|o| o.to_string()));
+        recorded.push(point_record(
+            &sweep.plan,
+            &report,
+            &sweep.point_targets[k],
+            &spec.seeds,
+            &target_stages,
+            point.iter().map(|o| o.value_text()).collect(),
+            overrides,
+        )?);
+    }
+    let exp = Experiment {
+        version: RECORD_VERSION,
+        name: spec.name.to_string(),
+        profile: spec.profile.clone(),
+        targets: spec.targets.clone(),
+        seeds: spec.seeds.clone(),
+        set,
+        axes: spec.axes.iter().map(|a| a.knob.clone()).collect(),
+        points: recorded,
+        reads_held_out: sweep.reads_held_out.clone(),
+    };
+    save(store, &exp)?;
+    drop(lock);
+    Ok((exp, report))
+}
+
 /// The record of one point after a make of the merged sweep plan: its instances, named as a
 /// plain make of that point would name them, with the keys the make reported.
-pub fn point_record(
+fn point_record(
     plan: &Plan,
     report: &MakeReport,
     targets: &[String],

@@ -6,8 +6,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Result, bail};
-use osms_make::experiment::{self, Axis, Experiment, RECORD_VERSION};
-use osms_make::{MakeOptions, Observer, Outcome, Pipeline, Plan};
+use osms_make::experiment::{self, Axis, RunSpec, Sweep};
+use osms_make::{MakeOptions, Outcome, Pipeline, Plan};
 
 use crate::cli::ExpRunArgs;
 use crate::commands::make::{failure_exit, foreign_mujoco};
@@ -59,43 +59,23 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
     let seeds = Context::seeds(&args.selection, &plans[0]);
     let profile_name = plans[0].profile.clone();
     let store = ctx.store()?;
-    if !args.force && !args.dry_run && experiment::load(&store, &args.name)?.is_some() {
-        bail!(
-            "experiment `{}` exists\nhint: `osms exp run {} --force ...` replaces it, `osms exp rm {}` forgets it",
-            args.name,
-            args.name,
-            args.name
-        );
+    if !args.dry_run {
+        experiment::check_free(&store, &args.name, args.force)?;
     }
     let (plan, maps) = Plan::merge(plans)?;
     if let Some(problem) = foreign_mujoco(&plan, osms_sim::MUJOCO_PINNED) {
         bail!("{problem}");
     }
-    let point_targets: Vec<Vec<String>> = maps
-        .iter()
-        .map(|m| targets.iter().map(|t| plan.point_target(m, t)).collect())
-        .collect();
-    let all_targets: Vec<String> = point_targets.iter().flatten().cloned().collect();
-    let needed = plan.instances(&all_targets, &seeds)?;
-    let read: BTreeSet<&str> = needed
-        .iter()
-        .map(|id| plan.stages[id.stage].name.as_str())
-        .collect();
-    let reads_held_out: Vec<String> = plan
-        .held_out
-        .iter()
-        .filter(|h| read.contains(h.as_str()))
-        .cloned()
-        .collect();
-    if !reads_held_out.is_empty() && !ctx.quiet {
+    let sweep = Sweep::new(plan, maps, &targets, &seeds)?;
+    if !sweep.reads_held_out.is_empty() && !ctx.quiet {
         errln!(
             "warning: experiment `{}` reads the held-out stage(s) {}: choosing a knob on them leaks the final tables' conditions\nhint: target a development stream (`[pipeline] experiment_targets`: {})",
             args.name,
-            reads_held_out.join(", "),
-            if plan.experiment_targets.is_empty() {
+            sweep.reads_held_out.join(", "),
+            if sweep.plan.experiment_targets.is_empty() {
                 "none declared".to_string()
             } else {
-                plan.experiment_targets.join(", ")
+                sweep.plan.experiment_targets.join(", ")
             }
         );
     }
@@ -108,39 +88,17 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
 
     let jobs = Context::jobs(args.jobs);
     let opts = MakeOptions {
-        targets: all_targets,
+        targets: sweep.all_targets(),
         seeds: seeds.clone(),
         jobs,
         stages: crate::cli::Stages::resolve(args.stages, jobs),
         dry_run: args.dry_run,
     };
     let observer = MakeObserver::of(ctx);
-    // The lock is held from the make through saving the record: a `gc` waiting for it would
-    // otherwise run in between and remove the instances the record is about to name.
-    let lock = if args.dry_run {
-        None
-    } else {
-        let lock = store.lock(|| observer.waiting_for_lock())?;
-        // Checked again under the lock: two runs of one name started together both passed
-        // the check above.
-        if !args.force && experiment::load(&store, &args.name)?.is_some() {
-            bail!(
-                "experiment `{}` was recorded by another osms process while this one waited for the store lock\nhint: `osms exp run {} --force ...` replaces it, or choose another name",
-                args.name,
-                args.name
-            );
-        }
-        Some(lock)
-    };
-    let report = match &lock {
-        Some(held) => osms_make::make_holding(&plan, &store, held, &opts, &observer)?,
-        None => osms_make::make(&plan, &store, &opts, &observer)?,
-    };
-    let built = report.count(|o| matches!(o, Outcome::Built { .. }));
-    let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
-    let would = report.count(|o| matches!(o, Outcome::WouldBuild { .. }));
-    let failed = report.failed();
     if args.dry_run {
+        let report = osms_make::make(&sweep.plan, &store, &opts, &observer)?;
+        let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
+        let would = report.count(|o| matches!(o, Outcome::WouldBuild { .. }));
         if !ctx.quiet {
             errln!(
                 "osms exp run {}: {} point(s); {would} instance(s) would be built, {cached} cached (nothing recorded)",
@@ -153,43 +111,20 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
-
-    let set_texts: Vec<String> = set.iter().map(|o| o.to_string()).collect();
-    let mut recorded = Vec::with_capacity(points.len());
-    for (k, point) in points.iter().enumerate() {
-        let target_stages: Vec<usize> = targets
-            .iter()
-            .filter_map(|t| {
-                maps[k]
-                    .get(t.split(['#', '@']).next().unwrap_or(t))
-                    .copied()
-            })
-            .collect();
-        let mut overrides = set_texts.clone();
-        overrides.extend(point.iter().map(|o| o.to_string()));
-        recorded.push(experiment::point_record(
-            &plan,
-            &report,
-            &point_targets[k],
-            &seeds,
-            &target_stages,
-            point.iter().map(|o| o.value_text()).collect(),
-            overrides,
-        )?);
-    }
-    let exp = Experiment {
-        version: RECORD_VERSION,
-        name: args.name.clone(),
+    let spec = RunSpec {
+        name: &args.name,
         profile: profile_name,
         targets,
         seeds,
-        set: set_texts,
-        axes: axes.iter().map(|a| a.knob.clone()).collect(),
-        points: recorded,
-        reads_held_out,
+        set: &set,
+        axes: &axes,
+        points: &points,
+        force: args.force,
     };
-    experiment::save(&store, &exp)?;
-    drop(lock);
+    let (exp, report) = experiment::run(&store, &sweep, &spec, &opts, &observer)?;
+    let built = report.count(|o| matches!(o, Outcome::Built { .. }));
+    let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
+    let failed = report.failed();
     if args.json {
         print_json(&serde_json::json!({ "experiment": exp, "make": report }))?;
     }
