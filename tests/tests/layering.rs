@@ -79,7 +79,7 @@ fn passes_on_this_workspace() {
     let out = check(&[]);
     assert!(out.status.success(), "{}", stderr(&out));
     assert!(
-        stderr(&out).contains("edges, cycles, sentences hold"),
+        stderr(&out).contains("edges, cycles, sentences, rooms hold"),
         "{}",
         stderr(&out)
     );
@@ -304,6 +304,58 @@ fn an_import_circle_between_modules_fails_and_nested_modules_are_no_circle() {
         SENTENCE,
     );
     let out = fine.check("cycles");
+    assert!(out.status.success(), "{}", stderr(&out));
+}
+
+/// A library module of a crate with the three rooms must not import `stages` or `artifacts`; the
+/// stages import the library, and a crate without both rooms (the test crate) has none to keep
+/// apart.
+#[test]
+fn a_library_module_that_imports_the_stages_fails() {
+    let lib = "//! A demo crate: modules that import each other, or not.\n\nmod stages;\nmod artifacts;\nmod fit;\n\npub use stages::FitParams;\n";
+    let files = |fit: &'static str| {
+        [
+            ("lib.rs", lib),
+            (
+                "stages/mod.rs",
+                "mod checks;\npub struct FitParams;\nuse crate::fit::run;\n",
+            ),
+            ("stages/checks.rs", "use super::FitParams;\n"),
+            ("artifacts.rs", "use crate::fit::run;\n"),
+            ("fit.rs", fit),
+        ]
+    };
+    let fine = Demo::new(&files("pub fn run() {}\n"), SENTENCE, SENTENCE);
+    let out = fine.check("rooms");
+    assert!(out.status.success(), "{}", stderr(&out));
+
+    // Through the root's re-export, as `checks.rs` did before it moved under `stages/`.
+    let wrong = Demo::new(
+        &files("use crate::FitParams;\npub fn run(_: FitParams) {}\n"),
+        SENTENCE,
+        SENTENCE,
+    );
+    let out = wrong.check("rooms");
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("rooms: `demo`: library module `fit` imports `stages`"),
+        "{}",
+        stderr(&out)
+    );
+
+    let no_rooms = Demo::new(
+        &[
+            (
+                "lib.rs",
+                "//! A demo crate: modules that import each other, or not.\n\nmod stages;\nmod fit;\n",
+            ),
+            ("stages.rs", "pub struct Kind;\n"),
+            ("fit.rs", "use crate::stages::Kind;\n"),
+        ],
+        SENTENCE,
+        SENTENCE,
+    );
+    let out = no_rooms.check("rooms");
     assert!(out.status.success(), "{}", stderr(&out));
 }
 

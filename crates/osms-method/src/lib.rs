@@ -14,7 +14,6 @@
 pub mod artifacts;
 pub mod calibrate;
 pub mod candidates;
-mod checks;
 pub mod construct;
 pub mod cvae;
 mod error;

@@ -13,7 +13,6 @@
 pub mod artifacts;
 pub mod catch;
 pub mod checkpoint;
-mod checks;
 mod error;
 pub mod flow;
 pub mod norm;

@@ -9,7 +9,6 @@
 
 pub mod artifacts;
 pub mod catcher;
-mod checks;
 pub mod conditions;
 pub mod control;
 pub mod episode;

@@ -8,6 +8,7 @@
 mod calibration;
 mod candidate_table;
 mod candidates;
+mod checks;
 mod construction_table;
 mod dart;
 mod dstar;

@@ -3,6 +3,7 @@
 //! `eval_student`, `error_pairs`, the `dagger` diagnostic) and `evaluate`, any of the three
 //! policies on a condition set.
 
+mod checks;
 mod collect;
 mod dagger;
 mod error_pairs;

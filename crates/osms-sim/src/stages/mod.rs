@@ -1,5 +1,6 @@
 //! The simulator's stage kinds, one file each: `world`, `conditions` and `eval_scripted`.
 
+mod checks;
 mod conditions;
 mod eval_scripted;
 mod world;

@@ -1,15 +1,16 @@
 //! The valid ranges of this crate's params (`osms_core::check`), in one place so that they are
-//! read together. Caps are sanity bounds far above every profile's value.
+//! read together. Caps are sanity bounds far above every profile's value. It lives with the
+//! stages, which check params, so that no library module imports `stages`.
 
 use osms_core::check::{Check, Checked, count, each, interval, nested, positive, unit, within};
 
+use super::{ConditionsParams, EvalParams};
 use crate::catcher::CatcherSpec;
 use crate::conditions::ConditionSpec;
 use crate::control::{ControlSpec, DrSpec};
 use crate::episode::RolloutSpec;
 use crate::metrics::SuccessSpec;
 use crate::spec::WorldSpec;
-use crate::stages::{ConditionsParams, EvalParams};
 
 /// Joint angles (rad): any posture of a revolute joint.
 const ANGLE: f64 = 2.0 * std::f64::consts::PI;

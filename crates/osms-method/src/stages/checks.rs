@@ -1,17 +1,18 @@
 //! The valid ranges of this crate's params (`osms_core::check`), in one place so that they are
-//! read together. Caps are sanity bounds far above every profile's value.
+//! read together. Caps are sanity bounds far above every profile's value. It lives with the
+//! stages, which check params, so that no library module imports `stages`.
 
 use osms_core::check::{
     Check, Checked, Invalid, count, each, nested, positive, signed, unit, widths, within,
 };
 
+use super::{BaselineParams, CalibrateParams, CalibrationParams, DartParams};
 use crate::candidates::SearchParams;
 use crate::cvae::ManifoldParams;
 use crate::error_model::ErrorFitParams;
 use crate::error_model::ErrorVariant;
 use crate::ios::IosParams;
 use crate::project::ProjectionParams;
-use crate::stages::{BaselineParams, CalibrateParams, CalibrationParams, DartParams};
 use crate::validate::ValidateParams;
 
 impl Check for ProjectionParams {

@@ -1,18 +1,19 @@
 //! The valid ranges of this crate's params (`osms_core::check`), in one place so that they are
-//! read together. Caps are sanity bounds far above every profile's value.
+//! read together. Caps are sanity bounds far above every profile's value. It lives with the
+//! stages, which check params, so that no library module imports `stages`.
 
 use osms_core::check::{
     Check, Checked, Invalid, count, each, nested, positive, unit, widths, within,
 };
 
+use super::{
+    CollectParams, DaggerRoundParams, ErrorPairsParams, EvalStudentParams, EvalTeacherParams,
+    EvaluateParams, TeacherParams,
+};
 use crate::catch::{CatchTaskSpec, RewardSpec};
 use crate::flow::UNetSpec;
 use crate::osw::OswSpec;
 use crate::ppo::PpoConfig;
-use crate::stages::{
-    CollectParams, DaggerRoundParams, ErrorPairsParams, EvalStudentParams, EvalTeacherParams,
-    EvaluateParams, TeacherParams,
-};
 use crate::student::{ChunkExecution, StudentNetwork, StudentParams};
 
 /// Layer widths and other network sizes.
