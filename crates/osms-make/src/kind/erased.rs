@@ -14,11 +14,10 @@ use rayon::prelude::*;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-use super::author::{
-    CheckpointIo, Ctx, Fold, InputBytes, ItemStage, Numerics, Objects, Progress, Scale,
-    Sharded as _, Slot, Stage, StageError, Summarize,
-};
-use super::stored::{Manifest, ShardItems, StoredItem, assemble, load_item};
+use super::StageError;
+use super::author::{ItemStage, Numerics, Scale, Slot, Stage, Summarize};
+use super::ctx::{CheckpointIo, Ctx, Fold, InputBytes, Progress};
+use super::stored::{Manifest, Objects, ShardItems, Sharded as _, StoredItem, assemble, load_item};
 
 /// Canonical, typed params of one stage.
 pub struct ParsedParams {

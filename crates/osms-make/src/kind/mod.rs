@@ -6,21 +6,23 @@
 //! ([`Stage`]) compute one artifact; itemised kinds ([`ItemStage`]) compute a list of
 //! independent items that the executor can split into shards.
 //!
-//! [`author`] is what a kind implements and reads; [`erased`] turns a kind into a [`DynKind`]
-//! the engine runs without knowing its types; [`stored`] is how itemised outputs and shards sit
-//! in the store; [`Registry`] maps names to kinds.
+//! [`author`] is what a kind implements; [`ctx`] what a running stage reads; [`erased`] turns a
+//! kind into a [`DynKind`] the engine runs without knowing its types; [`stored`] is how itemised
+//! outputs and shards sit in the store; [`Registry`] maps names to kinds.
 
 mod author;
+mod ctx;
 mod erased;
 mod registry;
 mod stored;
 
-pub use author::{
-    CHECKPOINT_TAG, CheckpointIo, Ctx, Fold, InputBytes, ItemStage, Member, NoProgress, Numerics,
-    Objects, Progress, Scale, Sharded, Slot, Stage, StageError, Summarize, items_one_by_one,
-};
+/// What a stage's `run` returns on failure; any error type converts into it.
+pub type StageError = Box<dyn std::error::Error + Send + Sync>;
+
+pub use author::{ItemStage, Numerics, Scale, Slot, Stage, Summarize, items_one_by_one};
+pub use ctx::{CHECKPOINT_TAG, CheckpointIo, Ctx, Fold, InputBytes, Member, NoProgress, Progress};
 pub use erased::{
     DynKind, KindInfo, ParamError, ParsedParams, RunEnv, RunOutput, ShardIo, ShardRun,
 };
 pub use registry::Registry;
-pub use stored::{Manifest, assemble};
+pub use stored::{Manifest, Objects, Sharded, assemble};

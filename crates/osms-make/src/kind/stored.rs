@@ -7,7 +7,7 @@ use osms_store::Hash;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use super::author::{Objects, Sharded, StageError};
+use super::StageError;
 
 /// The stored form of an itemised stage's output: the object of every item, in index order,
 /// and the head (the output without its items). Its type tag and schema are the head's: a
@@ -61,4 +61,24 @@ pub(super) struct ShardItems(pub(super) Vec<Hash>);
 impl Artifact for ShardItems {
     const TYPE_TAG: &'static str = "shard";
     const SCHEMA_VERSION: u16 = 2;
+}
+
+/// The output of an itemised kind: a head plus the items, in index order. The store keeps each
+/// item once, as an object of its own, and the head in a [`Manifest`] that lists them, so a
+/// large dataset is stored once and consumers can read it item by item ([`Ctx::items`](super::Ctx::items)).
+/// Objects per item, not per shard, keep the manifest (and so every key downstream) the same
+/// whatever the shard count.
+pub trait Sharded: Artifact {
+    type Item: Serialize + DeserializeOwned + Send + 'static;
+    /// Moves the items out, leaving the head.
+    fn take_items(&mut self) -> Vec<Self::Item>;
+    /// Puts the items back into a head.
+    fn set_items(&mut self, items: Vec<Self::Item>);
+}
+
+/// Reads and writes objects of the store (verified by hash) for kinds that store or stream
+/// items.
+pub trait Objects: Sync {
+    fn get(&self, hash: &Hash) -> Result<Vec<u8>, StageError>;
+    fn put(&self, bytes: &[u8]) -> Result<Hash, StageError>;
 }
