@@ -5,6 +5,7 @@
 //! Entry points: [`Pipeline::load`] reads the declaration, [`Plan::new`] checks it against a
 //! [`Registry`] of stage kinds, [`make`] builds, [`status`] and [`why`] explain.
 
+pub mod cost;
 mod cpu;
 mod error;
 mod estimate;

@@ -1,8 +1,8 @@
-use std::collections::BTreeMap;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context as _, Result, bail};
+use osms_make::cost::Cost;
 use osms_make::executor::{ExecutorConfig, ExecutorKind, load_user_config, user_config_path};
 use osms_make::slurm::Launch;
 use osms_make::slurm::cmd::SlurmCli;
@@ -55,7 +55,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     } else {
         None
     };
-    let cost = cost(&plan, &seeds, &report, started.elapsed().as_secs_f64());
+    let cost = Cost::of(&plan, &seeds, &report, started.elapsed().as_secs_f64());
     if args.json {
         let mut value = serde_json::to_value(&report)?;
         if let Some(e) = &estimate {
@@ -443,99 +443,5 @@ mod tests {
                 .any(|l| l == format!("MJ_VERSION={}", osms_sim::MUJOCO_PINNED)),
             "scripts/setup-mujoco installs another MuJoCo than osms_sim::MUJOCO_PINNED"
         );
-    }
-}
-
-/// What a make's builds cost (`make --json`'s `cost`): the make's wall time, the CPU time its
-/// builds used, the cores it had, and the same by stage kind.
-#[derive(Debug, serde::Serialize)]
-pub(crate) struct Cost {
-    pub wall_secs: f64,
-    pub cpu_secs: f64,
-    pub cores: usize,
-    /// CPU seconds over wall seconds times cores: 1 when every core was busy throughout.
-    pub machine_share: f64,
-    pub by_kind: Vec<KindCost>,
-}
-
-/// The builds of one stage kind (in a make, or behind a report).
-#[derive(Debug, serde::Serialize)]
-pub(crate) struct KindCost {
-    pub kind: String,
-    pub builds: usize,
-    /// The sum of the builds' wall times (builds side by side each count in full).
-    pub wall_secs: f64,
-    pub cpu_secs: f64,
-    /// CPU seconds over the wall seconds of the builds whose CPU time was measured: how many
-    /// cores a build of this kind kept busy (none when no build of it was measured).
-    pub cores_busy: Option<f64>,
-}
-
-impl KindCost {
-    /// Builds (kind, wall seconds, CPU seconds if measured) summed by kind, the most CPU first
-    /// (then the most wall time).
-    pub(crate) fn tally(builds: impl IntoIterator<Item = (String, f64, Option<f64>)>) -> Vec<Self> {
-        let mut kinds: BTreeMap<String, (usize, f64, f64, f64)> = BTreeMap::new();
-        for (kind, wall, cpu) in builds {
-            let k = kinds.entry(kind).or_default();
-            k.0 += 1;
-            k.1 += wall;
-            if let Some(cpu) = cpu {
-                k.2 += cpu;
-                k.3 += wall;
-            }
-        }
-        let mut out: Vec<KindCost> = kinds
-            .into_iter()
-            .map(|(kind, (builds, wall, cpu, metered))| KindCost {
-                kind,
-                builds,
-                wall_secs: wall,
-                cpu_secs: cpu,
-                cores_busy: (metered > 0.0).then(|| cpu / metered),
-            })
-            .collect();
-        out.sort_by(|a, b| {
-            b.cpu_secs
-                .total_cmp(&a.cpu_secs)
-                .then(b.wall_secs.total_cmp(&a.wall_secs))
-        });
-        out
-    }
-}
-
-pub(crate) fn cost(
-    plan: &Plan,
-    seeds: &[u64],
-    report: &osms_make::MakeReport,
-    wall_secs: f64,
-) -> Cost {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let by_kind = KindCost::tally(
-        report
-            .instances
-            .iter()
-            .filter(|r| matches!(r.outcome, Outcome::Built { .. } | Outcome::Failed { .. }))
-            .map(|r| {
-                let kind = plan.instance_named(&r.instance, seeds).map_or_else(
-                    || r.instance.clone(),
-                    |id| plan.stages[id.stage].info.name.to_string(),
-                );
-                (kind, r.wall_time_secs, Some(r.cpu_secs))
-            }),
-    );
-    // A fold from +0: `sum` of nothing is −0.0, which a fully cached make's JSON printed.
-    let cpu_secs = by_kind.iter().fold(0.0, |total, k| total + k.cpu_secs);
-    let machine = wall_secs * cores as f64;
-    Cost {
-        wall_secs,
-        cpu_secs,
-        cores,
-        machine_share: if machine > 0.0 {
-            cpu_secs / machine
-        } else {
-            0.0
-        },
-        by_kind,
     }
 }

@@ -158,7 +158,7 @@ fn provenance(plan: &Plan, seeds: &[u64], lineage: &[(String, String, Option<Rec
 /// cores a build of the kind kept busy (CPU over wall), most expensive first. Records from
 /// before osms measured CPU time count only in the wall column.
 fn cost_by_kind(lineage: &[(String, String, Option<Record>)]) -> String {
-    let kinds = super::make::KindCost::tally(lineage.iter().filter_map(|(_, kind, r)| {
+    let kinds = osms_make::cost::KindCost::tally(lineage.iter().filter_map(|(_, kind, r)| {
         r.as_ref()
             .map(|r| (kind.clone(), r.wall_time_secs, r.cpu_secs))
     }));
