@@ -6,6 +6,7 @@
 mod checks;
 mod collect;
 mod dagger;
+mod dagger_round;
 mod error_pairs;
 mod eval_student;
 mod eval_teacher;
@@ -16,9 +17,8 @@ mod teacher;
 mod teacher_table;
 
 pub use collect::{CollectParams, CollectStage, DatasetRole};
-pub use dagger::{
-    DaggerPrepared, DaggerRoundParams, DaggerRoundPrepared, DaggerRoundStage, DaggerStage,
-};
+pub use dagger::{DaggerPrepared, DaggerStage};
+pub use dagger_round::{DaggerRoundParams, DaggerRoundPrepared, DaggerRoundStage};
 pub use error_pairs::{ErrorPairsParams, ErrorPairsStage, PairsPrepared};
 pub use eval_student::{EvalStudentParams, EvalStudentStage};
 pub use eval_teacher::{EvalTeacherParams, EvalTeacherStage};
