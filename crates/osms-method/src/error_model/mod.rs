@@ -39,7 +39,8 @@ pub(crate) mod testdata;
 
 pub use fit::fit;
 pub use model::{
-    ErrorFitParams, ErrorModel, ErrorVariant, N_PHASES, PairSequence, PhaseModel, StationaryFit,
+    ErrorFitParams, ErrorModel, ErrorVariant, N_PHASES, PAPER_KAPPA, PairSequence, PhaseModel,
+    StationaryFit,
 };
 pub use perturb::Perturber;
 pub use table3::{Table3Bootstrap, Table3Metrics, table3_bootstrap, table3_metrics};

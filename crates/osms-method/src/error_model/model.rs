@@ -97,12 +97,16 @@ pub struct ErrorFitParams {
     pub stationary: StationaryFit,
 }
 
+/// κ_ε, the error amplification validation applies the fitted model at (the paper's
+/// experimental setup: κ_ε = 1.5).
+pub const PAPER_KAPPA: f64 = 1.5;
+
 impl Default for ErrorFitParams {
     fn default() -> Self {
         Self {
             variant: ErrorVariant::PhaseCorrelated,
             max_delay: 4,
-            kappa: 1.5,
+            kappa: PAPER_KAPPA,
             max_ar: 0.99,
             stationary: StationaryFit::Residual,
         }

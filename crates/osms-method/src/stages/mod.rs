@@ -5,13 +5,15 @@
 //! paper `dart`) and the IOS
 //! profile (`ios_profile`).
 
-mod calibration;
+mod calibrate_error_model;
 mod candidate_table;
 mod candidates;
 mod checks;
+mod closed_loop;
 mod construction_table;
 mod dart;
 mod dstar;
+mod error_calibration;
 mod error_model;
 mod ios_profile;
 mod manifold;
@@ -19,14 +21,13 @@ mod naive;
 mod normal;
 mod validate;
 
-pub use calibration::{
-    CalibrateErrorModelStage, CalibrateParams, CalibrationParams, CalibrationStage,
-};
+pub use calibrate_error_model::{CalibrateErrorModelStage, CalibrateParams};
 pub use candidate_table::CandidateTableStage;
 pub use candidates::CandidatesStage;
 pub use construction_table::ConstructionTableStage;
 pub use dart::{DartParams, DartStage};
 pub use dstar::{DstarParams, DstarStage};
+pub use error_calibration::{CalibrationParams, CalibrationStage};
 pub use error_model::ErrorModelStage;
 pub use ios_profile::IosProfileStage;
 pub use manifold::ManifoldStage;
