@@ -1534,8 +1534,8 @@ fn interventions_replay_hand_back_and_share_random_numbers(made: &Made) {
         );
         assert_eq!(a.record.executed[..prefix], b.record.executed[..prefix]);
         assert_eq!(
-            a.record.deployable[..start * osms_sim::episode::DEPLOYABLE_LEN],
-            b.record.deployable[..start * osms_sim::episode::DEPLOYABLE_LEN]
+            a.record.deployable[..start * osms_sim::policy::DEPLOYABLE_LEN],
+            b.record.deployable[..start * osms_sim::policy::DEPLOYABLE_LEN]
         );
     }
     assert!(
@@ -1558,7 +1558,7 @@ fn validation_is_exact_when_fast_and_dstar_repeats_it(made: &Made) {
     use osms_policy::artifacts::Teacher;
     use osms_policy::artifacts::{DemoSet, Execution, Origin};
     use osms_sim::artifacts::WorldArtifact;
-    use osms_sim::episode::DEPLOYABLE_LEN;
+    use osms_sim::policy::DEPLOYABLE_LEN;
     use osms_sim::{N_ACTION, N_ARM};
 
     let extra = r#"

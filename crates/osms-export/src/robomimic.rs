@@ -38,7 +38,7 @@ use std::path::Path;
 
 use osms_policy::osw::OMEGA_LEN;
 use osms_sim::N_ACTION;
-use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
+use osms_sim::policy::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
 
 use self::hdf5::{Attr, Data, Group};

@@ -45,7 +45,8 @@ use osms_policy::catch::{CatchEpisode, CatchSnapshot, CatchTaskSpec, OBS_LEN};
 use osms_policy::student::{Demo, ROLLOUT_BATCH, Student, StudentParams, StudentPolicy, rollouts};
 use osms_policy::{Agent, PpoConfig, TaskEpisode};
 use osms_sim::control::DrSpec;
-use osms_sim::episode::{Hooks, initial_data};
+use osms_sim::episode::initial_data;
+use osms_sim::policy::Hooks;
 use osms_sim::{Action, Episode, N_ARM, RolloutSpec, TaskCondition, World, WorldSpec};
 
 /// Branches per condition, as validation's Q perturbed rollouts.

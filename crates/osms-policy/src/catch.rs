@@ -12,8 +12,9 @@ use osms_sim::catcher::{
     CatcherSpec, PALM_MOTION_DAMPING, Perception, ScriptedCatcher, palm_motion_channels,
 };
 use osms_sim::control::{DrSpec, hold_action};
-use osms_sim::episode::{
-    DEPLOYABLE_LEN, OBSERVED_OBJECT, PALM_TOUCH, PRIVILEGED_LEN, PRIVILEGED_PALM, Snapshot,
+use osms_sim::episode::Snapshot;
+use osms_sim::policy::{
+    DEPLOYABLE_LEN, OBSERVED_OBJECT, PALM_TOUCH, PRIVILEGED_LEN, PRIVILEGED_PALM,
 };
 use osms_sim::vec3::{norm, sub};
 use osms_sim::{
@@ -115,7 +116,7 @@ pub enum ActorInputs {
     /// differences), plus the ballistic fit and the prior's action, both functions of it.
     Deployable,
     /// `NoContact` plus the palm's touch readings of the last [`REALISABLE_HISTORY`] frames
-    /// (the deployable contact signal, `osms_sim::episode::PALM_TOUCH`). Declared after the
+    /// (the deployable contact signal, `osms_sim::policy::PALM_TOUCH`). Declared after the
     /// others so they keep their keys; on the ladder it sits between `NoContact` and
     /// `Deployable`.
     Touch,

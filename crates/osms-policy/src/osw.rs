@@ -75,7 +75,7 @@ pub struct OswWindow {
 
 /// Length of ω̄: ω, the DR draws, a privileged frame and the arm's servo targets.
 pub const OMEGA_BAR_LEN: usize =
-    OMEGA_LEN + DR_FEATURES_LEN + osms_sim::episode::PRIVILEGED_LEN + N_ARM;
+    OMEGA_LEN + DR_FEATURES_LEN + osms_sim::policy::PRIVILEGED_LEN + N_ARM;
 
 impl OswWindow {
     /// Cuts the window out of a record that kept its privileged frames. Fails if the record

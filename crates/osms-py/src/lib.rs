@@ -449,13 +449,13 @@ fn observation_dict(py: Python<'_>, n: usize, f: Frames) -> PyResult<Bound<'_, P
         "agent_pos",
         f.deployable
             .into_pyarray(py)
-            .reshape([n, osms_sim::episode::DEPLOYABLE_LEN])?,
+            .reshape([n, osms_sim::policy::DEPLOYABLE_LEN])?,
     )?;
     if let Some(p) = f.privileged {
         dict.set_item(
             "environment_state",
             p.into_pyarray(py)
-                .reshape([n, osms_sim::episode::PRIVILEGED_LEN])?,
+                .reshape([n, osms_sim::policy::PRIVILEGED_LEN])?,
         )?;
     }
     dict.set_item("condition", f.condition.into_pyarray(py))?;
@@ -685,8 +685,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("OsmsError", m.py().get_type::<OsmsError>())?;
     m.add("ActionError", m.py().get_type::<ActionError>())?;
     m.add("N_ACTION", osms_sim::N_ACTION)?;
-    m.add("DEPLOYABLE_LEN", osms_sim::episode::DEPLOYABLE_LEN)?;
-    m.add("PRIVILEGED_LEN", osms_sim::episode::PRIVILEGED_LEN)?;
+    m.add("DEPLOYABLE_LEN", osms_sim::policy::DEPLOYABLE_LEN)?;
+    m.add("PRIVILEGED_LEN", osms_sim::policy::PRIVILEGED_LEN)?;
     // The default world's control rate; a protocol's own is `Protocol.control_hz`.
     m.add(
         "DEFAULT_CONTROL_HZ",

@@ -23,7 +23,8 @@ use bare::{Bare, Controls, STATE, conditions, dr, measure, replay, report, setti
 use mujoco_rs::prelude::*;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::control::DrSpec;
-use osms_sim::episode::{Episode, Hooks, RolloutSpec, initial_data};
+use osms_sim::episode::{Episode, RolloutSpec, initial_data};
+use osms_sim::policy::Hooks;
 use osms_sim::{TaskCondition, World, WorldSpec};
 
 struct Bench<'a> {

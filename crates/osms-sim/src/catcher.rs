@@ -11,7 +11,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::conditions::GRAVITY_MPS2;
 use crate::control::{Action, ControlSpec, N_ACTION, N_ARM, N_HAND, hold_action};
-use crate::episode::{OBSERVED_OBJECT, ObservedObject, Policy, PolicyView};
+use crate::episode::ObservedObject;
+use crate::policy::{OBSERVED_OBJECT, Policy, PolicyView};
 use crate::spec::ObjectVariant;
 use crate::vec3::{cross, norm, sub, unit};
 use crate::world::palm_normal;
@@ -412,7 +413,7 @@ impl ScriptedCatcher {
         let touching = !self.perception.close_on_distance_only
             && view
                 .privileged
-                .get(crate::episode::PRIVILEGED_CONTACT_COUNT)
+                .get(crate::policy::PRIVILEGED_CONTACT_COUNT)
                 .is_some_and(|n| *n > 0.0);
         if !self.closed && (dist < self.spec.close_distance_m || touching) {
             self.closed = true;

@@ -106,7 +106,7 @@ impl ArmAction {
 
 impl ArmAction {
     /// The arm action in this world of a controller that moves by increments from the
-    /// commanded targets `commanded_rad` ([`crate::episode::PolicyView::commanded_arm`]): the
+    /// commanded targets `commanded_rad` ([`crate::policy::PolicyView::commanded_arm`]): the
     /// increments themselves on an increment arm, the targets they reach on an absolute one.
     pub fn from_increments(
         self,

@@ -17,6 +17,7 @@ pub mod ffi;
 pub mod flight;
 pub mod metrics;
 pub mod mjcf;
+pub mod policy;
 pub mod reach;
 pub mod replay;
 pub mod robot;
@@ -27,9 +28,10 @@ pub mod world;
 
 pub use conditions::{ConditionSpec, TaskCondition};
 pub use control::{Action, N_ACTION, N_ARM};
-pub use episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutRecord, RolloutSpec};
+pub use episode::{Episode, RolloutRecord, RolloutSpec};
 pub use error::{Result, SimError};
 pub use metrics::{Failure, FirstContact, Metrics, Outcome, Phase, SuccessSpec};
+pub use policy::{Hooks, NoHooks, Policy, PolicyView};
 pub use spec::{ObjectFamily, ObjectSize, ObjectVariant, WorldSpec};
 pub use world::{GeomClass, Ids, World};
 

@@ -7,7 +7,7 @@
 
 use crate::catcher::{CatcherSpec, PALM_MOTION_DAMPING, ScriptedCatcher, palm_motion_channels};
 use crate::control::{Action, ControlSpec, N_ARM};
-use crate::episode::{Policy, PolicyView};
+use crate::policy::{Policy, PolicyView};
 use crate::vec3::{norm, sub};
 
 /// The scripted catcher until first contact, then every arm channel at full scale along the

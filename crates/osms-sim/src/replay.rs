@@ -8,8 +8,9 @@ use mujoco_rs::prelude::*;
 use osms_core::rng;
 use serde::Serialize;
 
-use crate::episode::{DEPLOYABLE_LEN, Episode, RolloutRecord, RolloutSpec};
+use crate::episode::{Episode, RolloutRecord, RolloutSpec};
 use crate::metrics::Metrics;
+use crate::policy::DEPLOYABLE_LEN;
 use crate::world::World;
 
 /// MuJoCo's full physical state (`mjSTATE_FULLPHYSICS`: time, qpos, qvel, act, history,
@@ -223,7 +224,7 @@ fn compare(recorded: &RolloutRecord, replayed: &RolloutRecord) -> ReplayReport {
 mod tests {
     use super::*;
     use crate::control::{Action, DrSpec, N_ARM, hold_action};
-    use crate::episode::{NoHooks, Policy, PolicyView};
+    use crate::policy::{NoHooks, Policy, PolicyView};
     use crate::{ConditionSpec, WorldSpec, conditions};
     use osms_core::rng;
 

@@ -8,7 +8,8 @@ use osms_core::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::conditions::sample;
 use osms_sim::control::{ArmAction, DrSpec, N_ACTION, N_ARM, joint_ranges, targets};
-use osms_sim::episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutSpec};
+use osms_sim::episode::{Episode, RolloutSpec};
+use osms_sim::policy::{Hooks, NoHooks, Policy, PolicyView};
 use osms_sim::{Action, ConditionSpec, RolloutRecord, World, WorldSpec};
 
 fn world(arm: ArmAction) -> World {

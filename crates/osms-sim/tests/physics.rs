@@ -6,7 +6,8 @@ use mujoco_rs::prelude::*;
 use osms_core::rng;
 use osms_sim::conditions::{GRAVITY_MPS2, launch_velocity, sample};
 use osms_sim::control::{N_ACTION, N_ARM, N_HAND, hold_action};
-use osms_sim::episode::{Episode, Hooks, NoHooks, Policy, PolicyView, RolloutSpec};
+use osms_sim::episode::{Episode, RolloutSpec};
+use osms_sim::policy::{Hooks, NoHooks, Policy, PolicyView};
 use osms_sim::{
     Action, ConditionSpec, Failure, ObjectFamily, ObjectSize, ObjectVariant, Phase, TaskCondition,
     World, WorldSpec,
@@ -372,7 +373,7 @@ impl Policy for HistoryCheck {
         assert!(
             view.history
                 .iter()
-                .all(|f| f.len() == osms_sim::episode::DEPLOYABLE_LEN)
+                .all(|f| f.len() == osms_sim::policy::DEPLOYABLE_LEN)
         );
         self.seen.push(view.history.len());
         self.hold
@@ -507,7 +508,7 @@ struct Catcher {
 }
 impl Policy for Catcher {
     fn act(&mut self, view: &PolicyView<'_>) -> Action {
-        let count = osms_sim::episode::PRIVILEGED_CONTACT_COUNT;
+        let count = osms_sim::policy::PRIVILEGED_CONTACT_COUNT;
         self.seen
             .push((view.privileged[count], view.privileged[count - 1]));
         self.inner.act(view)
@@ -637,8 +638,8 @@ fn the_touch_reading_is_the_palms_contact_force() {
     let mut hand = open_hand();
     while ep.step(&mut hand, &mut controls) {}
     let record = ep.finish();
-    let len = osms_sim::episode::DEPLOYABLE_LEN;
-    let touch = osms_sim::episode::PALM_TOUCH;
+    let len = osms_sim::policy::DEPLOYABLE_LEN;
+    let touch = osms_sim::policy::PALM_TOUCH;
     let mut data = osms_sim::episode::initial_data(&w, &record.condition, &record.dr);
     let mut touched = 0;
     controls.replay(&mut data, |k, data| {
@@ -665,7 +666,7 @@ fn the_touch_readings_noise_has_its_stated_size() {
         dr: osms_sim::control::DrSpec::paper(),
         ..RolloutSpec::default()
     };
-    let len = osms_sim::episode::DEPLOYABLE_LEN;
+    let len = osms_sim::policy::DEPLOYABLE_LEN;
     let mut readings = Vec::new();
     for i in 0..12 {
         let record = Episode::new(&w, &spec, sampled(i, &w), rng::stream(0, "t", "noise", i))
@@ -677,14 +678,14 @@ fn the_touch_readings_noise_has_its_stated_size() {
             .saturating_sub(2);
         readings.extend(
             (0..before)
-                .map(|k| f64::from(record.deployable[k * len + osms_sim::episode::PALM_TOUCH])),
+                .map(|k| f64::from(record.deployable[k * len + osms_sim::policy::PALM_TOUCH])),
         );
     }
     let n = readings.len() as f64;
     assert!(n > 100.0, "{n} readings");
     let mean = readings.iter().sum::<f64>() / n;
     let sd = (readings.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
-    let sigma = osms_sim::episode::TOUCH_NOISE_N;
+    let sigma = osms_sim::policy::TOUCH_NOISE_N;
     assert!(mean.abs() < 4.0 * sigma / n.sqrt(), "mean {mean}");
     assert!((sd / sigma - 1.0).abs() < 0.2, "sd {sd} against {sigma}");
 }
@@ -709,8 +710,8 @@ fn recorded_privileged_frames_carry_the_force_whatever_the_policy_reads() {
     let (blind, blind_seen) = run(false);
     assert_eq!(reading, blind);
     assert_eq!(seen.len(), reading.steps);
-    let count = osms_sim::episode::PRIVILEGED_CONTACT_COUNT;
-    let len = osms_sim::episode::PRIVILEGED_LEN;
+    let count = osms_sim::policy::PRIVILEGED_CONTACT_COUNT;
+    let len = osms_sim::policy::PRIVILEGED_LEN;
     let mut touching = 0;
     for (k, ((_, force), (_, blind_force))) in seen.iter().zip(&blind_seen).enumerate() {
         assert_eq!(force.to_bits(), blind_force.to_bits(), "step {k}");

@@ -7,7 +7,8 @@
 use osms_core::rng;
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::conditions::sample;
-use osms_sim::episode::{Episode, NoHooks, Policy, RolloutSpec};
+use osms_sim::episode::{Episode, RolloutSpec};
+use osms_sim::policy::{NoHooks, Policy};
 use osms_sim::reach::FollowThroughProbe;
 use osms_sim::{ConditionSpec, TaskCondition, World, WorldSpec};
 

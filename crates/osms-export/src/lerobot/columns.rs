@@ -6,7 +6,7 @@ use std::ops::Range;
 
 use osms_policy::osw::OMEGA_LEN;
 use osms_sim::N_ACTION;
-use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
+use osms_sim::policy::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
 
 use crate::{Error, ExportOptions, ExportSet};

@@ -173,7 +173,7 @@ fn check(set: &ExportSet) -> Result<(), Error> {
 
 #[cfg(test)]
 mod tests {
-    use osms_sim::episode::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
+    use osms_sim::policy::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
     use osms_sim::robot::ARM_JOINTS;
 
     use super::*;

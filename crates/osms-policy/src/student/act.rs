@@ -3,7 +3,7 @@
 
 use osms_core::rng::StreamRng;
 use osms_nn::Matrix;
-use osms_sim::episode::{OBSERVED_OBJECT, PRIVILEGED_PALM};
+use osms_sim::policy::{OBSERVED_OBJECT, PRIVILEGED_PALM};
 use osms_sim::{Action, N_ACTION, N_ARM, PolicyView};
 
 use crate::flow::{FlowSampler, normals};

@@ -3,8 +3,8 @@
 //! action normalisation.
 
 use osms_sim::control::{ArmAction, ControlSpec, targets};
-use osms_sim::episode::{DEPLOYABLE_LEN, OBSERVED_OBJECT};
 use osms_sim::flight::track_with;
+use osms_sim::policy::{DEPLOYABLE_LEN, OBSERVED_OBJECT};
 use osms_sim::{Action, N_ACTION, N_ARM, RolloutRecord};
 use serde::{Deserialize, Serialize};
 

@@ -4,7 +4,7 @@
 //! - **Observation** o_n: the last `history` deployable frames, oldest first. A frame is the
 //!   robot's proprioception (arm and hand q, q̇), the object's *observed* position (delayed and
 //!   noisy under DR; no velocity, no contacts, nothing privileged) and the previous executed
-//!   action ([`osms_sim::episode::DEPLOYABLE_LEN`] values; `previous_actions = false` drops
+//!   action ([`osms_sim::policy::DEPLOYABLE_LEN`] values; `previous_actions = false` drops
 //!   the action). Before `history` frames exist, the oldest one is repeated, as the rollout's
 //!   history holds it. Optional features of the current step follow the frames: the palm's
 //!   position and velocity and the observed object's offset from the palm (`palm`: forward
@@ -43,7 +43,7 @@ pub use train::{Student, StudentCurvePoint, StudentState};
 mod tests {
     use osms_core::rng;
     use osms_sim::control::ArmAction;
-    use osms_sim::episode::DEPLOYABLE_LEN;
+    use osms_sim::policy::DEPLOYABLE_LEN;
     use osms_sim::{Action, N_ACTION, N_ARM};
 
     use super::train::Sampler;

@@ -1,6 +1,6 @@
 //! A student's architecture and training protocol ([`StudentParams`]).
 
-use osms_sim::episode::DEPLOYABLE_LEN;
+use osms_sim::policy::DEPLOYABLE_LEN;
 use osms_sim::{N_ACTION, N_ARM};
 use serde::{Deserialize, Serialize};
 

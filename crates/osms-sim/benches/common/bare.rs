@@ -10,8 +10,8 @@ use mujoco_rs::mujoco_c::{mjtStage, mjtState};
 use mujoco_rs::prelude::*;
 use osms_core::rng;
 use osms_sim::conditions::sample;
-use osms_sim::episode::Hooks;
 use osms_sim::metrics::scan;
+use osms_sim::policy::Hooks;
 use osms_sim::{Action, ConditionSpec, GeomClass, TaskCondition, World};
 
 pub const STATE: u32 = mjtState::mjSTATE_INTEGRATION as u32;

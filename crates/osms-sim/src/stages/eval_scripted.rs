@@ -6,7 +6,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use crate::catcher::{CatcherSpec, ScriptedCatcher};
-use crate::episode::{Episode, NoHooks, RolloutSpec};
+use crate::episode::{Episode, RolloutSpec};
+use crate::policy::NoHooks;
 use crate::world::World;
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
