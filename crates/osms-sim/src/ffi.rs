@@ -1,6 +1,5 @@
-//! Process-wide MuJoCo settings. The workspace denies `unsafe_code`; this module and osms-nn's
-//! `dispatch!` macro are the two places that allow it (ARCHITECTURE.md, "Deviations from the
-//! design sketch").
+//! Process-wide MuJoCo settings. The workspace denies `unsafe_code`; this module is one of the
+//! few files that allow it (ARCHITECTURE.md, "Unsafe code").
 #![allow(unsafe_code)]
 
 /// Routes MuJoCo's warnings and errors to the `log` crate (and from there to osms's tracing
