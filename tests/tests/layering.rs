@@ -79,7 +79,7 @@ fn passes_on_this_workspace() {
     let out = check(&[]);
     assert!(out.status.success(), "{}", stderr(&out));
     assert!(
-        stderr(&out).contains("edges, cycles, sentences, rooms hold"),
+        stderr(&out).contains("edges, cycles, sentences, rooms, unsafe hold"),
         "{}",
         stderr(&out)
     );
@@ -254,6 +254,19 @@ impl Demo {
             only,
         ])
     }
+
+    /// Replaces the crate table file's "Unsafe code" section with `section`.
+    fn set_unsafe_section(&self, section: &str) {
+        let path = self.dir.path().join("ARCHITECTURE.md");
+        let text = std::fs::read_to_string(&path).expect("read");
+        let kept = text.split("\n## Unsafe code").next().expect("a first part");
+        std::fs::write(&path, format!("{kept}{section}")).expect("write");
+    }
+
+    /// Rewrites one source file of the demo crate.
+    fn write(&self, path: &str, text: &str) {
+        std::fs::write(self.dir.path().join("crates/demo/src").join(path), text).expect("write");
+    }
 }
 
 const SENTENCE: &str = "A demo crate: modules that import each other, or not.";
@@ -371,6 +384,59 @@ fn a_crate_must_say_one_sentence_everywhere() {
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
     assert!(
         stderr(&out).contains("`demo` does not say one sentence everywhere"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+/// Every file that allows `unsafe_code` is in ARCHITECTURE.md's "Unsafe code" table, and every
+/// file there allows it; a comment that names the attribute is no allowance, and a table
+/// without the section leaves the check undone (exit 2).
+#[test]
+fn every_allowance_of_unsafe_code_is_listed_with_its_reason() {
+    let lib = "//! A demo crate: modules that import each other, or not.\n\nmod ffi;\nmod gl;\n";
+    let allows = "#![allow(unsafe_code)]\npub fn f() {}\n";
+    let demo = Demo::new(
+        &[("lib.rs", lib), ("ffi.rs", allows), ("gl.rs", allows)],
+        SENTENCE,
+        SENTENCE,
+    );
+    let out = demo.check("unsafe");
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("no `## Unsafe code` section"),
+        "{}",
+        stderr(&out)
+    );
+
+    let table = |files: &[&str]| {
+        let rows: String = files
+            .iter()
+            .map(|f| format!("| `crates/demo/src/{f}` | a C call |\n"))
+            .collect();
+        format!("\n## Unsafe code\n\n| file | why |\n|---|---|\n{rows}")
+    };
+    demo.set_unsafe_section(&table(&["gl.rs"]));
+    let out = demo.check("unsafe");
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("unsafe: `crates/demo/src/ffi.rs` allows unsafe_code but"),
+        "{}",
+        stderr(&out)
+    );
+
+    demo.set_unsafe_section(&table(&["gl.rs", "ffi.rs"]));
+    let out = demo.check("unsafe");
+    assert!(out.status.success(), "{}", stderr(&out));
+
+    demo.write(
+        "ffi.rs",
+        "// Once had #[allow(unsafe_code)].\npub fn f() {}\n",
+    );
+    let out = demo.check("unsafe");
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("lists `crates/demo/src/ffi.rs`, which allows no unsafe_code"),
         "{}",
         stderr(&out)
     );
