@@ -8,14 +8,13 @@ use osms_make::{Pipeline, Plan, Registry};
 use osms_store::Store;
 
 use crate::cli::{Global, Selection};
+use crate::term::Printer;
 
 pub struct Context {
     pub pipeline_path: PathBuf,
     pub store_path: PathBuf,
     pub registry: Registry,
-    pub quiet: bool,
-    pub verbose: bool,
-    pub progress: bool,
+    pub printer: Printer,
 }
 
 impl Context {
@@ -35,9 +34,7 @@ impl Context {
             pipeline_path,
             store_path,
             registry,
-            quiet: global.quiet,
-            verbose: global.verbose,
-            progress: !global.no_progress && !global.quiet,
+            printer: Printer::new(global),
         })
     }
 

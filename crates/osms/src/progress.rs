@@ -5,9 +5,10 @@ use std::time::Duration;
 use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 use osms_make::{InstanceReport, Observer, Outcome, Progress};
 
+use crate::term::Printer;
+
 pub struct MakeObserver {
-    pub quiet: bool,
-    pub verbose: bool,
+    printer: Printer,
     /// One line per build in flight (`make --stages N` runs several).
     bars: MultiProgress,
 }
@@ -40,9 +41,8 @@ impl MakeObserver {
     /// The observer a command's global options ask for.
     pub fn of(ctx: &crate::context::Context) -> Self {
         MakeObserver {
-            quiet: ctx.quiet,
-            verbose: ctx.verbose,
-            bars: MultiProgress::with_draw_target(if ctx.progress {
+            printer: ctx.printer,
+            bars: MultiProgress::with_draw_target(if ctx.printer.progress {
                 ProgressDrawTarget::stderr()
             } else {
                 ProgressDrawTarget::hidden()
@@ -61,19 +61,19 @@ impl MakeObserver {
 
 impl Observer for MakeObserver {
     fn waiting_for_lock(&self) {
-        if !self.quiet {
+        if self.printer.says() {
             self.line("waiting for another osms process to release the store lock...");
         }
     }
 
     fn note(&self, text: &str) {
-        if !self.quiet {
+        if self.printer.says() {
             self.line(text);
         }
     }
 
     fn started(&self, instance: &str, reason: &str) -> Box<dyn Progress + '_> {
-        if !self.quiet {
+        if self.printer.says() {
             self.line(&format!("building {instance} ({reason})"));
         }
         let bar = self.bars.add(ProgressBar::no_length());
@@ -87,7 +87,7 @@ impl Observer for MakeObserver {
     }
 
     fn finished(&self, r: &InstanceReport) {
-        if self.quiet {
+        if !self.printer.says() {
             return;
         }
         let hash = r.content_hash.map(|h| h.short()).unwrap_or_default();
@@ -104,10 +104,10 @@ impl Observer for MakeObserver {
             Outcome::WouldBuild { reason } => {
                 self.line(&format!("would build {} ({reason})", r.instance))
             }
-            Outcome::Cached if self.verbose => {
+            Outcome::Cached if self.printer.verbose => {
                 self.line(&format!("  cached {} {hash}", r.instance))
             }
-            Outcome::CutOff if self.verbose => self.line(&format!(
+            Outcome::CutOff if self.printer.verbose => self.line(&format!(
                 "  cut off {} {hash} (inputs rebuilt to the same bytes)",
                 r.instance
             )),

@@ -9,9 +9,43 @@
 //! - **stderr** (messages, logs, progress): a failed write drops that line; the command goes on,
 //!   so a make whose log reader went away still finishes its builds.
 //! - **colour**: only when stderr is a terminal and `NO_COLOR` is unset (<https://no-color.org>).
+//! - **what is said**: one [`Printer`] per command, from the global flags: `--quiet` silences
+//!   messages ([`say!`]; errors and data stay), `--verbose` adds detail, `--no-progress` (or
+//!   `--quiet`) hides the bars; commands read these here, not flags of their own.
 
 use std::fmt::Arguments;
 use std::io::{ErrorKind, IsTerminal, Write};
+
+/// What a command says, as its global flags ask (see the module's rules).
+#[derive(Debug, Clone, Copy)]
+pub struct Printer {
+    pub quiet: bool,
+    pub verbose: bool,
+    /// Progress bars are drawn (on stderr, and only where messages are).
+    pub progress: bool,
+}
+
+impl Printer {
+    pub fn new(global: &crate::cli::Global) -> Self {
+        Printer {
+            quiet: global.quiet,
+            verbose: global.verbose,
+            progress: !global.no_progress && !global.quiet,
+        }
+    }
+
+    /// Whether messages are printed: for one that takes work to compose.
+    pub fn says(&self) -> bool {
+        !self.quiet
+    }
+
+    /// A message on stderr (a note, a warning, what a command wrote), unless `--quiet`.
+    pub fn say(&self, args: Arguments<'_>) {
+        if self.says() {
+            err(args);
+        }
+    }
+}
 
 /// The status of a process that wrote to a closed pipe: 128 + SIGPIPE (13).
 pub const EXIT_CLOSED_PIPE: i32 = 141;
@@ -72,4 +106,9 @@ macro_rules! out {
 macro_rules! errln {
     () => { $crate::term::err(format_args!("\n")) };
     ($($arg:tt)*) => { $crate::term::err(format_args!("{}\n", format_args!($($arg)*))) };
+}
+
+/// A message line on stderr unless `--quiet`: `say!(ctx, "wrote {}", path)`.
+macro_rules! say {
+    ($ctx:expr, $($arg:tt)*) => { $ctx.printer.say(format_args!("{}\n", format_args!($($arg)*))) };
 }

@@ -78,13 +78,13 @@ pub fn run(ctx: &Context, args: &GcArgs) -> Result<ExitCode> {
     let report = store.gc(&keep, &planned, args.dry_run)?;
     if args.json {
         print_json(&report)?;
-    } else if !ctx.quiet {
+    } else if ctx.printer.says() {
         let verb = if args.dry_run {
             "would remove"
         } else {
             "removed"
         };
-        if ctx.verbose || args.dry_run {
+        if ctx.printer.verbose || args.dry_run {
             for h in &report.objects_removed {
                 outln!("{verb} object {h}");
             }

@@ -38,7 +38,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     let observer = MakeObserver::of(ctx);
     let config = executor_config(&plan)?;
     let executor = args.executor.or(config.kind).unwrap_or(ExecutorKind::Local);
-    if !args.dry_run && !ctx.quiet {
+    if !args.dry_run && ctx.printer.says() {
         warn_if_short_of_space(ctx, &plan, &store, &opts, &seeds);
     }
     // A dry run submits nothing: it is the same plan whatever the executor.
@@ -66,7 +66,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         }
         print_json(&value)?;
     } else if let Some(e) = &estimate
-        && !ctx.quiet
+        && ctx.printer.says()
     {
         print_estimate(e);
     }
@@ -74,7 +74,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     let cached = report.count(|o| matches!(o, Outcome::Cached));
     let cut = report.count(|o| matches!(o, Outcome::CutOff));
     let failed = report.failed();
-    if !ctx.quiet {
+    if ctx.printer.says() {
         let seeds_text = seeds
             .iter()
             .map(u64::to_string)
@@ -123,8 +123,9 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     if failed.is_empty() {
         if !args.dry_run && args.selection.set.is_empty() {
             write_reports(ctx, &plan, &store, &report, &seeds)?;
-        } else if !args.dry_run && !ctx.quiet && has_report(&plan) {
-            errln!(
+        } else if !args.dry_run && has_report(&plan) {
+            say!(
+                ctx,
                 "osms make: report/ left as pipeline.toml makes it, since --set is in force; \
                  `osms export report --set ... --out DIR` writes this variant's"
             );
@@ -364,13 +365,12 @@ fn write_reports(
         }
         let dir = report::default_dir(ctx, &stage.name);
         let written = report::write(ctx, plan, store, &stage.name, seeds, &dir)?;
-        if !ctx.quiet {
-            errln!(
-                "osms make: wrote {} ({} files)",
-                dir.join("index.md").display(),
-                written.len()
-            );
-        }
+        say!(
+            ctx,
+            "osms make: wrote {} ({} files)",
+            dir.join("index.md").display(),
+            written.len()
+        );
     }
     Ok(())
 }

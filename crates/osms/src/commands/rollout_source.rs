@@ -150,7 +150,7 @@ fn world_of(store: &Store, record: &Record) -> Result<Record> {
 }
 
 pub(super) fn bar(ctx: &Context, len: usize, what: &str) -> indicatif::ProgressBar {
-    let target = if ctx.progress {
+    let target = if ctx.printer.progress {
         indicatif::ProgressDrawTarget::stderr()
     } else {
         indicatif::ProgressDrawTarget::hidden()

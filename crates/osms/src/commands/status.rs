@@ -32,7 +32,7 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
             }
         }
         print_json(&value)?;
-    } else if !ctx.quiet {
+    } else if ctx.printer.says() {
         if not_up_to_date == 0 {
             outln!(
                 "Everything is up to date ({} stages, profile {}).",
@@ -47,7 +47,7 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
                     .unwrap_or_else(|| "-".into());
                 match s.state {
                     State::Cached => {
-                        if ctx.verbose {
+                        if ctx.printer.verbose {
                             outln!("{:<8} {} {hash}", "cached", s.instance);
                         }
                     }
@@ -78,7 +78,7 @@ pub fn status(ctx: &Context, args: &StatusArgs) -> Result<ExitCode> {
         }
     }
     // As `dvc status -q`: the exit code says whether anything would run.
-    if ctx.quiet && not_up_to_date > 0 {
+    if !ctx.printer.says() && not_up_to_date > 0 {
         Ok(ExitCode::from(EXIT_FAILURE))
     } else {
         Ok(ExitCode::SUCCESS)

@@ -58,9 +58,10 @@ pub(super) fn ls(ctx: &Context, json: bool) -> Result<ExitCode> {
         );
     }
     if exps.is_empty() {
-        if !ctx.quiet {
-            errln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
-        }
+        say!(
+            ctx,
+            "no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one"
+        );
     } else {
         out!("{}", t.markdown_with(Layout::plain("experiment")));
     }

@@ -79,18 +79,17 @@ pub(super) fn plot(ctx: &Context, args: &ExpPlotArgs) -> Result<ExitCode> {
             (_, Some(_)) => rows.push(row_named(ctx, &store, spec, &args.metrics)?),
         }
     }
-    if !ctx.quiet {
-        for r in &rows {
-            for why in &r.unreadable {
-                errln!("warning: {}: {why}", r.label());
-            }
-            if !r.failed.is_empty() {
-                errln!(
-                    "warning: {}: incomplete ({} failed), its metrics are partial",
-                    r.label(),
-                    r.failed.join(", ")
-                );
-            }
+    for r in &rows {
+        for why in &r.unreadable {
+            say!(ctx, "warning: {}: {why}", r.label());
+        }
+        if !r.failed.is_empty() {
+            say!(
+                ctx,
+                "warning: {}: incomplete ({} failed), its metrics are partial",
+                r.label(),
+                r.failed.join(", ")
+            );
         }
     }
     let spec = PlotSpec {
@@ -118,9 +117,9 @@ pub(super) fn plot(ctx: &Context, args: &ExpPlotArgs) -> Result<ExitCode> {
     }
     if args.json {
         print_json(&serde_json::json!({ "files": files, "plot": data }))?;
-    } else if !ctx.quiet {
+    } else {
         for f in &files {
-            errln!("wrote {}", f.display());
+            say!(ctx, "wrote {}", f.display());
         }
     }
     Ok(ExitCode::SUCCESS)

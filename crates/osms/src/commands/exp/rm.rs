@@ -21,9 +21,10 @@ pub(super) fn rm(ctx: &Context, args: &ExpRmArgs) -> Result<ExitCode> {
     let _lock = store.lock(|| MakeObserver::of(ctx).waiting_for_lock())?;
     for name in &args.names {
         experiment::remove(&store, name)?;
-        if !ctx.quiet {
-            errln!("osms exp rm: forgot `{name}`; `osms gc` removes what only it kept");
-        }
+        say!(
+            ctx,
+            "osms exp rm: forgot `{name}`; `osms gc` removes what only it kept"
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

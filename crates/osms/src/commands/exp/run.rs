@@ -67,8 +67,9 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         bail!("{problem}");
     }
     let sweep = Sweep::new(plan, maps, &targets, &seeds)?;
-    if !sweep.reads_held_out.is_empty() && !ctx.quiet {
-        errln!(
+    if !sweep.reads_held_out.is_empty() {
+        say!(
+            ctx,
             "warning: experiment `{}` reads the held-out stage(s) {}: choosing a knob on them leaks the final tables' conditions\nhint: target a development stream (`[pipeline] experiment_targets`: {})",
             args.name,
             sweep.reads_held_out.join(", "),
@@ -79,10 +80,10 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
             }
         );
     }
-    if !ctx.quiet && points.len() > 1 {
+    if points.len() > 1 {
         for (k, p) in points.iter().enumerate() {
             let shown: Vec<String> = p.iter().map(|o| o.to_string()).collect();
-            errln!("point {k}: {}", shown.join(" "));
+            say!(ctx, "point {k}: {}", shown.join(" "));
         }
     }
 
@@ -99,13 +100,12 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         let report = osms_make::make(&sweep.plan, &store, &opts, &observer)?;
         let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
         let would = report.count(|o| matches!(o, Outcome::WouldBuild { .. }));
-        if !ctx.quiet {
-            errln!(
-                "osms exp run {}: {} point(s); {would} instance(s) would be built, {cached} cached (nothing recorded)",
-                args.name,
-                points.len()
-            );
-        }
+        say!(
+            ctx,
+            "osms exp run {}: {} point(s); {would} instance(s) would be built, {cached} cached (nothing recorded)",
+            args.name,
+            points.len()
+        );
         if args.json {
             print_json(&serde_json::json!({ "make": report }))?;
         }
@@ -128,19 +128,18 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
     if args.json {
         print_json(&serde_json::json!({ "experiment": exp, "make": report }))?;
     }
-    if !ctx.quiet {
-        errln!(
-            "osms exp run {}: {} point(s), {built} built, {cached} cached{} in {:.2}s; `osms exp show {}` compares",
-            args.name,
-            exp.points.len(),
-            if failed.is_empty() {
-                String::new()
-            } else {
-                format!(", {} failed", failed.len())
-            },
-            started.elapsed().as_secs_f64(),
-            args.name
-        );
-    }
+    say!(
+        ctx,
+        "osms exp run {}: {} point(s), {built} built, {cached} cached{} in {:.2}s; `osms exp show {}` compares",
+        args.name,
+        exp.points.len(),
+        if failed.is_empty() {
+            String::new()
+        } else {
+            format!(", {} failed", failed.len())
+        },
+        started.elapsed().as_secs_f64(),
+        args.name
+    );
     Ok(failure_exit(&failed))
 }

@@ -19,11 +19,9 @@ pub(super) fn show(ctx: &Context, args: &ExpShowArgs) -> Result<ExitCode> {
     for e in &exps {
         rows.extend(rows_of(ctx, &store, e, &args.metrics)?);
     }
-    if !ctx.quiet {
-        for r in &rows {
-            for why in &r.unreadable {
-                errln!("warning: {}: {why}", r.label());
-            }
+    for r in &rows {
+        for why in &r.unreadable {
+            say!(ctx, "warning: {}: {why}", r.label());
         }
     }
     if args.json {
@@ -34,9 +32,10 @@ pub(super) fn show(ctx: &Context, args: &ExpShowArgs) -> Result<ExitCode> {
             table(&rows, &args.metrics, args.ci).wide_csv("experiment")
         );
     } else if rows.is_empty() {
-        if !ctx.quiet {
-            errln!("no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one");
-        }
+        say!(
+            ctx,
+            "no experiments yet; `osms exp run NAME --set STAGE.PATH=VALUE` records one"
+        );
     } else {
         out!(
             "{}",
