@@ -18,8 +18,9 @@ pub mod project;
 
 pub use error::{ActionProblem, GymError, Result};
 pub use native::{Native, NativeKind};
+pub use osms_policy::protocol::ScriptedSetup;
 pub use pool::{Pool, SingleEpisode, StepInfo, check_action, rows_csv};
-pub use project::{Project, Protocol, ScriptedSetup};
+pub use project::{Project, Protocol};
 
 /// The Wilson score interval of `successes` out of `n` at the normal quantile `z` (95 %,
 /// z = 1.96, if `None`), as osms's tables compute it, exact at its ends

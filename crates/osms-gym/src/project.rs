@@ -7,20 +7,15 @@ use std::sync::Arc;
 use osms_core::Artifact;
 use osms_core::rng::{self, StreamRng};
 use osms_make::{InstanceId, Pipeline, Plan, Sharded, State, StoreObjects};
-use osms_policy::stages::{EvalStudentParams, EvalTeacherParams, EvaluateParams, TeacherParams};
+use osms_policy::protocol::ScriptedSetup;
+use osms_policy::stages::{TeacherParams, evaluation_kinds};
 use osms_policy::student::ChunkExecution;
 use osms_sim::artifacts::{Conditions, WorldArtifact};
-use osms_sim::catcher::{CatcherSpec, Perception};
 use osms_sim::conditions::TaskCondition;
-use osms_sim::stages::EvalParams;
 use osms_sim::{RolloutSpec, World};
 use osms_store::Store;
 
 use crate::error::{GymError, Result};
-
-/// The stage kinds that evaluate a policy on a condition set, and so can serve as protocols.
-pub const EVALUATION_KINDS: [&str; 4] =
-    ["eval_teacher", "eval_student", "eval_scripted", "evaluate"];
 
 /// The stage kinds a protocol builds itself when missing: seconds of work, no training.
 const CHEAP_KINDS: [&str; 2] = ["world", "conditions"];
@@ -221,62 +216,33 @@ impl Project {
             return Err(self.unknown(name, "an evaluation stage", &self.evaluation_stages()));
         }
         let (id, kind) = self.instance(name)?;
-        if !EVALUATION_KINDS.contains(&kind) {
+        let kinds = evaluation_kinds();
+        let Some(evaluation) = kinds.iter().find(|k| k.kind == kind) else {
             return Err(GymError::WrongKind {
                 name: name.to_string(),
                 kind: kind.to_string(),
                 expected: format!(
                     "a protocol is an evaluation stage (kind {})\nhint: evaluation stages here are {}",
-                    EVALUATION_KINDS.join(", "),
+                    kinds.iter().map(|k| k.kind).collect::<Vec<_>>().join(", "),
                     self.evaluation_stages().join(", ")
                 ),
             });
-        }
-        let stage = &self.plan.stages[id.stage];
-        let params = stage.params.json.clone();
-        let bad = |e: serde_json::Error| GymError::Decode {
-            instance: name.to_string(),
-            message: format!("params: {e}"),
         };
         let input = |slot: &str| {
             self.input(id, slot)
                 .ok_or_else(|| GymError::Project(format!("stage `{name}` has no `{slot}` input")))
         };
-        let mut execution = ChunkExecution::default();
-        let (base, scripted) = match kind {
-            "eval_teacher" => {
-                let p: EvalTeacherParams = serde_json::from_value(params).map_err(bad)?;
-                let base = self
-                    .teacher_task(&input("teacher")?)?
-                    .with_dr(&p.dr)
-                    .rollout;
-                (base.clone(), ScriptedSetup::default_on(base))
-            }
-            "eval_student" => {
-                let p: EvalStudentParams = serde_json::from_value(params).map_err(bad)?;
-                execution = p.execution;
-                (p.rollout.clone(), ScriptedSetup::default_on(p.rollout))
-            }
-            "eval_scripted" => {
-                let p: EvalParams = serde_json::from_value(params).map_err(bad)?;
-                let scripted = ScriptedSetup {
-                    catcher: p.catcher,
-                    perception: Perception::default(),
-                    rollout: p.rollout.clone(),
-                };
-                (p.rollout, scripted)
-            }
-            _ => {
-                let p: EvaluateParams = serde_json::from_value(params).map_err(bad)?;
-                execution = p.execution;
-                let scripted = ScriptedSetup {
-                    catcher: p.catcher.clone(),
-                    perception: p.prior_perception(),
-                    rollout: p.prior_rollout(),
-                };
-                (p.rollout, scripted)
-            }
+        let teacher = if evaluation.reads_teacher_task {
+            Some(self.teacher_task(&input("teacher")?)?)
+        } else {
+            None
         };
+        let protocol = evaluation
+            .protocol(&self.plan.stages[id.stage].params.json, teacher.as_ref())
+            .map_err(|e| GymError::Decode {
+                instance: name.to_string(),
+                message: format!("params: {e}"),
+            })?;
         let conditions_name = input("conditions")?;
         let world_name = input("world")?;
         self.build_cheap(&[world_name.clone(), conditions_name.clone()])?;
@@ -294,9 +260,9 @@ impl Project {
             world: Arc::new(world),
             conditions_name,
             conditions: Arc::new(conditions.items),
-            base,
-            scripted,
-            execution,
+            base: protocol.rollout,
+            scripted: protocol.scripted,
+            execution: protocol.execution,
             seed: self.plan.effective_seed(id),
             stream: self.plan.stream_name(id),
         })
@@ -367,7 +333,8 @@ impl Project {
 
     /// The evaluation stages of the pipeline, in its order.
     pub fn evaluation_stages(&self) -> Vec<String> {
-        self.stages_of(&EVALUATION_KINDS)
+        let kinds: Vec<&str> = evaluation_kinds().iter().map(|k| k.kind).collect();
+        self.stages_of(&kinds)
     }
 
     /// The pipeline's stages of the kinds in `kinds`, in its order.
@@ -394,11 +361,12 @@ impl Project {
                 return Err(self.unknown(conditions, "a condition set", &self.condition_sets()));
             }
         };
+        let kinds: Vec<&str> = evaluation_kinds().iter().map(|k| k.kind).collect();
         let on_set: Vec<&osms_make::PlannedStage> = self
             .plan
             .stages
             .iter()
-            .filter(|s| EVALUATION_KINDS.contains(&s.info.name))
+            .filter(|s| kinds.contains(&s.info.name))
             .filter(|s| {
                 s.inputs
                     .iter()
@@ -441,26 +409,6 @@ pub struct Protocol {
     pub seed: Option<u64>,
     /// The name the stage's streams go by (the stage, with `#fold` for folds).
     pub stream: String,
-}
-
-/// The scripted catcher of a protocol: its gains, how it reads the world and the rollout
-/// spec it runs under (`eval_scripted`'s `catcher`; an `evaluate` stage's `catcher` and
-/// `prior_*` params; the defaults under any other kind, with the protocol's own spec).
-#[derive(Clone, Debug, PartialEq)]
-pub struct ScriptedSetup {
-    pub catcher: CatcherSpec,
-    pub perception: Perception,
-    pub rollout: RolloutSpec,
-}
-
-impl ScriptedSetup {
-    fn default_on(rollout: RolloutSpec) -> Self {
-        ScriptedSetup {
-            catcher: CatcherSpec::default(),
-            perception: Perception::default(),
-            rollout,
-        }
-    }
 }
 
 impl Protocol {

@@ -18,6 +18,7 @@ pub mod flow;
 pub mod norm;
 pub mod osw;
 pub mod ppo;
+pub mod protocol;
 pub mod stages;
 pub mod student;
 

@@ -6,6 +6,7 @@ use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::{RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 
+use super::Evaluates;
 use crate::artifacts::StudentArtifact;
 use crate::student::{ChunkExecution, ROLLOUT_BATCH, Student};
 
@@ -49,8 +50,9 @@ impl ItemStage for EvalStudentStage {
     }
     fn prepare(&self, ctx: &Ctx<'_, EvalStudentParams>) -> Result<Self::Prepared, StageError> {
         let student = ctx.input::<StudentArtifact>("student")?.student;
-        ctx.params.execution.check_for(&student.params)?;
-        let spec = student.rollout_spec(&ctx.params.rollout);
+        let protocol = Self::protocol(ctx.params, None)?;
+        protocol.execution.check_for(&student.params)?;
+        let spec = protocol.student_spec(&student);
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,
             ctx.sharded("conditions")?,

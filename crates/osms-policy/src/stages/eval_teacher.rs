@@ -7,6 +7,7 @@ use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::control::DrSpec;
 use serde::{Deserialize, Serialize};
 
+use super::Evaluates;
 use crate::artifacts::Teacher;
 use crate::catch::rollout;
 
@@ -47,7 +48,7 @@ impl ItemStage for EvalTeacherStage {
     }
     fn prepare(&self, ctx: &Ctx<'_, EvalTeacherParams>) -> Result<Self::Prepared, StageError> {
         let mut teacher: Teacher = ctx.input("teacher")?;
-        teacher.task = teacher.task.with_dr(&ctx.params.dr);
+        teacher.task = Self::protocol(ctx.params, Some(&teacher.task))?.teacher_task(&teacher.task);
         Ok((
             ctx.input::<WorldArtifact>("world")?.world()?,
             ctx.sharded("conditions")?,

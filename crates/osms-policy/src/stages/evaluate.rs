@@ -8,6 +8,7 @@ use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::{Episode, NoHooks, RolloutSpec, World};
 use serde::{Deserialize, Serialize};
 
+use super::Evaluates;
 use crate::artifacts::{StudentArtifact, Teacher};
 use crate::catch::ActorInputs;
 use crate::student::{ChunkExecution, ROLLOUT_BATCH, Student};
@@ -125,13 +126,14 @@ impl ItemStage for EvaluateStage {
             }
             (true, false) => {
                 let mut teacher: Teacher = ctx.input("teacher")?;
-                teacher.task = teacher.task.with_dr(&Some(p.rollout.dr.clone()));
+                teacher.task = Self::protocol(p, None)?.teacher_task(&teacher.task);
                 Evaluated::Teacher(Box::new(teacher))
             }
             (false, true) => {
                 let student = ctx.input::<StudentArtifact>("student")?.student;
-                p.execution.check_for(&student.params)?;
-                let spec = student.rollout_spec(&p.rollout);
+                let protocol = Self::protocol(p, None)?;
+                protocol.execution.check_for(&student.params)?;
+                let spec = protocol.student_spec(&student);
                 Evaluated::Student(Box::new(student), spec)
             }
             (false, false) => {
@@ -159,14 +161,15 @@ impl ItemStage for EvaluateStage {
         let condition = conditions.items[index].clone();
         let record = match policy {
             Evaluated::Scripted => {
-                let p = ctx.params;
+                let protocol = Self::protocol(ctx.params, None)?;
+                let s = protocol.scripted;
                 let mut catcher = ScriptedCatcher::with_perception(
-                    p.catcher.clone(),
-                    p.rollout.control.clone(),
-                    p.prior_perception(),
+                    s.catcher,
+                    protocol.rollout.control,
+                    s.perception,
                 );
-                let spec = p.prior_rollout();
-                Episode::new(world, &spec, condition, rng.clone()).run(&mut catcher, &mut NoHooks)
+                Episode::new(world, &s.rollout, condition, rng.clone())
+                    .run(&mut catcher, &mut NoHooks)
             }
             Evaluated::Teacher(t) => {
                 crate::catch::rollout(world, &t.task, &t.agent, condition, rng.clone())
