@@ -223,7 +223,7 @@ impl Project {
                 kind: kind.to_string(),
                 expected: format!(
                     "a protocol is an evaluation stage (kind {})\nhint: evaluation stages here are {}",
-                    kinds.iter().map(|k| k.kind).collect::<Vec<_>>().join(", "),
+                    evaluation_kind_names().join(", "),
                     self.evaluation_stages().join(", ")
                 ),
             });
@@ -333,8 +333,7 @@ impl Project {
 
     /// The evaluation stages of the pipeline, in its order.
     pub fn evaluation_stages(&self) -> Vec<String> {
-        let kinds: Vec<&str> = evaluation_kinds().iter().map(|k| k.kind).collect();
-        self.stages_of(&kinds)
+        self.stages_of(&evaluation_kind_names())
     }
 
     /// The pipeline's stages of the kinds in `kinds`, in its order.
@@ -361,7 +360,7 @@ impl Project {
                 return Err(self.unknown(conditions, "a condition set", &self.condition_sets()));
             }
         };
-        let kinds: Vec<&str> = evaluation_kinds().iter().map(|k| k.kind).collect();
+        let kinds = evaluation_kind_names();
         let on_set: Vec<&osms_make::PlannedStage> = self
             .plan
             .stages
@@ -436,6 +435,11 @@ impl Protocol {
                 n: self.conditions.len(),
             })
     }
+}
+
+/// The kinds of the stages that can serve as protocols.
+fn evaluation_kind_names() -> Vec<&'static str> {
+    evaluation_kinds().iter().map(|k| k.kind).collect()
 }
 
 fn find_pipeline() -> Result<PathBuf> {

@@ -333,7 +333,7 @@ pub struct RunSpec<'a> {
 pub fn run(
     store: &Store,
     sweep: &Sweep,
-    spec: &RunSpec<'_>,
+    spec: RunSpec<'_>,
     opts: &MakeOptions,
     observer: &dyn Observer,
 ) -> Result<(Experiment, MakeReport)> {
@@ -372,9 +372,9 @@ pub fn run(
     let exp = Experiment {
         version: RECORD_VERSION,
         name: spec.name.to_string(),
-        profile: spec.profile.clone(),
-        targets: spec.targets.clone(),
-        seeds: spec.seeds.clone(),
+        profile: spec.profile,
+        targets: spec.targets,
+        seeds: spec.seeds,
         set,
         axes: spec.axes.iter().map(|a| a.knob.clone()).collect(),
         points: recorded,

@@ -50,6 +50,13 @@ impl MakeObserver {
         }
     }
 
+    /// A message above the bars, unless `--quiet`.
+    fn say(&self, text: &str) {
+        if self.printer.says() {
+            self.line(text);
+        }
+    }
+
     /// A log line above the bars; plainly where they are not drawn (no terminal, or hidden),
     /// since a hidden `MultiProgress` drops what it is asked to print.
     fn line(&self, text: &str) {
@@ -61,21 +68,15 @@ impl MakeObserver {
 
 impl Observer for MakeObserver {
     fn waiting_for_lock(&self) {
-        if self.printer.says() {
-            self.line("waiting for another osms process to release the store lock...");
-        }
+        self.say("waiting for another osms process to release the store lock...");
     }
 
     fn note(&self, text: &str) {
-        if self.printer.says() {
-            self.line(text);
-        }
+        self.say(text);
     }
 
     fn started(&self, instance: &str, reason: &str) -> Box<dyn Progress + '_> {
-        if self.printer.says() {
-            self.line(&format!("building {instance} ({reason})"));
-        }
+        self.say(&format!("building {instance} ({reason})"));
         let bar = self.bars.add(ProgressBar::no_length());
         bar.set_style(
             ProgressStyle::with_template("{spinner} {prefix:.bold} {elapsed}")

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use super::Evaluates;
 use crate::artifacts::{StudentArtifact, Teacher};
 use crate::catch::ActorInputs;
+use crate::protocol::EvalProtocol;
 use crate::student::{ChunkExecution, ROLLOUT_BATCH, Student};
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -78,7 +79,8 @@ impl EvaluateParams {
 
 /// The policy an `evaluate` stage rolls out.
 pub enum Evaluated {
-    Scripted,
+    /// The scripted catcher, as the stage's protocol sets it up.
+    Scripted(Box<EvalProtocol>),
     Teacher(Box<Teacher>),
     Student(Box<Student>, RolloutSpec),
 }
@@ -118,6 +120,7 @@ impl ItemStage for EvaluateStage {
         if !p.execution.is_paper() && !ctx.has_input("student") {
             return Err("params.execution: chunk execution applies to a student, and no `student` is wired\nhint: wire `student` or leave `execution` out".into());
         }
+        let protocol = Self::protocol(p, None)?;
         let policy = match (ctx.has_input("teacher"), ctx.has_input("student")) {
             (true, true) => {
                 return Err(
@@ -126,19 +129,18 @@ impl ItemStage for EvaluateStage {
             }
             (true, false) => {
                 let mut teacher: Teacher = ctx.input("teacher")?;
-                teacher.task = Self::protocol(p, None)?.teacher_task(&teacher.task);
+                teacher.task = protocol.teacher_task(&teacher.task);
                 Evaluated::Teacher(Box::new(teacher))
             }
             (false, true) => {
                 let student = ctx.input::<StudentArtifact>("student")?.student;
-                let protocol = Self::protocol(p, None)?;
                 protocol.execution.check_for(&student.params)?;
                 let spec = protocol.student_spec(&student);
                 Evaluated::Student(Box::new(student), spec)
             }
             (false, false) => {
                 p.catcher.validate()?;
-                Evaluated::Scripted
+                Evaluated::Scripted(Box::new(protocol))
             }
         };
         Ok((
@@ -160,12 +162,11 @@ impl ItemStage for EvaluateStage {
         let (world, conditions, policy) = prepared;
         let condition = conditions.items[index].clone();
         let record = match policy {
-            Evaluated::Scripted => {
-                let protocol = Self::protocol(ctx.params, None)?;
-                let s = protocol.scripted;
+            Evaluated::Scripted(protocol) => {
+                let s = &protocol.scripted;
                 let mut catcher = ScriptedCatcher::with_perception(
-                    s.catcher,
-                    protocol.rollout.control,
+                    s.catcher.clone(),
+                    protocol.rollout.control.clone(),
                     s.perception,
                 );
                 Episode::new(world, &s.rollout, condition, rng.clone())

@@ -58,7 +58,7 @@ impl Student {
 
     /// The sampled chunks for `obs`, each de-standardised (`chunk` steps of [`N_ACTION`]
     /// values), observation i drawing its noise from the i-th stream.
-    pub(super) fn chunks_batch_with<'r, O: AsRef<[f32]>>(
+    fn chunks_batch_with<'r, O: AsRef<[f32]>>(
         &self,
         sampler: &FlowSampler<'_>,
         obs: &[O],
@@ -106,7 +106,7 @@ impl Student {
     /// The action executed for a de-standardised chunk step at the observation `obs` of the step
     /// it runs in: a target label turned into the increment from the current target, clamped
     /// to [−1, 1].
-    pub(super) fn executable(&self, step: &[f64], obs: &[f32]) -> Action {
+    fn executable(&self, step: &[f64], obs: &[f32]) -> Action {
         let mut action: Action = std::array::from_fn(|k| step[k]);
         if self.params.target_labels {
             // The arm target features close the observation (`push_features`).

@@ -68,7 +68,7 @@ impl ChunkExecution {
 
 /// The largest |m| · i an ensemble's weights exp(−m·i) may reach: exp(709) is the last finite
 /// f64, and the weights are summed.
-pub(super) const MAX_ENSEMBLE_EXPONENT: f64 = 700.0;
+const MAX_ENSEMBLE_EXPONENT: f64 = 700.0;
 
 /// One episode's chunk state under a [`ChunkExecution`]: the chunks sampled so far that still
 /// cover a step to come, each with the step it was sampled at.

@@ -39,11 +39,11 @@ pub struct Student {
 }
 
 /// Fixed rows of the validation loss: (demo, step) pairs with their noise and times.
-pub(super) struct Validation {
+struct Validation {
     pub(super) obs: Matrix,
-    pub(super) x1: Matrix,
+    x1: Matrix,
     pub(super) mask: Matrix,
-    pub(super) x0: Matrix,
+    x0: Matrix,
     pub(super) t: Vec<f32>,
 }
 
@@ -96,7 +96,7 @@ impl Sampler {
 }
 
 /// At most this many held-out samples score each validation point.
-pub(super) const VALIDATION_ROWS: usize = 1024;
+const VALIDATION_ROWS: usize = 1024;
 
 /// Everything a student's training carries from one gradient step to the next, for
 /// checkpoints (the normalisers and the validation set are recomputed from the demonstrations;
@@ -106,11 +106,11 @@ pub struct StudentState {
     /// Gradient steps done.
     pub step: u32,
     pub(super) net: FlowNet,
-    pub(super) ema: Option<FlowNet>,
-    pub(super) opt: AdamMoments,
+    ema: Option<FlowNet>,
+    opt: AdamMoments,
     pub(super) curve: Vec<StudentCurvePoint>,
-    pub(super) loss_sum: f64,
-    pub(super) loss_count: u32,
+    loss_sum: f64,
+    loss_count: u32,
 }
 
 impl Student {
@@ -329,7 +329,7 @@ impl Student {
     }
 
     /// Linear warm-up, then cosine decay to `min_lr` at the last step.
-    pub(super) fn learning_rate(&self, step: u32) -> f32 {
+    fn learning_rate(&self, step: u32) -> f32 {
         let p = &self.params;
         if step < p.warmup {
             return p.lr * (step + 1) as f32 / p.warmup as f32;
@@ -371,7 +371,7 @@ impl Student {
 
     /// Up to [`VALIDATION_ROWS`] held-out samples, evenly spaced, with noise and times from
     /// stream ("validation", 0).
-    pub(super) fn validation_set(&self, held: &[&Demo], (seed, stage): (u64, &str)) -> Validation {
+    fn validation_set(&self, held: &[&Demo], (seed, stage): (u64, &str)) -> Validation {
         let all: Vec<(&Demo, usize)> = held
             .iter()
             .flat_map(|d| (0..d.steps).map(move |n| (*d, n)))

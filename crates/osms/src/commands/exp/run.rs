@@ -121,7 +121,7 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         points: &points,
         force: args.force,
     };
-    let (exp, report) = experiment::run(&store, &sweep, &spec, &opts, &observer)?;
+    let (exp, report) = experiment::run(&store, &sweep, spec, &opts, &observer)?;
     let built = report.count(|o| matches!(o, Outcome::Built { .. }));
     let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
     let failed = report.failed();
