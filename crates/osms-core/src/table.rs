@@ -449,6 +449,114 @@ impl Table {
     }
 }
 
+/// A column read two ways: `label` heads it in Markdown, `key` names it in the wide CSV. A
+/// column with only a label is for people (two counts read as `3 / 5`); one with only a key is
+/// for programs (the counts behind a rate, the paper's value as a number).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Field {
+    pub label: Option<String>,
+    pub key: Option<String>,
+    pub unit: Unit,
+}
+
+impl Field {
+    /// A column people and programs both read.
+    pub fn new(label: impl Into<String>, key: impl Into<String>, unit: Unit) -> Field {
+        Field {
+            label: Some(label.into()),
+            key: Some(key.into()),
+            unit,
+        }
+    }
+
+    /// A column only the Markdown shows.
+    pub fn markdown(label: impl Into<String>, unit: Unit) -> Field {
+        Field {
+            label: Some(label.into()),
+            key: None,
+            unit,
+        }
+    }
+
+    /// A column only the wide CSV has.
+    pub fn csv(key: impl Into<String>, unit: Unit) -> Field {
+        Field {
+            label: None,
+            key: Some(key.into()),
+            unit,
+        }
+    }
+}
+
+/// A table built once, one cell per [`Field`] in each row, and rendered for people
+/// ([`Sheet::markdown_with`]: the labelled columns, with the paper's values in parentheses)
+/// and for programs ([`Sheet::wide_csv`]: the keyed columns, full precision).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sheet {
+    pub fields: Vec<Field>,
+    pub rows: Vec<Row>,
+    pub notes: Vec<String>,
+}
+
+impl Sheet {
+    pub fn new(fields: Vec<Field>) -> Sheet {
+        Sheet {
+            fields,
+            rows: Vec::new(),
+            notes: Vec::new(),
+        }
+    }
+
+    /// Appends a row: one cell per field, in the fields' order.
+    pub fn push(&mut self, label: impl Into<String>, cells: Vec<Cell>) {
+        assert_eq!(cells.len(), self.fields.len(), "a sheet's row has a cell per field");
+        self.rows.push(Row::new(label, cells));
+    }
+
+    /// The sheet with a note after its rows (Markdown only).
+    pub fn with_note(mut self, note: impl Into<String>) -> Sheet {
+        self.notes.push(note.into());
+        self
+    }
+
+    /// The columns whose field has a name in `name`, as a [`Table`].
+    fn table(&self, name: impl Fn(&Field) -> Option<&String>) -> Table {
+        let picked: Vec<(usize, &String, Unit)> = self
+            .fields
+            .iter()
+            .enumerate()
+            .filter_map(|(i, f)| name(f).map(|n| (i, n, f.unit)))
+            .collect();
+        Table {
+            id: String::new(),
+            title: String::new(),
+            columns: picked
+                .iter()
+                .map(|(_, n, unit)| Column::new(n.as_str(), *unit))
+                .collect(),
+            rows: self
+                .rows
+                .iter()
+                .map(|r| Row {
+                    label: r.label.clone(),
+                    cells: picked.iter().map(|(i, _, _)| r.cells[*i].clone()).collect(),
+                })
+                .collect(),
+            notes: self.notes.clone(),
+        }
+    }
+
+    /// The labelled columns in Markdown, laid out as `layout` says, the notes after the rows.
+    pub fn markdown_with(&self, layout: Layout<'_>) -> String {
+        self.table(|f| f.label.as_ref()).markdown_with(layout)
+    }
+
+    /// The keyed columns, one line per row ([`Table::wide_csv`]).
+    pub fn wide_csv(&self, label_key: &str) -> String {
+        self.table(|f| f.key.as_ref()).wide_csv(label_key)
+    }
+}
+
 /// The export files of a table: `<stem>.md`, `<stem>.csv` and `<stem>.json`.
 pub fn files(stem: &str, markdown: String, csv: String, json: Vec<u8>) -> Vec<(String, Vec<u8>)> {
     vec![
@@ -617,5 +725,38 @@ mod tests {
         assert!(report.starts_with("| | window |"), "{report}");
         assert!(report.contains("\nOurs first, the paper's value in parentheses;"));
         assert!(report.ends_with("\nA note.\n"), "{report}");
+    }
+
+    #[test]
+    fn a_sheet_shows_people_its_labels_and_programs_its_keys() {
+        let mut s = Sheet::new(vec![
+            Field::new("sets", "sets", Unit::Count),
+            Field::markdown("refine / repair", Unit::Text),
+            Field::csv("refine", Unit::Count),
+            Field::csv("repair", Unit::Count),
+            Field::new("coverage", "coverage", Unit::Percent),
+            Field::csv("paper_coverage", Unit::Percent),
+        ]);
+        s.push(
+            "geodesic",
+            vec![
+                Cell::one(4.0),
+                Cell::text("3 / 1"),
+                Cell::one(3.0),
+                Cell::one(1.0),
+                Cell::new(Value::One(0.5), Some("91.8%")),
+                Cell::one(0.918),
+            ],
+        );
+        let s = s.with_note("a note");
+        assert_eq!(
+            s.markdown_with(Layout::plain("generator")),
+            "| generator | sets | refine / repair | coverage |\n|---|---:|---|---:|\n\
+             | geodesic | 4 | 3 / 1 | 50.0% (91.8%) |\n\na note\n"
+        );
+        assert_eq!(
+            s.wide_csv("generator"),
+            "generator,sets,refine,repair,coverage,paper_coverage\ngeodesic,4,3,1,0.5,0.918\n"
+        );
     }
 }

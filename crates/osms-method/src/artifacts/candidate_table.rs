@@ -1,7 +1,7 @@
 //! The candidate generators side by side (paper 6.4).
 
 use osms_core::Artifact;
-use osms_core::table::{self, Cell, Column, Layout, Table, Unit};
+use osms_core::table::{self, Cell, Field, Layout, Sheet, Unit};
 use osms_make::Summarize;
 use serde::{Deserialize, Serialize};
 
@@ -19,68 +19,35 @@ impl Artifact for CandidateTable {
 }
 
 impl CandidateTable {
-    fn markdown(&self) -> String {
-        let mut t = Table::new(
-            "candidates",
-            "Candidate generators",
-            vec![
-                Column::new("sets", Unit::Count),
-                Column::new("refine / repair", Unit::Count),
-                Column::new("projection residual", Unit::Number(3)),
-                Column::new("mean deviation", Unit::Number(3)),
-                Column::new("largest deviation", Unit::Number(3)),
-                Column::new("geodesic length", Unit::Number(3)),
-                Column::new("shrunk directions", Unit::Count),
-                Column::new("unmatched sets", Unit::Count),
-                Column::new("scale", Unit::Number(3)),
-            ],
-        );
+    /// The table once: the Markdown reads refine / repair as one column, the CSV has every
+    /// statistic of every generator.
+    fn sheet(&self) -> Sheet {
+        let both = |label: &str, key: &str, unit| Field::new(label, key, unit);
+        let mut t = Sheet::new(vec![
+            both("sets", "sets", Unit::Count),
+            Field::markdown("refine / repair", Unit::Count),
+            Field::csv("refine", Unit::Count),
+            Field::csv("repair", Unit::Count),
+            Field::csv("skipped_incomplete", Unit::Count),
+            Field::csv("candidates", Unit::Count),
+            both(
+                "projection residual",
+                "mean_projection_residual",
+                Unit::Number(3),
+            ),
+            both("mean deviation", "mean_deviation", Unit::Number(3)),
+            both("largest deviation", "mean_max_deviation", Unit::Number(3)),
+            both("geodesic length", "mean_geodesic_length", Unit::Number(3)),
+            both("shrunk directions", "directions_shrunk", Unit::Count),
+            both("unmatched sets", "unmatched", Unit::Count),
+            both("scale", "mean_scale", Unit::Number(3)),
+        ]);
         for r in &self.rows {
             t.push(
                 &r.generator,
                 vec![
                     Cell::one(r.sets as f64),
                     Cell::text(format!("{} / {}", r.refine, r.repair)),
-                    Cell::opt(r.mean_projection_residual),
-                    Cell::one(r.mean_deviation),
-                    Cell::one(r.mean_max_deviation),
-                    Cell::opt(r.mean_geodesic_length),
-                    Cell::one(r.directions_shrunk as f64),
-                    Cell::one(r.unmatched as f64),
-                    Cell::one(r.mean_scale),
-                ],
-            );
-        }
-        t.markdown_with(Layout::plain("generator"))
-    }
-
-    /// Every statistic of every generator, one line each, for programs.
-    fn csv(&self) -> String {
-        let count = |n: &str| Column::new(n, Unit::Count);
-        let number = |n: &str| Column::new(n, Unit::Number(3));
-        let mut t = Table::new(
-            "candidates",
-            "Candidate generators",
-            vec![
-                count("sets"),
-                count("refine"),
-                count("repair"),
-                count("skipped_incomplete"),
-                count("candidates"),
-                number("mean_projection_residual"),
-                number("mean_deviation"),
-                number("mean_max_deviation"),
-                number("mean_geodesic_length"),
-                count("directions_shrunk"),
-                count("unmatched"),
-                number("mean_scale"),
-            ],
-        );
-        for r in &self.rows {
-            t.push(
-                &r.generator,
-                vec![
-                    Cell::one(r.sets as f64),
                     Cell::one(r.refine as f64),
                     Cell::one(r.repair as f64),
                     Cell::one(r.skipped_incomplete as f64),
@@ -95,7 +62,16 @@ impl CandidateTable {
                 ],
             );
         }
-        t.wide_csv("generator")
+        t
+    }
+
+    fn markdown(&self) -> String {
+        self.sheet().markdown_with(Layout::plain("generator"))
+    }
+
+    /// Every statistic of every generator, one line each, for programs.
+    fn csv(&self) -> String {
+        self.sheet().wide_csv("generator")
     }
 }
 

@@ -1,7 +1,7 @@
 //! Table II's left half: how Naive, Normal and ours constructed their demonstrations.
 
 use osms_core::Artifact;
-use osms_core::table::{self, Cell, Column, Layout, Table, Unit, Value};
+use osms_core::table::{self, Cell, Field, Layout, Sheet, Unit, Value};
 use osms_make::Summarize;
 use osms_policy::artifacts::ConstructionStats;
 use serde::{Deserialize, Serialize};
@@ -37,71 +37,33 @@ impl Artifact for ConstructionTable {
 }
 
 impl ConstructionTable {
-    pub fn markdown(&self) -> String {
+    /// The table once: the Markdown shows the rates with the paper's values in parentheses,
+    /// the CSV every count behind them and the paper's values as numbers.
+    fn sheet(&self) -> Sheet {
         let pct = |v: f64| format!("{:.1}%", 100.0 * v);
-        let mut t = Table::new(
-            "construction_table",
-            "Demonstration construction",
-            vec![
-                Column::new("demos", Unit::Count),
-                Column::new("coverage", Unit::Percent),
-                Column::new("repair rate", Unit::Percent),
-                Column::new("refinement rate", Unit::Percent),
-                Column::new("unperturbed f_max (N)", Unit::Number(1)),
-            ],
-        );
-        for r in &self.rows {
-            let s = &r.stats;
-            t.push(
-                &r.construction,
-                vec![
-                    Cell::one(s.demonstrations as f64),
-                    Cell::new(Value::One(s.coverage), Some(&pct(r.paper_coverage))),
-                    Cell::new(Value::One(s.repair_rate), Some(&pct(r.paper_repair_rate))),
-                    Cell::new(
-                        Value::One(s.refinement_rate),
-                        Some(&pct(r.paper_refinement_rate)),
-                    ),
-                    Cell::new(
-                        Value::of(s.unperturbed_max_force_n),
-                        Some(&format!("{:.1}", r.paper_unperturbed_max_force_n)),
-                    ),
-                ],
-            );
-        }
-        t.with_note(
-            "In parentheses: the paper's Table II. Coverage, repair and refinement rates are over \
-             the D_R conditions; demos count every demonstration, extension included.",
-        )
-        .markdown_with(Layout::plain("construction"))
-    }
-
-    pub fn csv(&self) -> String {
-        let count = |n: &str| Column::new(n, Unit::Count);
-        let rate = |n: &str| Column::new(n, Unit::Percent);
-        let force = |n: &str| Column::new(n, Unit::Number(1));
-        let mut t = Table::new(
-            "construction_table",
-            "Demonstration construction",
-            vec![
-                count("demonstrations"),
-                count("conditions"),
-                count("kept"),
-                count("refined"),
-                count("repaired"),
-                count("dropped"),
-                rate("coverage"),
-                rate("repair_rate"),
-                rate("refinement_rate"),
-                force("unperturbed_max_force_n"),
-                count("extension_conditions"),
-                count("extension_demonstrations"),
-                rate("paper_coverage"),
-                rate("paper_repair_rate"),
-                rate("paper_refinement_rate"),
-                force("paper_unperturbed_max_force_n"),
-            ],
-        );
+        let count = |k: &str| Field::csv(k, Unit::Count);
+        let mut t = Sheet::new(vec![
+            Field::new("demos", "demonstrations", Unit::Count),
+            count("conditions"),
+            count("kept"),
+            count("refined"),
+            count("repaired"),
+            count("dropped"),
+            Field::new("coverage", "coverage", Unit::Percent),
+            Field::new("repair rate", "repair_rate", Unit::Percent),
+            Field::new("refinement rate", "refinement_rate", Unit::Percent),
+            Field::new(
+                "unperturbed f_max (N)",
+                "unperturbed_max_force_n",
+                Unit::Number(1),
+            ),
+            count("extension_conditions"),
+            count("extension_demonstrations"),
+            Field::csv("paper_coverage", Unit::Percent),
+            Field::csv("paper_repair_rate", Unit::Percent),
+            Field::csv("paper_refinement_rate", Unit::Percent),
+            Field::csv("paper_unperturbed_max_force_n", Unit::Number(1)),
+        ]);
         for r in &self.rows {
             let s = &r.stats;
             t.push(
@@ -113,10 +75,16 @@ impl ConstructionTable {
                     Cell::one(s.refined as f64),
                     Cell::one(s.repaired as f64),
                     Cell::one(s.dropped as f64),
-                    Cell::one(s.coverage),
-                    Cell::one(s.repair_rate),
-                    Cell::one(s.refinement_rate),
-                    Cell::opt(s.unperturbed_max_force_n),
+                    Cell::new(Value::One(s.coverage), Some(&pct(r.paper_coverage))),
+                    Cell::new(Value::One(s.repair_rate), Some(&pct(r.paper_repair_rate))),
+                    Cell::new(
+                        Value::One(s.refinement_rate),
+                        Some(&pct(r.paper_refinement_rate)),
+                    ),
+                    Cell::new(
+                        Value::of(s.unperturbed_max_force_n),
+                        Some(&format!("{:.1}", r.paper_unperturbed_max_force_n)),
+                    ),
                     Cell::one(s.extension_conditions as f64),
                     Cell::one(s.extension_demonstrations as f64),
                     Cell::one(r.paper_coverage),
@@ -126,7 +94,18 @@ impl ConstructionTable {
                 ],
             );
         }
-        t.wide_csv("construction")
+        t.with_note(
+            "In parentheses: the paper's Table II. Coverage, repair and refinement rates are over \
+             the D_R conditions; demos count every demonstration, extension included.",
+        )
+    }
+
+    pub fn markdown(&self) -> String {
+        self.sheet().markdown_with(Layout::plain("construction"))
+    }
+
+    pub fn csv(&self) -> String {
+        self.sheet().wide_csv("construction")
     }
 }
 

@@ -3,7 +3,7 @@
 use std::fmt::Write;
 
 use osms_core::Artifact;
-use osms_core::table::{Cell, Column, Layout, Table, Unit};
+use osms_core::table::{Cell, Column, Field, Layout, Sheet, Table, Unit};
 use osms_make::Summarize;
 use osms_sim::{N_ARM, Phase};
 use serde::{Deserialize, Serialize};
@@ -87,17 +87,15 @@ fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
 }
 
 impl ErrorModelArtifact {
-    /// Table III's metric columns as Markdown.
-    pub fn table3_markdown(&self) -> String {
-        let mut t = Table::new(
-            "table3_metrics",
-            "Table III metrics",
-            vec![
-                Column::new("moment err.", Unit::Number(3)),
-                Column::new("lag-1 err.", Unit::Number(3)),
-                Column::new("cells (moment / lag-1)", Unit::Count),
-            ],
-        );
+    /// Table III's metrics once: the Markdown reads the two cell counts as one column.
+    fn table3(&self) -> Sheet {
+        let mut t = Sheet::new(vec![
+            Field::new("moment err.", "moment_error", Unit::Number(3)),
+            Field::new("lag-1 err.", "lag1_error", Unit::Number(3)),
+            Field::markdown("cells (moment / lag-1)", Unit::Count),
+            Field::csv("moment_cells", Unit::Count),
+            Field::csv("lag1_cells", Unit::Count),
+        ]);
         for v in &self.variants {
             let m = &v.metrics;
             t.push(
@@ -106,37 +104,22 @@ impl ErrorModelArtifact {
                     Cell::one(m.moment_error),
                     Cell::one(m.lag1_error),
                     Cell::text(format!("{} / {}", m.moment_cells, m.lag1_cells)),
-                ],
-            );
-        }
-        t.markdown_with(Layout::plain("validation model"))
-    }
-
-    /// Table III's metrics, one line per model, for programs.
-    pub fn table3_csv(&self) -> String {
-        let mut t = Table::new(
-            "table3",
-            "Table III metrics",
-            vec![
-                Column::new("moment_error", Unit::Number(3)),
-                Column::new("lag1_error", Unit::Number(3)),
-                Column::new("moment_cells", Unit::Count),
-                Column::new("lag1_cells", Unit::Count),
-            ],
-        );
-        for v in &self.variants {
-            let m = &v.metrics;
-            t.push(
-                v.model.variant.name(),
-                vec![
-                    Cell::one(m.moment_error),
-                    Cell::one(m.lag1_error),
                     Cell::one(m.moment_cells as f64),
                     Cell::one(m.lag1_cells as f64),
                 ],
             );
         }
-        t.wide_csv("model")
+        t
+    }
+
+    /// Table III's metric columns as Markdown.
+    pub fn table3_markdown(&self) -> String {
+        self.table3().markdown_with(Layout::plain("validation model"))
+    }
+
+    /// Table III's metrics, one line per model, for programs.
+    pub fn table3_csv(&self) -> String {
+        self.table3().wide_csv("model")
     }
 
     /// Per model and phase: samples, delay, gains, |bias|, AR and noise scales.

@@ -1,7 +1,7 @@
 //! Table I's analog: the scripted prior, the catching-only teacher and the teacher.
 
 use osms_core::Artifact;
-use osms_core::table::{self, Cell, Column, Layout, Table, Unit};
+use osms_core::table::{self, Cell, Field, Layout, Sheet, Unit};
 use osms_make::Summarize;
 use osms_sim::artifacts::{Evaluation, TableLine};
 use serde::{Deserialize, Serialize};
@@ -32,22 +32,16 @@ impl Artifact for TeacherTable {
 }
 
 impl TeacherTable {
-    /// The rows with these column names: the Markdown's headers or the CSV's keys.
-    fn table(&self, names: [&str; 6]) -> Table {
-        let units = [
-            Unit::Count,
-            Unit::Percent,
-            Unit::Percent,
-            Unit::Number(2),
-            Unit::Number(1),
-            Unit::Number(3),
-        ];
-        let columns = names
-            .iter()
-            .zip(units)
-            .map(|(n, u)| Column::new(*n, u))
-            .collect();
-        let mut t = Table::new("table1", "Table I", columns);
+    /// The table once, headed as the paper's Table I and keyed by the row's fields.
+    fn sheet(&self) -> Sheet {
+        let mut t = Sheet::new(vec![
+            Field::new("n", "rollouts", Unit::Count),
+            Field::new("catch completion", "completion_rate", Unit::Percent),
+            Field::new("task success", "success_rate", Unit::Percent),
+            Field::new("v_rel (m/s)", "contact_speed_mps", Unit::Number(2)),
+            Field::new("f_max (N)", "max_force_n", Unit::Number(1)),
+            Field::new("l_max (m)", "follow_through_m", Unit::Number(3)),
+        ]);
         for r in &self.rows {
             t.push(
                 &r.policy,
@@ -65,31 +59,16 @@ impl TeacherTable {
     }
 
     pub fn markdown(&self) -> String {
-        self.table([
-            "n",
-            "catch completion",
-            "task success",
-            "v_rel (m/s)",
-            "f_max (N)",
-            "l_max (m)",
-        ])
-        .with_note(
-            "Impact metrics are means over catch completions. Paper (Table I): catching-only \
-             92.5% / 0.4% / 160 N; teacher 90.7% / 85.2% / 40.8 N.",
-        )
-        .markdown_with(Layout::plain("policy"))
+        self.sheet()
+            .with_note(
+                "Impact metrics are means over catch completions. Paper (Table I): catching-only \
+                 92.5% / 0.4% / 160 N; teacher 90.7% / 85.2% / 40.8 N.",
+            )
+            .markdown_with(Layout::plain("policy"))
     }
 
     pub fn csv(&self) -> String {
-        self.table([
-            "rollouts",
-            "completion_rate",
-            "success_rate",
-            "contact_speed_mps",
-            "max_force_n",
-            "follow_through_m",
-        ])
-        .wide_csv("policy")
+        self.sheet().wide_csv("policy")
     }
 }
 
