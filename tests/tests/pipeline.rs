@@ -725,7 +725,7 @@ fn the_tiny_teacher_beats_the_scripted_prior(made: &Made) {
     use osms_sim::artifacts::Evaluation;
     let success = |name: &str| {
         let e: Evaluation = load_sharded(made, name);
-        e.table().pop().map_or(0.0, |l| l.success_rate)
+        e.overall().success_rate
     };
     let (teacher, scripted) = (success("eval_teacher"), success("eval_scripted"));
     assert!(

@@ -509,7 +509,11 @@ impl Sheet {
 
     /// Appends a row: one cell per field, in the fields' order.
     pub fn push(&mut self, label: impl Into<String>, cells: Vec<Cell>) {
-        assert_eq!(cells.len(), self.fields.len(), "a sheet's row has a cell per field");
+        assert_eq!(
+            cells.len(),
+            self.fields.len(),
+            "a sheet's row has a cell per field"
+        );
         self.rows.push(Row::new(label, cells));
     }
 

@@ -4,18 +4,13 @@
 use osms_method::artifacts::ErrorModelArtifact;
 use osms_method::error_model::ErrorVariant;
 use osms_policy::artifacts::ConstructionStats;
-use osms_sim::artifacts::{Evaluation, TableLine};
+use osms_sim::artifacts::{EvalSummary, Evaluation};
 
 use osms_core::table::{Cell, Column, Row, Table, Unit, Value};
 
-/// The "all" line of an evaluation: success, completion and the impact means.
-pub fn overall(eval: &Evaluation) -> Option<TableLine> {
-    eval.table().pop()
-}
-
 /// A metric of each seed's evaluation.
-pub fn per_seed(evals: &[Evaluation], f: impl Fn(&TableLine) -> Option<f64>) -> Value {
-    Value::seeds(evals.iter().map(|e| overall(e).and_then(|l| f(&l))))
+pub fn per_seed(evals: &[Evaluation], f: impl Fn(&EvalSummary) -> Option<f64>) -> Value {
+    Value::seeds(evals.iter().map(|e| f(&e.overall())))
 }
 
 fn pct(v: f64) -> Value {
@@ -131,8 +126,8 @@ pub fn table2(
     teacher: &Evaluation,
     students: [&[Evaluation]; 3],
 ) -> Table {
-    let teacher_line = overall(teacher);
-    let t = |f: fn(&TableLine) -> Option<f64>| Value::of(teacher_line.as_ref().and_then(f));
+    let teacher_line = teacher.overall();
+    let t = |f: fn(&EvalSummary) -> Option<f64>| Value::of(f(&teacher_line));
     let paper0 = &PAPER_TABLE2[0].1;
     let mut rows = vec![Row {
         label: PAPER_TABLE2[0].0.into(),

@@ -207,10 +207,10 @@ impl Sharded for Evaluation {
     }
 }
 
-/// One line of the evaluation table.
+/// What a set of rollouts came to: the one summary row every evaluation table and summary
+/// reads (Table I's rows, Table II's policy columns, the calibration's runs).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct TableLine {
-    pub group: String,
+pub struct EvalSummary {
     pub rollouts: usize,
     pub success_rate: f64,
     pub completion_rate: f64,
@@ -218,60 +218,77 @@ pub struct TableLine {
     pub contact_speed_mps: Option<f64>,
     pub max_force_n: Option<f64>,
     pub follow_through_m: Option<f64>,
+    /// Rollouts failing each way (a rollout can fail several ways).
     pub failures: BTreeMap<String, usize>,
 }
 
+impl EvalSummary {
+    /// The summary of `rows` (rates are 0 for none).
+    pub fn of<'a>(rows: impl IntoIterator<Item = &'a EvalRow>) -> EvalSummary {
+        let rows: Vec<&EvalRow> = rows.into_iter().collect();
+        let n = rows.len().max(1) as f64;
+        let completions: Vec<&&EvalRow> = rows.iter().filter(|r| r.outcome.completion()).collect();
+        let mean = |f: &dyn Fn(&EvalRow) -> Option<f64>| {
+            let v: Vec<f64> = completions.iter().filter_map(|r| f(r)).collect();
+            (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+        };
+        let mut failures = BTreeMap::new();
+        for r in &rows {
+            for f in &r.outcome.failures {
+                *failures.entry(f.name().to_string()).or_default() += 1;
+            }
+        }
+        EvalSummary {
+            rollouts: rows.len(),
+            success_rate: rows.iter().filter(|r| r.outcome.success()).count() as f64 / n,
+            completion_rate: completions.len() as f64 / n,
+            contact_speed_mps: mean(&|r| r.metrics.contact_speed_mps),
+            max_force_n: mean(&|r| Some(r.metrics.max_force_n)),
+            follow_through_m: mean(&|r| Some(r.metrics.follow_through_m)),
+            failures,
+        }
+    }
+
+    /// Rollouts failing as `failure` (a [`Failure::name`]) per rollout.
+    pub fn failure_rate(&self, failure: &str) -> f64 {
+        self.failures
+            .get(failure)
+            .map_or(0.0, |&k| k as f64 / self.rollouts.max(1) as f64)
+    }
+}
+
 impl Evaluation {
-    pub fn table(&self) -> Vec<TableLine> {
+    /// The summary of every rollout.
+    pub fn overall(&self) -> EvalSummary {
+        EvalSummary::of(&self.rows)
+    }
+
+    /// The summary per object variant, then `all`.
+    pub fn table(&self) -> Vec<(String, EvalSummary)> {
         let mut groups: BTreeMap<ObjectVariant, Vec<&EvalRow>> = BTreeMap::new();
         for r in &self.rows {
             groups.entry(r.variant).or_default().push(r);
         }
-        let mut lines: Vec<TableLine> = groups
-            .iter()
-            .map(|(v, rows)| line(&v.to_string(), rows))
+        let mut lines: Vec<(String, EvalSummary)> = groups
+            .into_iter()
+            .map(|(v, rows)| (v.to_string(), EvalSummary::of(rows)))
             .collect();
-        lines.push(line("all", &self.rows.iter().collect::<Vec<_>>()));
+        lines.push(("all".into(), self.overall()));
         lines
-    }
-}
-
-fn line(group: &str, rows: &[&EvalRow]) -> TableLine {
-    let n = rows.len().max(1) as f64;
-    let completions: Vec<&&EvalRow> = rows.iter().filter(|r| r.outcome.completion()).collect();
-    let mean = |f: &dyn Fn(&EvalRow) -> Option<f64>| {
-        let v: Vec<f64> = completions.iter().filter_map(|r| f(r)).collect();
-        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
-    };
-    let mut failures = BTreeMap::new();
-    for r in rows {
-        for f in &r.outcome.failures {
-            *failures.entry(f.name().to_string()).or_default() += 1;
-        }
-    }
-    TableLine {
-        group: group.to_string(),
-        rollouts: rows.len(),
-        success_rate: rows.iter().filter(|r| r.outcome.success()).count() as f64 / n,
-        completion_rate: completions.len() as f64 / n,
-        contact_speed_mps: mean(&|r| r.metrics.contact_speed_mps),
-        max_force_n: mean(&|r| Some(r.metrics.max_force_n)),
-        follow_through_m: mean(&|r| Some(r.metrics.follow_through_m)),
-        failures,
     }
 }
 
 impl Summarize for Evaluation {
     fn summary(&self) -> serde_json::Value {
-        let all = self.table().pop();
+        let all = self.overall();
         serde_json::json!({
             "rollouts": self.rows.len(),
-            "success_rate": all.as_ref().map(|l| l.success_rate),
-            "completion_rate": all.as_ref().map(|l| l.completion_rate),
-            "f_max_n": all.as_ref().and_then(|l| l.max_force_n),
-            "follow_through_m": all.as_ref().and_then(|l| l.follow_through_m),
+            "success_rate": all.success_rate,
+            "completion_rate": all.completion_rate,
+            "f_max_n": all.max_force_n,
+            "follow_through_m": all.follow_through_m,
             // Rollouts failing each way (`osms exp show --metrics failures.drop`).
-            "failures": all.as_ref().map(|l| &l.failures),
+            "failures": all.failures,
         })
     }
 
@@ -289,9 +306,9 @@ impl Summarize for Evaluation {
                 Column::new("l_max (m)", Unit::Number(3)),
             ],
         );
-        for l in &lines {
+        for (group, l) in &lines {
             objects.push(
-                &l.group,
+                group,
                 vec![
                     Cell::one(l.rollouts as f64),
                     Cell::one(l.success_rate),
@@ -307,7 +324,7 @@ impl Summarize for Evaluation {
             "Failures",
             vec![Column::new("all", Unit::Count)],
         );
-        if let Some(all) = lines.last() {
+        if let Some((_, all)) = lines.last() {
             for f in Failure::ALL {
                 let n = all.failures.get(f.name()).copied().unwrap_or(0);
                 failures.push(f.name(), vec![Cell::one(n as f64)]);

@@ -8,7 +8,7 @@ use osms_core::Artifact;
 use osms_core::stats::{Difference, paired_difference};
 use osms_core::table::{Cell, Column, Layout, Table, Unit, Value};
 use osms_make::Summarize;
-use osms_sim::artifacts::{EvalRow, Evaluation, TableLine};
+use osms_sim::artifacts::{EvalRow, EvalSummary};
 use osms_sim::{N_ARM, Phase};
 use serde::{Deserialize, Serialize};
 
@@ -92,17 +92,10 @@ impl osms_make::Sharded for Calibration {
 }
 
 /// A run spec (or π̄) on a set of conditions.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct RunSummary {
     pub label: String,
-    pub rollouts: usize,
-    pub success_rate: f64,
-    pub completion_rate: f64,
-    pub max_force_n: Option<f64>,
-    pub follow_through_m: Option<f64>,
-    pub contact_speed_mps: Option<f64>,
-    /// Failures per rollout, by kind (a rollout can fail several ways).
-    pub failures: Vec<(String, f64)>,
+    pub rollouts: EvalSummary,
     /// Success minus π̄'s, paired by condition (the per-condition means over draws), with its
     /// 95 % interval; `None` for π̄ itself.
     pub calibration_error: Option<Difference>,
@@ -140,25 +133,9 @@ impl Calibration {
     }
 
     fn summary_of(label: String, rows: Vec<EvalRow>, error: Option<Difference>) -> RunSummary {
-        let n = rows.len();
-        let line: TableLine = Evaluation { rows }
-            .table()
-            .pop()
-            .expect("an evaluation's table ends with its `all` line");
-        let failures = line
-            .failures
-            .iter()
-            .map(|(k, v)| (k.clone(), *v as f64 / n.max(1) as f64))
-            .collect();
         RunSummary {
             label,
-            rollouts: n,
-            success_rate: line.success_rate,
-            completion_rate: line.completion_rate,
-            max_force_n: line.max_force_n,
-            follow_through_m: line.follow_through_m,
-            contact_speed_mps: line.contact_speed_mps,
-            failures,
+            rollouts: EvalSummary::of(&rows),
             calibration_error: error,
         }
     }
@@ -244,19 +221,19 @@ impl Calibration {
             ))
         };
         let push = |t: &mut Table, s: RunSummary, per_fold: Vec<Option<Difference>>| {
-            let mut cells = vec![Cell::one(s.success_rate), ci(&s.calibration_error)];
+            let r = &s.rollouts;
+            let mut cells = vec![Cell::one(r.success_rate), ci(&s.calibration_error)];
             cells.extend(per_fold.iter().map(ci));
             cells.extend([
-                Cell::one(s.completion_rate),
-                Cell::opt(s.max_force_n),
-                Cell::opt(s.follow_through_m),
-                Cell::opt(s.contact_speed_mps),
+                Cell::one(r.completion_rate),
+                Cell::opt(r.max_force_n),
+                Cell::opt(r.follow_through_m),
+                Cell::opt(r.contact_speed_mps),
             ]);
             for f in FAILURE_COLUMNS {
-                let rate = s.failures.iter().find(|(k, _)| k == f).map_or(0.0, |v| v.1);
-                cells.push(Cell::one(rate));
+                cells.push(Cell::one(r.failure_rate(f)));
             }
-            cells.push(Cell::new(Value::One(s.rollouts as f64), None));
+            cells.push(Cell::new(Value::One(r.rollouts as f64), None));
             t.push(s.label, cells);
         };
         push(
@@ -372,8 +349,8 @@ impl Summarize for Calibration {
                 serde_json::json!({
                     "model": self.runs[r].model,
                     "kappa": self.runs[r].kappa,
-                    "success_rate": all.success_rate,
-                    "completion_rate": all.completion_rate,
+                    "success_rate": all.rollouts.success_rate,
+                    "completion_rate": all.rollouts.completion_rate,
                     "calibration_error": error(all.calibration_error),
                     "calibration_error_by_fold": per_fold,
                 })
@@ -382,8 +359,8 @@ impl Summarize for Calibration {
         serde_json::json!({
             "conditions": self.items.len(),
             "draws": self.draws,
-            "student_success_rate": student.success_rate,
-            "student_completion_rate": student.completion_rate,
+            "student_success_rate": student.rollouts.success_rate,
+            "student_completion_rate": student.rollouts.completion_rate,
             "runs": runs,
         })
     }

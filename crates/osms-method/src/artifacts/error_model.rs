@@ -114,7 +114,8 @@ impl ErrorModelArtifact {
 
     /// Table III's metric columns as Markdown.
     pub fn table3_markdown(&self) -> String {
-        self.table3().markdown_with(Layout::plain("validation model"))
+        self.table3()
+            .markdown_with(Layout::plain("validation model"))
     }
 
     /// Table III's metrics, one line per model, for programs.

@@ -34,13 +34,13 @@ impl Stage for ErrorModelStage {
         let mut phase_steps = vec![0usize; Phase::ALL.len()];
         for (_, pairs) in &gathered {
             let eval = pairs.evaluation();
-            let all = eval.table().pop();
+            let all = eval.overall();
             folds.push(FoldStats {
                 fold: pairs.fold,
                 rollouts: pairs.rollouts.len(),
                 steps: pairs.rollouts.iter().map(|r| r.steps()).sum(),
-                success_rate: all.as_ref().map_or(0.0, |l| l.success_rate),
-                completion_rate: all.as_ref().map_or(0.0, |l| l.completion_rate),
+                success_rate: all.success_rate,
+                completion_rate: all.completion_rate,
             });
             for r in &pairs.rollouts {
                 for &p in &r.phase {

@@ -107,13 +107,13 @@ impl ErrorPairs {
 impl Summarize for ErrorPairs {
     fn summary(&self) -> serde_json::Value {
         let eval = self.evaluation();
-        let all = eval.table().pop();
+        let all = eval.overall();
         serde_json::json!({
             "fold": self.fold.map(|(i, n)| format!("{i} of {n}")),
             "rollouts": self.rollouts.len(),
             "steps": self.rollouts.iter().map(PairRollout::steps).sum::<usize>(),
-            "student_success_rate": all.as_ref().map(|l| l.success_rate),
-            "student_completion_rate": all.as_ref().map(|l| l.completion_rate),
+            "student_success_rate": all.success_rate,
+            "student_completion_rate": all.completion_rate,
             "phases": self.phase_deviations(),
         })
     }

@@ -3,7 +3,7 @@
 use osms_core::Artifact;
 use osms_core::table::{self, Cell, Field, Layout, Sheet, Unit};
 use osms_make::Summarize;
-use osms_sim::artifacts::{Evaluation, TableLine};
+use osms_sim::artifacts::Evaluation;
 use serde::{Deserialize, Serialize};
 
 /// One row of the Table I analog.
@@ -86,17 +86,17 @@ impl Summarize for TeacherTable {
 }
 
 impl TeacherTableRow {
-    /// The row of `policy` from its evaluation's "all" line.
+    /// The row of `policy` from its evaluation's summary.
     pub fn of(policy: &str, eval: &Evaluation) -> TeacherTableRow {
-        let all: Option<TableLine> = eval.table().pop();
+        let all = eval.overall();
         TeacherTableRow {
             policy: policy.to_string(),
-            rollouts: eval.rows.len(),
-            completion_rate: all.as_ref().map_or(0.0, |l| l.completion_rate),
-            success_rate: all.as_ref().map_or(0.0, |l| l.success_rate),
-            contact_speed_mps: all.as_ref().and_then(|l| l.contact_speed_mps),
-            max_force_n: all.as_ref().and_then(|l| l.max_force_n),
-            follow_through_m: all.as_ref().and_then(|l| l.follow_through_m),
+            rollouts: all.rollouts,
+            completion_rate: all.completion_rate,
+            success_rate: all.success_rate,
+            contact_speed_mps: all.contact_speed_mps,
+            max_force_n: all.max_force_n,
+            follow_through_m: all.follow_through_m,
         }
     }
 }
