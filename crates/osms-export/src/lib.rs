@@ -10,6 +10,7 @@
 //! Every export is a pure function of the artifact: the same artifact gives the same bytes.
 
 pub mod lerobot;
+mod parquet_file;
 pub mod robomimic;
 pub mod rollouts;
 pub mod table;

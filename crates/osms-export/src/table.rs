@@ -1,21 +1,14 @@
 //! A flat table of nullable scalar columns, written as CSV and as one Parquet file: what
-//! per-rollout results need (the LeRobot writer's columns hold lists and never a null).
+//! per-rollout results need (LeRobot's columns hold lists and never a null; both go through
+//! the crate's one Parquet writer).
 //!
 //! CSV: a header of column names, then one line per row; a null is an empty cell, booleans
 //! are `true` / `false`, floats are Rust's shortest representation that reads back to the same
 //! `f64`. Parquet: every column `OPTIONAL` (a null is definition level 0), one row group,
 //! Snappy-compressed pages. Both are pure functions of the table.
 
-use std::sync::Arc;
-
-use parquet::basic::{Compression, LogicalType, Repetition, Type as PhysicalType};
-use parquet::data_type::{BoolType, ByteArray, ByteArrayType, DataType, DoubleType, Int64Type};
-use parquet::errors::ParquetError;
-use parquet::file::properties::WriterProperties;
-use parquet::file::writer::{SerializedColumnWriter, SerializedFileWriter};
-use parquet::schema::types::Type;
-
 use crate::Error;
+use crate::parquet_file::{self, Values};
 
 /// The cells of one column, `None` where the value is undefined.
 #[derive(Debug, Clone, PartialEq)]
@@ -113,85 +106,42 @@ impl Table {
     /// The table as the bytes of one Parquet file.
     pub fn parquet(&self) -> Result<Vec<u8>, Error> {
         self.check()?;
-        let err = |e: ParquetError| Error::Format(format!("cannot write Parquet: {e}"));
-        let fields = self
-            .columns
-            .iter()
-            .map(|c| field(c).map(Arc::new))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(err)?;
-        let schema = Type::group_type_builder("schema")
-            .with_fields(fields)
-            .build()
-            .map_err(err)?;
-        let props = WriterProperties::builder()
-            .set_compression(Compression::SNAPPY)
-            .build();
-        let mut writer = SerializedFileWriter::new(Vec::new(), Arc::new(schema), Arc::new(props))
-            .map_err(err)?;
-        let mut rg = writer.next_row_group().map_err(err)?;
-        for col in &self.columns {
-            let mut cw = rg.next_column().map_err(err)?.ok_or_else(|| {
-                Error::Format(format!("no Parquet column left for `{}`", col.name))
-            })?;
-            write_column(&mut cw, &col.cells).map_err(err)?;
-            cw.close().map_err(err)?;
-        }
-        rg.close().map_err(err)?;
-        writer.into_inner().map_err(err)
+        let columns: Vec<parquet_file::Column> = self.columns.iter().map(Column::parquet).collect();
+        let refs: Vec<&parquet_file::Column> = columns.iter().collect();
+        parquet_file::write(Vec::new(), &refs, &[0..self.rows()], None)
+            .map_err(|e| Error::Format(format!("cannot write Parquet: {e}")))
     }
 }
 
-/// The column's `OPTIONAL` Parquet field.
-fn field(col: &Column) -> Result<Type, ParquetError> {
-    let (physical, logical) = match col.cells {
-        Cells::Int(_) => (PhysicalType::INT64, None),
-        Cells::Float(_) => (PhysicalType::DOUBLE, None),
-        Cells::Bool(_) => (PhysicalType::BOOLEAN, None),
-        Cells::Text(_) => (PhysicalType::BYTE_ARRAY, Some(LogicalType::String)),
-    };
-    Type::primitive_type_builder(&col.name, physical)
-        .with_repetition(Repetition::OPTIONAL)
-        .with_logical_type(logical)
-        .build()
-}
-
-/// The defined values and the definition levels (1 defined, 0 null) of `cells`.
-fn levels<T: Clone>(cells: &[Option<T>]) -> (Vec<T>, Vec<i16>) {
-    let values = cells.iter().flatten().cloned().collect();
-    let def = cells.iter().map(|c| i16::from(c.is_some())).collect();
-    (values, def)
-}
-
-fn write_typed<D: DataType>(
-    cw: &mut SerializedColumnWriter<'_>,
-    values: &[D::T],
-    def: &[i16],
-) -> Result<(), ParquetError> {
-    cw.typed::<D>().write_batch(values, Some(def), None)?;
-    Ok(())
-}
-
-fn write_column(cw: &mut SerializedColumnWriter<'_>, cells: &Cells) -> Result<(), ParquetError> {
-    match cells {
-        Cells::Int(v) => {
-            let (values, def) = levels(v);
-            write_typed::<Int64Type>(cw, &values, &def)
+impl Column {
+    /// The column as a nullable Parquet column (a null's slot holds a placeholder).
+    fn parquet(&self) -> parquet_file::Column {
+        fn split<T: Clone + Default>(cells: &[Option<T>]) -> (Vec<T>, Vec<bool>) {
+            let values = cells
+                .iter()
+                .map(|c| c.clone().unwrap_or_default())
+                .collect();
+            (values, cells.iter().map(Option::is_some).collect())
         }
-        Cells::Float(v) => {
-            let (values, def) = levels(v);
-            write_typed::<DoubleType>(cw, &values, &def)
-        }
-        Cells::Bool(v) => {
-            let (values, def) = levels(v);
-            write_typed::<BoolType>(cw, &values, &def)
-        }
-        Cells::Text(v) => {
-            let (values, def) = levels(v);
-            let values: Vec<ByteArray> =
-                values.iter().map(|s| ByteArray::from(s.as_str())).collect();
-            write_typed::<ByteArrayType>(cw, &values, &def)
-        }
+        let (values, defined) = match &self.cells {
+            Cells::Int(v) => {
+                let (v, d) = split(v);
+                (Values::I64(v), d)
+            }
+            Cells::Float(v) => {
+                let (v, d) = split(v);
+                (Values::F64(v), d)
+            }
+            Cells::Bool(v) => {
+                let (v, d) = split(v);
+                (Values::Bool(v), d)
+            }
+            Cells::Text(v) => {
+                let (v, d) = split(v);
+                (Values::Str(v), d)
+            }
+        };
+        parquet_file::Column::nullable(&self.name, values, defined)
     }
 }
 

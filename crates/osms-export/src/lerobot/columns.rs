@@ -9,6 +9,7 @@ use osms_sim::N_ACTION;
 use osms_sim::policy::{DEPLOYABLE_LEN, PRIVILEGED_LEN};
 use osms_sim::robot::{ARM_JOINTS, HAND_JOINTS};
 
+pub(super) use crate::parquet_file::{Column, Values};
 use crate::{Error, ExportOptions, ExportSet};
 
 /// The key of the privileged frame where a policy reads it (`--privileged-obs`) ...
@@ -100,44 +101,6 @@ impl Dtype {
     }
 }
 
-/// A column's values, flattened row-major.
-#[derive(Debug, Clone, PartialEq)]
-pub(super) enum Values {
-    F32(Vec<f32>),
-    F64(Vec<f64>),
-    I64(Vec<i64>),
-    Bool(Vec<bool>),
-    Str(Vec<String>),
-}
-
-/// One Parquet column: a scalar per row, or a list per row (`offsets` has rows + 1 entries).
-#[derive(Debug, Clone, PartialEq)]
-pub(super) struct Column {
-    pub(super) name: String,
-    pub(super) values: Values,
-    pub(super) offsets: Option<Vec<usize>>,
-}
-
-impl Column {
-    pub(super) fn scalar(name: &str, values: Values) -> Column {
-        Column {
-            name: name.into(),
-            values,
-            offsets: None,
-        }
-    }
-
-    /// `width` values per row: a list column, or a scalar one for width 1 (LeRobot stores
-    /// shape-[1] features as plain values).
-    pub(super) fn fixed(name: &str, values: Values, width: usize, rows: usize) -> Column {
-        Column {
-            name: name.into(),
-            values,
-            offsets: (width != 1).then(|| (0..=rows).map(|r| r * width).collect()),
-        }
-    }
-}
-
 /// A data column with what `info.json` says of it.
 pub(super) struct Feature {
     pub(super) column: Column,
@@ -161,8 +124,14 @@ impl Feature {
             Values::Bool(_) => Dtype::Bool,
             Values::Str(_) => Dtype::String,
         };
+        // LeRobot stores shape-[1] features as plain values, wider ones as lists.
+        let column = if width == 1 {
+            Column::scalar(name, values)
+        } else {
+            Column::list(name, values, (0..=rows).map(|r| r * width).collect())
+        };
         Feature {
-            column: Column::fixed(name, values, width, rows),
+            column,
             dtype,
             width,
             names,
@@ -473,17 +442,17 @@ pub(super) fn episodes_table(set: &ExportSet, tasks: &Tasks, data: &DataTable) -
     let mut cols = vec![
         Column::scalar("episode_index", ints(&to_i64)),
         // A list of one task per episode.
-        Column {
-            name: "tasks".into(),
-            values: Values::Str(
+        Column::list(
+            "tasks",
+            Values::Str(
                 tasks
                     .of_episode
                     .iter()
                     .map(|&k| tasks.names.get(k).cloned().unwrap_or_default())
                     .collect(),
             ),
-            offsets: Some((0..=n).collect()),
-        },
+            (0..=n).collect(),
+        ),
         Column::scalar("length", ints(&|i| to_i64(range(i).len()))),
         Column::scalar("data/chunk_index", ints(&|_| 0)),
         Column::scalar("data/file_index", ints(&|_| 0)),
@@ -516,10 +485,8 @@ pub(super) fn episodes_table(set: &ExportSet, tasks: &Tasks, data: &DataTable) -
                     .collect(),
             )
         };
-        let list = |stat: &str, values: Values, width: usize| Column {
-            name: name(stat),
-            values,
-            offsets: Some((0..=n).map(|r| r * width).collect()),
+        let list = |stat: &str, values: Values, width: usize| {
+            Column::list(&name(stat), values, (0..=n).map(|r| r * width).collect())
         };
         cols.push(list("min", extreme(&|s| &s.min), w));
         cols.push(list("max", extreme(&|s| &s.max), w));

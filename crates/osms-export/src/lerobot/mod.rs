@@ -22,7 +22,6 @@
 
 mod columns;
 mod layout;
-mod parquet_writer;
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -36,7 +35,6 @@ use self::layout::{
     DATA_PATH, EPISODES_PATH, INFO_PATH, STATS_PATH, TASKS_PATH, info_json, osms_metadata,
     pandas_tasks_metadata, write_json,
 };
-use self::parquet_writer::write_parquet;
 use crate::{Error, ExportOptions, ExportSet};
 
 pub use self::columns::{
@@ -169,6 +167,19 @@ fn check(set: &ExportSet) -> Result<(), Error> {
         }
     }
     Ok(())
+}
+
+/// Writes `columns` as the Parquet file `path`, one row group per range in `groups`.
+fn write_parquet(
+    path: &Path,
+    columns: &[&Column],
+    groups: &[std::ops::Range<usize>],
+    metadata: Vec<KeyValue>,
+) -> Result<(), Error> {
+    let file = fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    crate::parquet_file::write(file, columns, groups, Some(metadata))
+        .map(drop)
+        .map_err(|e| Error::io(path, std::io::Error::other(e)))
 }
 
 #[cfg(test)]
