@@ -1,7 +1,7 @@
 //! The engine through the library: identity under reruns, threads and shards; early cutoff;
 //! seed sweeps; status reasons; failures; and every kind of bad pipeline declaration.
 
-use osms_make::{ItemStage, MakeOptions, Reason, Registry, State};
+use osms_make::{ItemStage, Kind, MakeOptions, Reason, Registry, State};
 use osms_tests::project::{ENGINE_PIPELINE, Silent, first_failure, hashes, outcomes};
 use osms_tests::stages::{NumbersKind, NumbersParams};
 use osms_tests::{Project, registry};
@@ -184,13 +184,16 @@ fn dry_run_builds_nothing_and_says_what_would_run() {
 
 /// `numbers` at code version 2, to check that a bump is seen as one.
 struct NumbersV2;
-impl ItemStage for NumbersV2 {
+impl Kind for NumbersV2 {
     const KIND: &'static str = "numbers";
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = true;
     const INPUTS: &'static [osms_make::Slot] = &[];
     const DOC: &'static str = "numbers, bumped";
     type Params = NumbersParams;
+}
+
+impl ItemStage for NumbersV2 {
     type Prepared = ();
     type Item = Vec<f64>;
     type Output = osms_tests::artifacts::Numbers;
@@ -774,13 +777,16 @@ struct NumbersBatched {
     short: bool,
 }
 const BATCH: usize = 4;
-impl ItemStage for NumbersBatched {
+impl Kind for NumbersBatched {
     const KIND: &'static str = "numbers";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
     const INPUTS: &'static [osms_make::Slot] = &[];
     const DOC: &'static str = "numbers, in batches";
     type Params = NumbersParams;
+}
+
+impl ItemStage for NumbersBatched {
     type Prepared = ();
     type Item = Vec<f64>;
     type Output = osms_tests::artifacts::Numbers;

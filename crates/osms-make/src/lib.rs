@@ -29,9 +29,10 @@ pub use exec::{
 };
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
-    CHECKPOINT_TAG, CheckpointIo, Ctx, DynKind, Fold, InputBytes, ItemStage, KindInfo, Manifest,
-    Member, NoProgress, Numerics, Objects, ParamError, ParsedParams, Progress, Registry, RunOutput,
-    Scale, ShardRun, Sharded, Slot, Stage, StageError, Summarize, assemble, items_one_by_one,
+    CHECKPOINT_TAG, CheckpointIo, Ctx, DynKind, Fold, InputBytes, ItemStage, Kind, KindInfo,
+    Manifest, Member, NoProgress, Numerics, Objects, ParamError, ParsedParams, Progress, Registry,
+    RunOutput, Scale, ShardRun, Sharded, Slot, Stage, StageError, Summarize, assemble,
+    items_one_by_one,
 };
 pub use pipeline::{Pipeline, StageSpec};
 pub use plan::{

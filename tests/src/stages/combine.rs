@@ -1,13 +1,13 @@
 //! `combine` (test kind): reads three inputs of three types.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 
 use crate::artifacts::{Combined, Drops, Numbers, Total};
 
 /// Reads three inputs of three types.
 pub struct CombineKind;
-impl Stage for CombineKind {
+impl Kind for CombineKind {
     const KIND: &'static str = "combine";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -18,6 +18,9 @@ impl Stage for CombineKind {
     ];
     const DOC: &'static str = "a small report over three inputs (test kind)";
     type Params = NoParams;
+}
+
+impl Stage for CombineKind {
     type Output = Combined;
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Combined, StageError> {
         let total: Total = ctx.input("total")?;

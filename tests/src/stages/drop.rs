@@ -1,8 +1,9 @@
 //! `drop` (test kind): boxes thrown onto a plane in MuJoCo: every bit of the simulation shows in where they rest.
 
 use mujoco_rs::prelude::MjModel;
+use osms_core::check::{Check, Checked};
 use osms_core::rng::{self, StreamRng};
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::Drops;
@@ -20,6 +21,13 @@ fn default_steps() -> u32 {
     400
 }
 
+/// Any value that parses: test kinds exercise the engine, not params' ranges.
+impl Check for DropParams {
+    fn check(&self) -> Checked {
+        Ok(())
+    }
+}
+
 const DROP_XML: &str = r#"<mujoco>
   <option timestep="0.002" integrator="implicitfast" cone="elliptic"/>
   <worldbody>
@@ -34,16 +42,13 @@ const DROP_XML: &str = r#"<mujoco>
 /// Throws a small box onto a plane with a random velocity and records where it comes to rest:
 /// contacts, friction and the elliptic cone make this sensitive to every bit of the simulation.
 pub struct DropKind;
-impl ItemStage for DropKind {
+impl Kind for DropKind {
     const KIND: &'static str = "drop";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[];
     const DOC: &'static str = "MuJoCo box throws onto a plane (test kind)";
     type Params = DropParams;
-    type Prepared = MjModel;
-    type Item = Vec<f64>;
-    type Output = Drops;
 
     fn scale(params: &DropParams, _: &[(&str, f64)]) -> Scale {
         Scale::items(f64::from(params.n))
@@ -55,6 +60,12 @@ impl ItemStage for DropKind {
             version: osms_sim::mujoco_version(),
         }]
     }
+}
+
+impl ItemStage for DropKind {
+    type Prepared = MjModel;
+    type Item = Vec<f64>;
+    type Output = Drops;
 
     fn prepare(&self, _: &Ctx<'_, DropParams>) -> Result<MjModel, StageError> {
         Ok(MjModel::from_xml_string(DROP_XML)?)

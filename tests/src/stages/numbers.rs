@@ -2,8 +2,9 @@
 
 use std::time::Duration;
 
+use osms_core::check::{Check, Checked};
 use osms_core::rng::{self, StreamRng};
-use osms_make::{Ctx, ItemStage, Scale, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Scale, Slot, StageError};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::Numbers;
@@ -29,6 +30,13 @@ pub struct NumbersParams {
     pub role: Option<TestRole>,
 }
 
+/// Any value that parses: test kinds exercise the engine, not params' ranges.
+impl Check for NumbersParams {
+    fn check(&self) -> Checked {
+        Ok(())
+    }
+}
+
 /// Roles test numbers can play.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -45,16 +53,13 @@ fn default_scale() -> f64 {
 
 /// Normal random rows, one item per row.
 pub struct NumbersKind;
-impl ItemStage for NumbersKind {
+impl Kind for NumbersKind {
     const KIND: &'static str = "numbers";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[];
     const DOC: &'static str = "rows of scaled standard-normal numbers (test kind)";
     type Params = NumbersParams;
-    type Prepared = ();
-    type Item = Vec<f64>;
-    type Output = Numbers;
 
     fn scale(params: &NumbersParams, _: &[(&str, f64)]) -> Scale {
         Scale::items(f64::from(params.n))
@@ -66,6 +71,13 @@ impl ItemStage for NumbersKind {
             TestRole::B => "b",
         })
     }
+}
+
+impl ItemStage for NumbersKind {
+    type Prepared = ();
+    type Item = Vec<f64>;
+    type Output = Numbers;
+
     fn prepare(&self, _: &Ctx<'_, NumbersParams>) -> Result<(), StageError> {
         Ok(())
     }

@@ -1,7 +1,8 @@
 //! `panic` (test kind): rows `[i]`, or a panic where asked: a panicking kind fails its own stage only.
 
+use osms_core::check::{Check, Checked};
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Slot, StageError};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::Numbers;
@@ -20,16 +21,26 @@ pub struct PanicParams {
     pub panic_in_merge: bool,
 }
 
+/// Any value that parses: test kinds exercise the engine, not params' ranges.
+impl Check for PanicParams {
+    fn check(&self) -> Checked {
+        Ok(())
+    }
+}
+
 /// Rows `[i]` for every item `i`, or a panic where asked: tests that a panicking kind fails its
 /// own stage only. A kind of its own, so the keys of the other kinds' golden outputs stay put.
 pub struct PanicKind;
-impl ItemStage for PanicKind {
+impl Kind for PanicKind {
     const KIND: &'static str = "panicky";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
     const INPUTS: &'static [Slot] = &[];
     const DOC: &'static str = "one row per item, or a panic on demand (test kind)";
     type Params = PanicParams;
+}
+
+impl ItemStage for PanicKind {
     type Prepared = ();
     type Item = Vec<f64>;
     type Output = Numbers;

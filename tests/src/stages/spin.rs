@@ -1,7 +1,8 @@
 //! `spin` (test kind): uses a given amount of CPU time on one thread, to check that a record's
 //! core-seconds are the CPU time its build used, whatever ran beside it.
 
-use osms_make::{Ctx, Stage, StageError, thread_cpu_secs};
+use osms_core::check::{Check, Checked};
+use osms_make::{Ctx, Kind, Stage, StageError, thread_cpu_secs};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::Total;
@@ -14,15 +15,25 @@ pub struct SpinParams {
     pub cpu_ms: u64,
 }
 
+/// Any value that parses: test kinds exercise the engine, not params' ranges.
+impl Check for SpinParams {
+    fn check(&self) -> Checked {
+        Ok(())
+    }
+}
+
 /// Uses `cpu_ms` of CPU on one thread; its output says how much.
 pub struct SpinKind;
-impl Stage for SpinKind {
+impl Kind for SpinKind {
     const KIND: &'static str = "spin";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
     const INPUTS: &'static [osms_make::Slot] = &[];
     const DOC: &'static str = "uses a given CPU time on one thread (test kind)";
     type Params = SpinParams;
+}
+
+impl Stage for SpinKind {
     type Output = Total;
     fn run(&self, ctx: &Ctx<'_, SpinParams>) -> Result<Total, StageError> {
         let target = ctx.params.cpu_ms as f64 * 1e-3;

@@ -1,8 +1,10 @@
-//! The API a stage kind is written against: the [`Stage`] and [`ItemStage`] traits, their
-//! input [`Slot`]s and what its output implements ([`Summarize`]; an itemised output's
-//! [`Sharded`](super::Sharded) is the store's). A running stage reads a [`Ctx`](super::Ctx).
+//! The API a stage kind is written against: the [`Kind`] trait with [`Stage`] or [`ItemStage`]
+//! on top, their input [`Slot`]s and what its output implements ([`Summarize`]; an itemised
+//! output's [`Sharded`](super::Sharded) is the store's). A running stage reads a
+//! [`Ctx`](super::Ctx).
 
 use osms_core::Artifact;
+use osms_core::check::{Check, Checked};
 use osms_core::rng::StreamRng;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -99,8 +101,10 @@ pub struct Numerics {
     pub version: String,
 }
 
-/// A stage that computes one artifact.
-pub trait Stage: Send + Sync + 'static {
+/// What every stage kind declares, whether it computes one artifact ([`Stage`]) or a list of
+/// independent items ([`ItemStage`]): its name, version, inputs and params, and what the planner
+/// reads from its params before anything runs.
+pub trait Kind: Send + Sync + 'static {
     const KIND: &'static str;
     const CODE_VERSION: u32;
     /// Whether the stage can draw random numbers; if not, its key ignores the seed and seed
@@ -108,10 +112,7 @@ pub trait Stage: Send + Sync + 'static {
     const USES_RNG: bool;
     const INPUTS: &'static [Slot];
     const DOC: &'static str;
-    type Params: Serialize + DeserializeOwned + Send + Sync + 'static;
-    type Output: Artifact + Summarize;
-
-    fn run(&self, ctx: &Ctx<'_, Self::Params>) -> Result<Self::Output, StageError>;
+    type Params: Serialize + DeserializeOwned + Check + Send + Sync + 'static;
 
     /// Whether a stage with these params draws random numbers (e.g. an evaluation with domain
     /// randomisation off draws none): if not, it is shared by every seed of a sweep.
@@ -135,10 +136,19 @@ pub trait Stage: Send + Sync + 'static {
     }
 
     /// Refuses params that make no sense at plan time, naming the field and its valid range
-    /// (`osms_core::check`). Non-finite numbers are refused for every kind before this runs.
-    fn check_params(_params: &Self::Params) -> osms_core::check::Checked {
-        Ok(())
+    /// (`osms_core::check`). Non-finite numbers are refused for every kind before this runs. By
+    /// default the params type's own [`Check`], so that params built in code meet the same
+    /// ranges.
+    fn check_params(params: &Self::Params) -> Checked {
+        params.check()
     }
+}
+
+/// A stage that computes one artifact.
+pub trait Stage: Kind {
+    type Output: Artifact + Summarize;
+
+    fn run(&self, ctx: &Ctx<'_, Self::Params>) -> Result<Self::Output, StageError>;
 }
 
 /// How large one build is, in units its kind chooses, for scaling a measured build's
@@ -181,13 +191,7 @@ impl Scale {
 /// A stage whose work is a list of independent items (e.g. rollouts). Item `i` draws from the
 /// stream `("item", i)`, so the output does not depend on how items are split into shards or
 /// threads.
-pub trait ItemStage: Send + Sync + 'static {
-    const KIND: &'static str;
-    const CODE_VERSION: u32;
-    const USES_RNG: bool;
-    const INPUTS: &'static [Slot];
-    const DOC: &'static str;
-    type Params: Serialize + DeserializeOwned + Send + Sync + 'static;
+pub trait ItemStage: Kind {
     /// Decoded inputs and anything built once per stage (e.g. a simulator model).
     type Prepared: Send + Sync;
     type Item: Serialize + DeserializeOwned + Send;
@@ -228,31 +232,6 @@ pub trait ItemStage: Send + Sync + 'static {
         rngs: Vec<StreamRng>,
     ) -> Result<Vec<Self::Item>, StageError> {
         items_one_by_one(self, ctx, prepared, first, rngs)
-    }
-
-    /// As [`Stage::draws_randomness`].
-    fn draws_randomness(_params: &Self::Params) -> bool {
-        Self::USES_RNG
-    }
-
-    /// As [`Stage::output_role`].
-    fn output_role(_params: &Self::Params) -> Option<&'static str> {
-        None
-    }
-
-    /// As [`Stage::numerics`].
-    fn numerics() -> Vec<Numerics> {
-        Vec::new()
-    }
-
-    /// As [`Stage::scale`].
-    fn scale(_params: &Self::Params, inputs: &[(&str, f64)]) -> Scale {
-        Scale::follow(inputs)
-    }
-
-    /// As [`Stage::check_params`].
-    fn check_params(_params: &Self::Params) -> osms_core::check::Checked {
-        Ok(())
     }
 }
 

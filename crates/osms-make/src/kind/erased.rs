@@ -103,7 +103,8 @@ pub trait DynKind: Send + Sync {
     fn draws_randomness(&self, params: &ParsedParams) -> bool;
     /// The role of the output of a stage with these params.
     fn output_role(&self, params: &ParsedParams) -> Option<&'static str>;
-    /// How large a build with these params and input sizes is ([`Stage::scale`]).
+    /// How large a build with these params and input sizes is
+    /// ([`Kind::scale`](super::Kind::scale)).
     fn scale(&self, params: &ParsedParams, inputs: &[(&str, f64)]) -> Scale;
     /// Runs the stage and returns the encoded output artifact.
     fn run(&self, env: &RunEnv<'_>) -> Result<RunOutput, StageError>;

@@ -2,7 +2,7 @@
 //! as often as π̄ in closed loop, the `calibrated` model validation applies (issue 66; what it
 //! shares with `error_calibration` is in `closed_loop`).
 
-use osms_make::{Ctx, Numerics, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Numerics, Slot, Stage, StageError};
 use osms_policy::artifacts::PairRollout;
 use osms_sim::control::DrSpec;
 use rayon::prelude::*;
@@ -62,7 +62,7 @@ type ConditionRow = (u32, Vec<usize>, usize);
 /// the default make's ≈ 500 take ≈ 10 minutes on 2 cores.
 const CHECKPOINT_EVERY: u32 = 100;
 
-impl Stage for CalibrateErrorModelStage {
+impl Kind for CalibrateErrorModelStage {
     const KIND: &'static str = "calibrate_error_model";
     /// 2: π̄'s success on the tuning fold is over `draws` rollouts per condition with the
     /// teacher's DR streams, not its one `error_pairs` rollout; the folds may be pooled.
@@ -71,15 +71,14 @@ impl Stage for CalibrateErrorModelStage {
     const INPUTS: &'static [Slot] = INPUTS;
     const DOC: &'static str = "an error model's deviation scaled so the teacher under it succeeds as often as π̄ in closed loop (the `calibrated` model)";
     type Params = CalibrateParams;
-    type Output = ErrorModelArtifact;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }
+}
+
+impl Stage for CalibrateErrorModelStage {
+    type Output = ErrorModelArtifact;
 
     fn run(&self, ctx: &Ctx<'_, CalibrateParams>) -> Result<ErrorModelArtifact, StageError> {
         let p = ctx.params;

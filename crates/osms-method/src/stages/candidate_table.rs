@@ -1,14 +1,14 @@
 //! `candidate_table`: the four generators' candidate sets side by side.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 
 use crate::artifacts::{CandidateSets, CandidateTable};
 use crate::candidates::Generator;
 
 /// The four generators' candidate sets side by side (`osms make candidates` builds them all).
 pub struct CandidateTableStage;
-impl Stage for CandidateTableStage {
+impl Kind for CandidateTableStage {
     const KIND: &'static str = "candidate_table";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -21,6 +21,9 @@ impl Stage for CandidateTableStage {
     const DOC: &'static str =
         "the candidate generators side by side: sets, deviations, shrunk directions, matching";
     type Params = NoParams;
+}
+
+impl Stage for CandidateTableStage {
     type Output = CandidateTable;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<CandidateTable, StageError> {

@@ -1,7 +1,7 @@
 //! `candidates`: η for every D_R rollout, by one of the four generators (paper 4.1, 6.4).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_policy::artifacts::OswSet;
 
 use crate::artifacts::{CandidateItem, CandidateSets};
@@ -14,7 +14,7 @@ type Reference = Vec<Option<CandidateSet>>;
 /// Candidate sets for every D_R rollout (paper Alg. 1, line "generate η"). Rollout i's
 /// projection draws its multi-start samples from stream ("projection", i).
 pub struct CandidatesStage;
-impl ItemStage for CandidatesStage {
+impl Kind for CandidatesStage {
     const KIND: &'static str = "candidates";
     /// 2: `euclidean` starts from the reference sets' z⁰.
     const CODE_VERSION: u32 = 2;
@@ -26,17 +26,16 @@ impl ItemStage for CandidatesStage {
     ];
     const DOC: &'static str = "candidate sets η per D_R rollout: geodesic search on the manifold (paper 4.1) or an ablation generator matched to it";
     type Params = SearchParams;
-    type Prepared = (Cvae, OswSet, Reference);
-    type Item = CandidateItem;
-    type Output = CandidateSets;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::nn_numerics()
     }
+}
+
+impl ItemStage for CandidatesStage {
+    type Prepared = (Cvae, OswSet, Reference);
+    type Item = CandidateItem;
+    type Output = CandidateSets;
 
     fn prepare(&self, ctx: &Ctx<'_, SearchParams>) -> Result<Self::Prepared, StageError> {
         let p = ctx.params;

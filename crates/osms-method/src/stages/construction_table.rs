@@ -1,14 +1,14 @@
 //! `construction_table`: Table II's construction columns from the three demonstration sets.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_policy::artifacts::DemoSet;
 
 use crate::artifacts::{ConstructionRow, ConstructionTable, PAPER_TABLE2};
 
 /// Table II's construction columns from the three demonstration sets.
 pub struct ConstructionTableStage;
-impl Stage for ConstructionTableStage {
+impl Kind for ConstructionTableStage {
     const KIND: &'static str = "construction_table";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -19,6 +19,9 @@ impl Stage for ConstructionTableStage {
     ];
     const DOC: &'static str = "Table II's demonstration-construction columns for Naive, Normal and ours, with the paper's values";
     type Params = NoParams;
+}
+
+impl Stage for ConstructionTableStage {
     type Output = ConstructionTable;
 
     fn run(&self, ctx: &Ctx<'_, Self::Params>) -> Result<ConstructionTable, StageError> {

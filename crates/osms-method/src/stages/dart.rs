@@ -8,7 +8,7 @@
 //! and the noise's innovations from ("noise", …) of the same index.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoEntry, DemoGroup, DemoSet, Execution, Origin, Teacher};
 use osms_sim::World;
 use osms_sim::artifacts::WorldArtifact;
@@ -58,7 +58,7 @@ pub struct DartPrepared {
 /// Noisy teacher rollouts on the stage's own conditions, as many as the target set has
 /// demonstrations (size-matched to D_*).
 pub struct DartStage;
-impl ItemStage for DartStage {
+impl Kind for DartStage {
     const KIND: &'static str = "dart";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -71,17 +71,16 @@ impl ItemStage for DartStage {
     ];
     const DOC: &'static str = "the DART-IL baseline: teacher rollouts under the action-error model's noise, labelled with the teacher's intended actions, as many as the target set's demonstrations";
     type Params = DartParams;
-    type Prepared = DartPrepared;
-    type Item = DemoGroup;
-    type Output = DemoSet;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }
+}
+
+impl ItemStage for DartStage {
+    type Prepared = DartPrepared;
+    type Item = DemoGroup;
+    type Output = DemoSet;
 
     fn prepare(&self, ctx: &Ctx<'_, DartParams>) -> Result<DartPrepared, StageError> {
         let p = ctx.params;

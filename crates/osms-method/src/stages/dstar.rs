@@ -2,7 +2,7 @@
 //! step 4).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoGroup, DemoSet, Teacher};
 use osms_sim::artifacts::WorldArtifact;
 use serde::{Deserialize, Serialize};
@@ -16,7 +16,7 @@ use crate::construct::{Inputs, PerturbedLabels, dstar_group};
 /// ran; nothing for a dropped one. The rollouts are re-run with the validation's streams and
 /// checked against its outcomes.
 pub struct DstarStage;
-impl ItemStage for DstarStage {
+impl Kind for DstarStage {
     const KIND: &'static str = "dstar";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -30,13 +30,17 @@ impl ItemStage for DstarStage {
     ];
     const DOC: &'static str = "D_*: the selected candidates' successful unperturbed and perturbed rollouts and the kept originals, as student demonstrations";
     type Params = DstarParams;
-    type Prepared = (Inputs, Validation);
-    type Item = DemoGroup;
-    type Output = DemoSet;
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }
+}
+
+impl ItemStage for DstarStage {
+    type Prepared = (Inputs, Validation);
+    type Item = DemoGroup;
+    type Output = DemoSet;
+
     fn prepare(&self, ctx: &Ctx<'_, DstarParams>) -> Result<Self::Prepared, StageError> {
         let validation: Validation = ctx.sharded("validation")?;
         let inputs = super::load_inputs(ctx, &validation.params)?;

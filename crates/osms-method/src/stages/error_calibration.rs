@@ -3,7 +3,7 @@
 //! what it shares with `calibrate_error_model` is in `closed_loop`).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_sim::N_ACTION;
 use osms_sim::control::DrSpec;
 use serde::{Deserialize, Serialize};
@@ -53,7 +53,7 @@ pub struct Prepared {
 /// ("dr-q", i) and its innovations from ("errors-q", i); π̄'s draw q the same DR stream.
 pub struct CalibrationStage;
 
-impl ItemStage for CalibrationStage {
+impl Kind for CalibrationStage {
     const KIND: &'static str = "error_calibration";
     /// 2: π̄ is rolled out `draws` times per condition with the teacher's DR streams, instead
     /// of once (its `error_pairs` rollout, with DR draws of its own).
@@ -62,13 +62,6 @@ impl ItemStage for CalibrationStage {
     const INPUTS: &'static [Slot] = INPUTS;
     const DOC: &'static str = "closed-loop calibration of the error models: the teacher under each model against π̄ on π̄'s held-out D_E conditions";
     type Params = CalibrationParams;
-    type Prepared = Prepared;
-    type Item = CalibrationItem;
-    type Output = Calibration;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
@@ -83,6 +76,12 @@ impl ItemStage for CalibrationStage {
             size: n,
         }
     }
+}
+
+impl ItemStage for CalibrationStage {
+    type Prepared = Prepared;
+    type Item = CalibrationItem;
+    type Output = Calibration;
 
     fn prepare(&self, ctx: &Ctx<'_, CalibrationParams>) -> Result<Prepared, StageError> {
         let p = ctx.params;

@@ -1,7 +1,7 @@
 //! `error_model`: the IL-student action-error model (Eq. 7) fitted on the cross-fitted
 //! students' pairs, with the Table III comparison of all four variants and the fits beside them.
 
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_policy::artifacts::ErrorPairs;
 use osms_sim::{N_ACTION, Phase};
 
@@ -12,7 +12,7 @@ use crate::error_model::{ErrorFitParams, ErrorVariant, PairSequence, fit, table3
 /// `params.variant` is the one validation applies, and all four are fitted and scored for
 /// Table III (model `i` simulates with stream ("table3", i)).
 pub struct ErrorModelStage;
-impl Stage for ErrorModelStage {
+impl Kind for ErrorModelStage {
     const KIND: &'static str = "error_model";
     // v2: Σ_φ matched to the residuals' variances (`StationaryFit::Residual`); v3: the
     // unit-gain and orthogonal fits beside Table III's four.
@@ -22,11 +22,10 @@ impl Stage for ErrorModelStage {
     const DOC: &'static str =
         "the IL-student action-error model (Eq. 7) and the Table III metrics of all four variants";
     type Params = ErrorFitParams;
-    type Output = ErrorModelArtifact;
+}
 
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
+impl Stage for ErrorModelStage {
+    type Output = ErrorModelArtifact;
 
     fn run(&self, ctx: &Ctx<'_, ErrorFitParams>) -> Result<ErrorModelArtifact, StageError> {
         let gathered = ctx.gathered_sharded::<ErrorPairs>("pairs")?;

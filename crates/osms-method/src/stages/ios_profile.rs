@@ -2,7 +2,7 @@
 //! step k_e.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_policy::artifacts::{Dataset, Teacher};
 use osms_sim::World;
 use osms_sim::artifacts::WorldArtifact;
@@ -13,7 +13,7 @@ use crate::ios::{IosItem, IosParams, profile};
 /// The IOS profile of the first `rollouts` D_R rollouts; rollout i draws its Δζ from stream
 /// ("item", i).
 pub struct IosProfileStage;
-impl ItemStage for IosProfileStage {
+impl Kind for IosProfileStage {
     const KIND: &'static str = "ios_profile";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -25,13 +25,6 @@ impl ItemStage for IosProfileStage {
     const DOC: &'static str =
         "the interventional outcome sensitivity profile (Eq. 1) around the event step k_e";
     type Params = IosParams;
-    type Prepared = (World, Teacher, Dataset);
-    type Item = IosItem;
-    type Output = IosProfile;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     /// `rollouts` D_R rollouts profiled, each `draws` times.
     fn scale(params: &IosParams, inputs: &[(&str, f64)]) -> Scale {
@@ -45,6 +38,13 @@ impl ItemStage for IosProfileStage {
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }
+}
+
+impl ItemStage for IosProfileStage {
+    type Prepared = (World, Teacher, Dataset);
+    type Item = IosItem;
+    type Output = IosProfile;
+
     fn prepare(&self, ctx: &Ctx<'_, IosParams>) -> Result<Self::Prepared, StageError> {
         ctx.params.check()?;
         let data: Dataset = ctx.sharded("data")?;

@@ -1,13 +1,13 @@
 //! `manifold`: the OSW motion manifold, a conditional VAE over D_M's windows (paper 4.1).
 
-use osms_make::{Ctx, Numerics, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Numerics, Slot, Stage, StageError};
 use osms_policy::artifacts::OswSet;
 
 use crate::cvae::{Cvae, ManifoldParams, Window, train};
 
 /// Trains the OSW motion manifold on the complete windows of D_M (paper 4.1).
 pub struct ManifoldStage;
-impl Stage for ManifoldStage {
+impl Kind for ManifoldStage {
     const KIND: &'static str = "manifold";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -15,15 +15,14 @@ impl Stage for ManifoldStage {
     const DOC: &'static str =
         "the OSW motion manifold: a conditional VAE over D_M's arm-action snippets (paper 4.1)";
     type Params = ManifoldParams;
-    type Output = Cvae;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::nn_numerics()
     }
+}
+
+impl Stage for ManifoldStage {
+    type Output = Cvae;
 
     fn run(&self, ctx: &Ctx<'_, ManifoldParams>) -> Result<Cvae, StageError> {
         let set: OswSet = ctx.input("windows")?;

@@ -4,7 +4,7 @@
 //! them apart from every other stage's draws.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoGroup, DemoSet, Teacher};
 use osms_sim::artifacts::WorldArtifact;
 
@@ -14,7 +14,7 @@ use crate::construct::{naive_extension, naive_group, used};
 /// The Naive set: D_R's successes, then successful teacher rollouts on the stage's own
 /// conditions until D_*'s count.
 pub struct NaiveStage;
-impl ItemStage for NaiveStage {
+impl Kind for NaiveStage {
     const KIND: &'static str = "naive";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -26,17 +26,17 @@ impl ItemStage for NaiveStage {
     ];
     const DOC: &'static str = "the Naive baseline: success-only filtering of D_R, extended with successful teacher rollouts to the target set's size";
     type Params = BaselineParams;
-    type Prepared = (osms_sim::World, Teacher, Dataset, Option<usize>, usize);
-    type Item = DemoGroup;
-    type Output = DemoSet;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }
+}
+
+impl ItemStage for NaiveStage {
+    type Prepared = (osms_sim::World, Teacher, Dataset, Option<usize>, usize);
+    type Item = DemoGroup;
+    type Output = DemoSet;
+
     fn prepare(&self, ctx: &Ctx<'_, BaselineParams>) -> Result<Self::Prepared, StageError> {
         ctx.params.check(ctx.has_input("target"))?;
         let data: Dataset = ctx.sharded("data")?;

@@ -4,7 +4,7 @@
 //! and its projection samples from ("projection", j).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoGroup, DemoSet, Teacher};
 use osms_policy::catch::CatchTaskSpec;
 use osms_sim::artifacts::WorldArtifact;
@@ -32,7 +32,7 @@ pub struct NormalInputs {
 /// validation, whose unperturbed outcomes are exactly these), extended with mixed teacher
 /// rollouts on the stage's own conditions put through the same construction.
 pub struct NormalStage;
-impl ItemStage for NormalStage {
+impl Kind for NormalStage {
     const KIND: &'static str = "normal";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -48,17 +48,17 @@ impl ItemStage for NormalStage {
     ];
     const DOC: &'static str = "the Normal baseline: unperturbed-only validation of the same candidate sets, extended with mixed teacher rollouts through the same construction";
     type Params = BaselineParams;
-    type Prepared = NormalInputs;
-    type Item = DemoGroup;
-    type Output = DemoSet;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
     }
+}
+
+impl ItemStage for NormalStage {
+    type Prepared = NormalInputs;
+    type Item = DemoGroup;
+    type Output = DemoSet;
+
     fn prepare(&self, ctx: &Ctx<'_, BaselineParams>) -> Result<NormalInputs, StageError> {
         ctx.params.check(ctx.has_input("target"))?;
         let validation: Validation = ctx.sharded("validation")?;

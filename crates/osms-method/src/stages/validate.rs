@@ -2,7 +2,7 @@
 //! refine / repair decision (paper 4.4, Eqs. 8–9, Alg. 1 steps 3–4).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_policy::artifacts::{Dataset, Teacher};
 use osms_sim::artifacts::WorldArtifact;
 
@@ -14,7 +14,7 @@ use crate::validate::{Cost, ValidateParams, ValidationItem, validate};
 /// candidate and for ζ_org, common random numbers per condition (perturbed rollout q of item i
 /// draws from stream ("errors-q", i)), and the decision.
 pub struct ValidateStage;
-impl ItemStage for ValidateStage {
+impl Kind for ValidateStage {
     const KIND: &'static str = "validate";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -27,13 +27,6 @@ impl ItemStage for ValidateStage {
     ];
     const DOC: &'static str = "candidate validation under the action-error model (paper 4.4, Eqs. 8-9): SR, J and the refine / repair decision per D_R rollout";
     type Params = ValidateParams;
-    type Prepared = Inputs;
-    type Item = ValidationItem;
-    type Output = Validation;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
@@ -47,6 +40,13 @@ impl ItemStage for ValidateStage {
             n => data.min(n as f64),
         })
     }
+}
+
+impl ItemStage for ValidateStage {
+    type Prepared = Inputs;
+    type Item = ValidationItem;
+    type Output = Validation;
+
     fn prepare(&self, ctx: &Ctx<'_, ValidateParams>) -> Result<Inputs, StageError> {
         super::load_inputs(ctx, ctx.params)
     }

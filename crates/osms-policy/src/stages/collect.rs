@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_sim::artifacts::WorldArtifact;
 use osms_sim::conditions::sample;
 use osms_sim::control::DrSpec;
@@ -82,7 +82,7 @@ fn default_max_attempts() -> u32 {
 /// domain randomisation of attempt `a` from ("attempt", i · max_attempts + a). Different
 /// stages draw from different streams, so datasets never share a condition draw.
 pub struct CollectStage;
-impl ItemStage for CollectStage {
+impl Kind for CollectStage {
     const KIND: &'static str = "collect";
     /// 3: ω̄ carries the arm's servo targets; 4: the DR stream and the task spec are kept.
     const CODE_VERSION: u32 = 4;
@@ -94,13 +94,6 @@ impl ItemStage for CollectStage {
     const DOC: &'static str =
         "teacher rollouts with OSW alignment (D_M / D_E: successes only; D_R: mixed)";
     type Params = CollectParams;
-    type Prepared = (World, Teacher);
-    type Item = DatasetItem;
-    type Output = Dataset;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
@@ -113,6 +106,13 @@ impl ItemStage for CollectStage {
     fn output_role(params: &CollectParams) -> Option<&'static str> {
         params.role.map(DatasetRole::name)
     }
+}
+
+impl ItemStage for CollectStage {
+    type Prepared = (World, Teacher);
+    type Item = DatasetItem;
+    type Output = Dataset;
+
     fn prepare(&self, ctx: &Ctx<'_, CollectParams>) -> Result<Self::Prepared, StageError> {
         if let Some(role) = ctx.params.role
             && role.successes_only() != ctx.params.successes_only

@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_sim::artifacts::WorldArtifact;
 use osms_sim::control::DrSpec;
 use osms_sim::{RolloutSpec, World};
@@ -78,7 +78,7 @@ pub struct DaggerPrepared {
 /// ("item", i) and the student's noise from ("policy", i).
 pub struct DaggerStage;
 
-impl ItemStage for DaggerStage {
+impl Kind for DaggerStage {
     const KIND: &'static str = "dagger";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -90,17 +90,17 @@ impl ItemStage for DaggerStage {
     ];
     const DOC: &'static str = "one DAgger round (a diagnostic): a student's rollouts on its training conditions, labelled with the teacher's actions, added to its demonstrations";
     type Params = ErrorPairsParams;
-    type Prepared = DaggerPrepared;
-    type Item = DemoGroup;
-    type Output = DemoSet;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
+}
+
+impl ItemStage for DaggerStage {
+    type Prepared = DaggerPrepared;
+    type Item = DemoGroup;
+    type Output = DemoSet;
+
     fn prepare(&self, ctx: &Ctx<'_, ErrorPairsParams>) -> Result<DaggerPrepared, StageError> {
         let student: StudentArtifact = ctx.input("student")?;
         let mut by_item = BTreeMap::new();

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_sim::artifacts::WorldArtifact;
 use osms_sim::control::DrSpec;
 
@@ -55,7 +55,7 @@ pub struct DaggerRoundPrepared {
 /// randomisation from ("item", i) and the student's noise from ("policy", i).
 pub struct DaggerRoundStage;
 
-impl ItemStage for DaggerRoundStage {
+impl Kind for DaggerRoundStage {
     const KIND: &'static str = "dagger_round";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -68,17 +68,17 @@ impl ItemStage for DaggerRoundStage {
     ];
     const DOC: &'static str = "a round of the DAgger-IL baseline: the student trained on a demonstration set on its leading conditions, labelled by the teacher, added to their groups (size-matched to `target` over the chain's rounds)";
     type Params = DaggerRoundParams;
-    type Prepared = DaggerRoundPrepared;
-    type Item = DemoGroup;
-    type Output = DemoSet;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
+}
+
+impl ItemStage for DaggerRoundStage {
+    type Prepared = DaggerRoundPrepared;
+    type Item = DemoGroup;
+    type Output = DemoSet;
+
     fn prepare(&self, ctx: &Ctx<'_, DaggerRoundParams>) -> Result<DaggerRoundPrepared, StageError> {
         let target = ctx.sharded::<DemoSet>("target")?.len();
         let conditions = ctx

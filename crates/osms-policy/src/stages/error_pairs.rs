@@ -4,7 +4,7 @@
 use std::collections::BTreeSet;
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_sim::artifacts::{EvalRow, WorldArtifact};
 use osms_sim::conditions::TaskCondition;
 use osms_sim::control::DrSpec;
@@ -51,7 +51,7 @@ pub(crate) fn beside_teacher<P>(
 /// visited state (paper 4.3). Rollout `i` draws its domain randomisation from ("item", i) and
 /// the policy's noise from ("policy", i).
 pub struct ErrorPairsStage;
-impl ItemStage for ErrorPairsStage {
+impl Kind for ErrorPairsStage {
     const KIND: &'static str = "error_pairs";
     /// 2: the rollouts' evaluation rows keep their DR draws.
     const CODE_VERSION: u32 = 2;
@@ -65,17 +65,17 @@ impl ItemStage for ErrorPairsStage {
     const DOC: &'static str =
         "cross-fitted IL students on their held-out D_E conditions, paired with teacher actions";
     type Params = ErrorPairsParams;
-    type Prepared = PairsPrepared;
-    type Item = PairRollout;
-    type Output = ErrorPairs;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
+}
+
+impl ItemStage for ErrorPairsStage {
+    type Prepared = PairsPrepared;
+    type Item = PairRollout;
+    type Output = ErrorPairs;
+
     fn prepare(&self, ctx: &Ctx<'_, ErrorPairsParams>) -> Result<PairsPrepared, StageError> {
         let student: StudentArtifact = ctx.input("student")?;
         let fold = ctx.fold();

@@ -1,7 +1,7 @@
 //! `eval_student`: a student on a condition set.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::{RolloutSpec, World};
 use serde::{Deserialize, Serialize};
@@ -25,7 +25,7 @@ pub struct EvalStudentParams {
 /// A student on every condition of a set; rollout `i` draws its domain randomisation from
 /// ("item", i) and the policy's noise from ("policy", i).
 pub struct EvalStudentStage;
-impl ItemStage for EvalStudentStage {
+impl Kind for EvalStudentStage {
     const KIND: &'static str = "eval_student";
     /// 2: rows keep their DR draws.
     const CODE_VERSION: u32 = 2;
@@ -37,17 +37,17 @@ impl ItemStage for EvalStudentStage {
     ];
     const DOC: &'static str = "a student evaluated on a condition set (table per family x size)";
     type Params = EvalStudentParams;
-    type Prepared = (World, Conditions, Student, RolloutSpec);
-    type Item = EvalRow;
-    type Output = Evaluation;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
+}
+
+impl ItemStage for EvalStudentStage {
+    type Prepared = (World, Conditions, Student, RolloutSpec);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
     fn prepare(&self, ctx: &Ctx<'_, EvalStudentParams>) -> Result<Self::Prepared, StageError> {
         let student = ctx.input::<StudentArtifact>("student")?.student;
         let protocol = Self::protocol(ctx.params, None)?;

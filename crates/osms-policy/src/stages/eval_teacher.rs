@@ -1,7 +1,7 @@
 //! `eval_teacher`: a frozen teacher on a condition set.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use osms_sim::World;
 use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::control::DrSpec;
@@ -22,7 +22,7 @@ pub struct EvalTeacherParams {
 /// The frozen teacher (deterministic actions) on every condition of a set; rollout `i` draws
 /// its domain randomisation from ("item", i).
 pub struct EvalTeacherStage;
-impl ItemStage for EvalTeacherStage {
+impl Kind for EvalTeacherStage {
     const KIND: &'static str = "eval_teacher";
     /// 3: rows keep their DR draws.
     const CODE_VERSION: u32 = 3;
@@ -35,17 +35,17 @@ impl ItemStage for EvalTeacherStage {
     const DOC: &'static str =
         "a frozen teacher evaluated on a condition set (table per family x size)";
     type Params = EvalTeacherParams;
-    type Prepared = (World, Conditions, Teacher);
-    type Item = EvalRow;
-    type Output = Evaluation;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
+}
+
+impl ItemStage for EvalTeacherStage {
+    type Prepared = (World, Conditions, Teacher);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
     fn prepare(&self, ctx: &Ctx<'_, EvalTeacherParams>) -> Result<Self::Prepared, StageError> {
         let mut teacher: Teacher = ctx.input("teacher")?;
         teacher.task = Self::protocol(ctx.params, Some(&teacher.task))?.teacher_task(&teacher.task);

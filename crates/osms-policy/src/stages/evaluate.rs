@@ -2,7 +2,7 @@
 //! catcher, a teacher or a student, whichever is wired.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError, items_one_by_one};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError, items_one_by_one};
 use osms_sim::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
 use osms_sim::catcher::{CatcherSpec, ScriptedCatcher};
 use osms_sim::{Episode, NoHooks, RolloutSpec, World};
@@ -90,7 +90,7 @@ pub enum Evaluated {
 /// same stage name and seed its rows are theirs (tests/tests/experiments.rs checks the scripted
 /// catcher's).
 pub struct EvaluateStage;
-impl ItemStage for EvaluateStage {
+impl Kind for EvaluateStage {
     const KIND: &'static str = "evaluate";
     /// 2: rows keep their DR draws.
     const CODE_VERSION: u32 = 2;
@@ -104,17 +104,17 @@ impl ItemStage for EvaluateStage {
     const DOC: &'static str =
         "any policy (scripted catcher, teacher or student, as wired) evaluated on a condition set";
     type Params = EvaluateParams;
-    type Prepared = (World, Conditions, Evaluated);
-    type Item = EvalRow;
-    type Output = Evaluation;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
+}
+
+impl ItemStage for EvaluateStage {
+    type Prepared = (World, Conditions, Evaluated);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
     fn prepare(&self, ctx: &Ctx<'_, EvaluateParams>) -> Result<Self::Prepared, StageError> {
         let p = ctx.params;
         if !p.execution.is_paper() && !ctx.has_input("student") {

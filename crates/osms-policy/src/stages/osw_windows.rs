@@ -1,14 +1,14 @@
 //! `osw_windows`: the OSW windows ζ_org and conditioning ω̄ of a dataset.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 
 use crate::artifacts::{Dataset, OswSample, OswSet};
 
 /// A projection: streams a dataset shard by shard and keeps each rollout's OSW window and
 /// ω̄, so later stages never decode full records.
 pub struct OswWindowsStage;
-impl Stage for OswWindowsStage {
+impl Kind for OswWindowsStage {
     const KIND: &'static str = "osw_windows";
     /// 2: ω̄ carries the arm's servo targets.
     const CODE_VERSION: u32 = 2;
@@ -16,6 +16,9 @@ impl Stage for OswWindowsStage {
     const INPUTS: &'static [Slot] = &[Slot::one::<Dataset>("data")];
     const DOC: &'static str = "the OSW windows ζ_org and conditioning ω̄ of a dataset (projection)";
     type Params = NoParams;
+}
+
+impl Stage for OswWindowsStage {
     type Output = OswSet;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<OswSet, StageError> {

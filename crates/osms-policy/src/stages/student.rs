@@ -1,6 +1,6 @@
 //! `student`: a flow-matching student, cross-fitted when the stage has folds.
 
-use osms_make::{Ctx, Numerics, Scale, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Numerics, Scale, Slot, Stage, StageError};
 
 use super::in_fold;
 use crate::artifacts::{Dataset, DemoSet, StudentArtifact};
@@ -15,7 +15,7 @@ const CHECKPOINT_EVERY: u32 = 1_000;
 /// A flow-matching student trained on a dataset's rollouts. With `folds = F` instance `#f`
 /// trains on the items outside fold f (item index mod F ≠ f): the cross-fitted IL students π̄.
 pub struct StudentStage;
-impl Stage for StudentStage {
+impl Kind for StudentStage {
     const KIND: &'static str = "student";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
@@ -26,11 +26,6 @@ impl Stage for StudentStage {
     ];
     const DOC: &'static str = "a flow-matching student on a rollout dataset (`data`) or a constructed demonstration set (`demos`, optionally cut to the size of `size_match`); cross-fitted with folds";
     type Params = StudentParams;
-    type Output = StudentArtifact;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
@@ -43,6 +38,10 @@ impl Stage for StudentStage {
             size: 1.0,
         }
     }
+}
+
+impl Stage for StudentStage {
+    type Output = StudentArtifact;
 
     fn run(&self, ctx: &Ctx<'_, StudentParams>) -> Result<StudentArtifact, StageError> {
         ctx.params.check()?;

@@ -1,6 +1,6 @@
 //! `teacher`: the privileged PPO teacher, a residual on the scripted catcher (paper 5.1).
 
-use osms_make::{Ctx, Numerics, Scale, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Numerics, Scale, Slot, Stage, StageError};
 use osms_sim::artifacts::WorldArtifact;
 use serde::{Deserialize, Serialize};
 
@@ -23,7 +23,7 @@ const CHECKPOINT_EVERY: u32 = 50;
 
 /// PPO on the catching task; episode i of iteration t draws ω from stream ("train", t·E + i).
 pub struct TeacherStage;
-impl Stage for TeacherStage {
+impl Kind for TeacherStage {
     const KIND: &'static str = "teacher";
     /// 3: the actor's inputs are a declared rung (`task.actor_inputs`) with a privileged
     /// critic, and the task is stored realised (issue 54). 4: deployable frames carry the
@@ -34,11 +34,6 @@ impl Stage for TeacherStage {
     const DOC: &'static str =
         "the privileged PPO teacher: a residual on the scripted catcher, rewarded by paper 5.1";
     type Params = TeacherParams;
-    type Output = Teacher;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
@@ -51,6 +46,10 @@ impl Stage for TeacherStage {
             size: 1.0,
         }
     }
+}
+
+impl Stage for TeacherStage {
+    type Output = Teacher;
 
     fn run(&self, ctx: &Ctx<'_, TeacherParams>) -> Result<Teacher, StageError> {
         let world = ctx.input::<WorldArtifact>("world")?.world()?;

@@ -1,7 +1,7 @@
 //! `teacher_table`: Table I's analog from the three held-out evaluations.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_sim::artifacts::Evaluation;
 
 use crate::artifacts::{TeacherTable, TeacherTableRow};
@@ -10,7 +10,7 @@ use crate::artifacts::{TeacherTable, TeacherTableRow};
 /// same held-out conditions, and (wired as `privileged`) a teacher whose actor reads the
 /// privileged frame: what a realisable teacher costs (issue 66).
 pub struct TeacherTableStage;
-impl Stage for TeacherTableStage {
+impl Kind for TeacherTableStage {
     const KIND: &'static str = "teacher_table";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -23,6 +23,9 @@ impl Stage for TeacherTableStage {
     const DOC: &'static str =
         "Table I analog: scripted prior, catching-only teacher and teacher on held-out conditions";
     type Params = NoParams;
+}
+
+impl Stage for TeacherTableStage {
     type Output = TeacherTable;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<TeacherTable, StageError> {

@@ -1,7 +1,7 @@
 //! `ablations`: the ablations of paper 6.4 and the label ablation beyond it, with their claims.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_policy::artifacts::{ConstructionStats, DemoSet};
 use osms_sim::artifacts::Evaluation;
 
@@ -21,7 +21,7 @@ const LABELS: [&str; 3] = ["both", "intended", "omitted"];
 const MODELS: [&str; 2] = ["both", "least_squares"];
 
 pub struct AblationsStage;
-impl Stage for AblationsStage {
+impl Kind for AblationsStage {
     const KIND: &'static str = "ablations";
     // 2: the claims decided by intervals. 3: the label ablation. 4: validation's error model.
     const CODE_VERSION: u32 = 4;
@@ -52,6 +52,9 @@ impl Stage for AblationsStage {
     ];
     const DOC: &'static str = "the ablations of paper 6.4 (refinement/repair, candidate generation), D_*'s labels and validation's error model, with their claims";
     type Params = NoParams;
+}
+
+impl Stage for AblationsStage {
     type Output = Ablations;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Ablations, StageError> {

@@ -3,7 +3,7 @@
 
 use osms_core::NoParams;
 use osms_core::table::Value;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_policy::artifacts::{ConstructionStats, DemoSet};
 use osms_sim::artifacts::Evaluation;
 
@@ -12,7 +12,7 @@ use crate::artifacts::Baselines;
 use crate::baselines::{baselines_claims, baselines_table};
 
 pub struct BaselinesStage;
-impl Stage for BaselinesStage {
+impl Kind for BaselinesStage {
     const KIND: &'static str = "baselines";
     /// 2: the table's note says which of its statements are defaults.
     const CODE_VERSION: u32 = 2;
@@ -34,6 +34,9 @@ impl Stage for BaselinesStage {
     ];
     const DOC: &'static str = "beyond the paper: DART-IL and DAgger-IL (1 and 3 rounds) beside Table II's rows, with Ours-IL's claims against each";
     type Params = NoParams;
+}
+
+impl Stage for BaselinesStage {
     type Output = Baselines;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Baselines, StageError> {

@@ -1,7 +1,7 @@
 //! `impact_profiles`: figure (a), impact profiles aligned at t_c.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_sim::artifacts::Evaluation;
 
 use super::seed_evals;
@@ -9,7 +9,7 @@ use crate::figures::impact_profiles;
 use crate::plot::Figure;
 
 pub struct ImpactProfilesStage;
-impl Stage for ImpactProfilesStage {
+impl Kind for ImpactProfilesStage {
     const KIND: &'static str = "impact_profiles";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -22,6 +22,9 @@ impl Stage for ImpactProfilesStage {
     ];
     const DOC: &'static str = "figure (a): impact profiles aligned at t_c, catching-only vs teacher and teacher vs the final students";
     type Params = NoParams;
+}
+
+impl Stage for ImpactProfilesStage {
     type Output = Figure;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {

@@ -1,14 +1,14 @@
 //! `learning_curves`: figure (f), the teachers' and the final students' learning curves.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_policy::artifacts::{StudentArtifact, Teacher};
 
 use crate::figures::learning_curves;
 use crate::plot::Figure;
 
 pub struct LearningCurvesStage;
-impl Stage for LearningCurvesStage {
+impl Kind for LearningCurvesStage {
     const KIND: &'static str = "learning_curves";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -21,6 +21,9 @@ impl Stage for LearningCurvesStage {
     ];
     const DOC: &'static str = "figure (f): the teachers' and the final students' learning curves";
     type Params = NoParams;
+}
+
+impl Stage for LearningCurvesStage {
     type Output = Figure;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {

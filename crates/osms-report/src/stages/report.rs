@@ -2,7 +2,7 @@
 
 use osms_core::NoParams;
 use osms_core::table::Table;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_method::artifacts::{Calibration, CandidateTable, ConstructionTable, ErrorModelArtifact};
 use osms_method::error_model::{PairSequence, table3_bootstrap};
 use osms_policy::artifacts::{ErrorPairs, TeacherTable};
@@ -18,7 +18,7 @@ use crate::plot::Figure;
 const FIT_RESAMPLES: usize = 1000;
 
 pub struct ReportStage;
-impl Stage for ReportStage {
+impl Kind for ReportStage {
     const KIND: &'static str = "report";
     /// 2: the claims check decides by confidence intervals on the evaluations. 3: the
     /// claims encoded at report schema 2. 4: Table III's fit claims by a bootstrap over the
@@ -50,6 +50,9 @@ impl Stage for ReportStage {
     const DOC: &'static str =
         "the report: Tables I-III, construction and candidate tables, figures, claims check";
     type Params = NoParams;
+}
+
+impl Stage for ReportStage {
     type Output = Report;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Report, StageError> {

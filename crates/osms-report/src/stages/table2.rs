@@ -2,7 +2,7 @@
 
 use osms_core::NoParams;
 use osms_core::table::Table;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_policy::artifacts::{ConstructionStats, DemoSet};
 use osms_sim::artifacts::Evaluation;
 
@@ -10,7 +10,7 @@ use super::seed_evals;
 use crate::tables::table2;
 
 pub struct Table2Stage;
-impl Stage for Table2Stage {
+impl Kind for Table2Stage {
     const KIND: &'static str = "table2";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -25,6 +25,9 @@ impl Stage for Table2Stage {
     ];
     const DOC: &'static str = "Table II: construction columns and the final students' closed-loop columns, mean ± sd over run seeds";
     type Params = NoParams;
+}
+
+impl Stage for Table2Stage {
     type Output = Table;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Table, StageError> {

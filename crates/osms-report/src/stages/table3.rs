@@ -2,7 +2,7 @@
 
 use osms_core::NoParams;
 use osms_core::table::Table;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_method::artifacts::ErrorModelArtifact;
 use osms_policy::artifacts::DemoSet;
 use osms_sim::artifacts::Evaluation;
@@ -11,7 +11,7 @@ use super::seed_evals;
 use crate::tables::table3;
 
 pub struct Table3Stage;
-impl Stage for Table3Stage {
+impl Kind for Table3Stage {
     const KIND: &'static str = "table3";
     /// 2: the phase-wise correlated row is the model validation applies, the paper's
     /// least-squares fit a row of its own where they differ (issue 66).
@@ -30,6 +30,9 @@ impl Stage for Table3Stage {
     ];
     const DOC: &'static str = "Table III: the four validation models' fit metrics, repair rates and students' success, mean ± sd over run seeds";
     type Params = NoParams;
+}
+
+impl Stage for Table3Stage {
     type Output = Table;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Table, StageError> {

@@ -1,7 +1,7 @@
 //! `task_conditions`: figures (b, c), success per object and by lateral offset.
 
 use osms_core::NoParams;
-use osms_make::{Ctx, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Slot, Stage, StageError};
 use osms_sim::artifacts::Evaluation;
 
 use super::seed_evals;
@@ -9,7 +9,7 @@ use crate::figures::task_conditions;
 use crate::plot::Figure;
 
 pub struct TaskConditionsStage;
-impl Stage for TaskConditionsStage {
+impl Kind for TaskConditionsStage {
     const KIND: &'static str = "task_conditions";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = false;
@@ -21,6 +21,9 @@ impl Stage for TaskConditionsStage {
     ];
     const DOC: &'static str = "figures (b, c): success per object family x size, Ours-IL's gain, success vs lateral offset";
     type Params = NoParams;
+}
+
+impl Stage for TaskConditionsStage {
     type Output = Figure;
 
     fn run(&self, ctx: &Ctx<'_, NoParams>) -> Result<Figure, StageError> {

@@ -1,7 +1,7 @@
 //! `conditions`: a set of task conditions ω (e.g. the held-out evaluation set).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Scale, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{Conditions, WorldArtifact};
@@ -18,20 +18,13 @@ pub struct ConditionsParams {
 
 /// Samples task conditions; condition `i` draws from stream ("item", i).
 pub struct ConditionsStage;
-impl ItemStage for ConditionsStage {
+impl Kind for ConditionsStage {
     const KIND: &'static str = "conditions";
     const CODE_VERSION: u32 = 1;
     const USES_RNG: bool = true;
     const INPUTS: &'static [Slot] = &[Slot::one::<WorldArtifact>("world")];
     const DOC: &'static str = "task conditions ω (object, mass, launch, posture perturbation)";
     type Params = ConditionsParams;
-    type Prepared = [f64; 3];
-    type Item = TaskCondition;
-    type Output = Conditions;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         vec![Numerics {
@@ -44,6 +37,13 @@ impl ItemStage for ConditionsStage {
     fn scale(params: &ConditionsParams, _: &[(&str, f64)]) -> Scale {
         Scale::items(params.n as f64)
     }
+}
+
+impl ItemStage for ConditionsStage {
+    type Prepared = [f64; 3];
+    type Item = TaskCondition;
+    type Output = Conditions;
+
     fn prepare(&self, ctx: &Ctx<'_, ConditionsParams>) -> Result<[f64; 3], StageError> {
         Ok(ctx.input::<WorldArtifact>("world")?.home_palm_pos)
     }

@@ -1,7 +1,7 @@
 //! `eval_scripted`: the scripted privileged catcher on a condition set.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
 use serde::{Deserialize, Serialize};
 
 use crate::artifacts::{Conditions, EvalRow, Evaluation, WorldArtifact};
@@ -19,7 +19,7 @@ pub struct EvalParams {
 
 /// Rolls the scripted catcher out on every condition; rollout `i` draws from ("item", i).
 pub struct EvalScriptedStage;
-impl ItemStage for EvalScriptedStage {
+impl Kind for EvalScriptedStage {
     const KIND: &'static str = "eval_scripted";
     /// 5: rows keep their DR draws.
     const CODE_VERSION: u32 = 5;
@@ -31,13 +31,6 @@ impl ItemStage for EvalScriptedStage {
     const DOC: &'static str =
         "the scripted privileged catcher evaluated on a condition set (table per family x size)";
     type Params = EvalParams;
-    type Prepared = (World, Conditions);
-    type Item = EvalRow;
-    type Output = Evaluation;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
@@ -46,6 +39,13 @@ impl ItemStage for EvalScriptedStage {
     fn draws_randomness(params: &EvalParams) -> bool {
         params.rollout.draws_randomness()
     }
+}
+
+impl ItemStage for EvalScriptedStage {
+    type Prepared = (World, Conditions);
+    type Item = EvalRow;
+    type Output = Evaluation;
+
     fn prepare(&self, ctx: &Ctx<'_, EvalParams>) -> Result<(World, Conditions), StageError> {
         ctx.params.catcher.validate()?;
         Ok((

@@ -1,6 +1,6 @@
 //! `world`: the MJCF of the ten object variants, each compiled by MuJoCo once.
 
-use osms_make::{Ctx, Numerics, Slot, Stage, StageError};
+use osms_make::{Ctx, Kind, Numerics, Slot, Stage, StageError};
 
 use crate::artifacts::WorldArtifact;
 use crate::spec::WorldSpec;
@@ -8,7 +8,7 @@ use crate::world::World;
 
 /// Builds the MJCF of the ten variants and checks that MuJoCo compiles each.
 pub struct WorldStage;
-impl Stage for WorldStage {
+impl Kind for WorldStage {
     const KIND: &'static str = "world";
     const CODE_VERSION: u32 = 2;
     const USES_RNG: bool = false;
@@ -16,15 +16,14 @@ impl Stage for WorldStage {
     const DOC: &'static str =
         "the MuJoCo catching world: xArm7 + ORCA-like hand + ten objects (MJCF per object)";
     type Params = WorldSpec;
-    type Output = WorldArtifact;
-
-    fn check_params(params: &Self::Params) -> osms_core::check::Checked {
-        osms_core::check::Check::check(params)
-    }
 
     fn numerics() -> Vec<Numerics> {
         super::numerics()
     }
+}
+
+impl Stage for WorldStage {
+    type Output = WorldArtifact;
 
     fn run(&self, ctx: &Ctx<'_, WorldSpec>) -> Result<WorldArtifact, StageError> {
         let world = World::new(ctx.params.clone())?;
