@@ -4,7 +4,7 @@
 //! [`Ctx`](super::Ctx).
 
 use osms_core::Artifact;
-use osms_core::check::{Check, Checked};
+use osms_core::check::Check;
 use osms_core::rng::StreamRng;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -112,6 +112,8 @@ pub trait Kind: Send + Sync + 'static {
     const USES_RNG: bool;
     const INPUTS: &'static [Slot];
     const DOC: &'static str;
+    /// Its [`Check`] refuses params that make no sense at plan time, naming the field and its
+    /// valid range; non-finite numbers are refused for every kind before it runs.
     type Params: Serialize + DeserializeOwned + Check + Send + Sync + 'static;
 
     /// Whether a stage with these params draws random numbers (e.g. an evaluation with domain
@@ -133,14 +135,6 @@ pub trait Kind: Send + Sync + 'static {
     /// How large a build with these params and inputs is, for `osms plan`'s estimates.
     fn scale(_params: &Self::Params, inputs: &[(&str, f64)]) -> Scale {
         Scale::follow(inputs)
-    }
-
-    /// Refuses params that make no sense at plan time, naming the field and its valid range
-    /// (`osms_core::check`). Non-finite numbers are refused for every kind before this runs. By
-    /// default the params type's own [`Check`], so that params built in code meet the same
-    /// ranges.
-    fn check_params(params: &Self::Params) -> Checked {
-        params.check()
     }
 }
 

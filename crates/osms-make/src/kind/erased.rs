@@ -7,6 +7,7 @@ use std::ops::Range;
 use std::sync::Arc;
 use std::time::Instant;
 
+use osms_core::check::Check;
 use osms_core::rng;
 use osms_core::{Artifact, decode, encode};
 use osms_store::Hash;
@@ -172,9 +173,8 @@ fn non_finite(value: &toml::Value, path: &mut Vec<String>) -> Option<ParamError>
     }
 }
 
-fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
+fn parse_typed<P: Serialize + DeserializeOwned + Check + Send + Sync + 'static>(
     value: toml::Value,
-    check: fn(&P) -> osms_core::check::Checked,
 ) -> Result<ParsedParams, ParamError> {
     if let Some(e) = non_finite(&value, &mut Vec::new()) {
         return Err(e);
@@ -194,7 +194,7 @@ fn parse_typed<P: Serialize + DeserializeOwned + Send + Sync + 'static>(
             message: e.into_inner().message().trim_end().to_string(),
         }
     })?;
-    check(&typed).map_err(|e| ParamError {
+    typed.check().map_err(|e| ParamError {
         path: e.path,
         message: e.message,
     })?;
@@ -258,7 +258,7 @@ macro_rules! shared_kind_methods {
             }
         }
         fn parse_params(&self, value: toml::Value) -> Result<ParsedParams, ParamError> {
-            parse_typed::<S::Params>(value, S::check_params)
+            parse_typed::<S::Params>(value)
         }
         fn draws_randomness(&self, params: &ParsedParams) -> bool {
             S::USES_RNG && S::draws_randomness(params.typed::<S::Params>())
