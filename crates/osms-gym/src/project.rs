@@ -30,8 +30,9 @@ pub struct Project {
 impl Project {
     /// Opens `pipeline` (else the pipeline.toml of the working directory or its nearest parent)
     /// under `profile` (else the pipeline's default), with `store` (else `store/` beside the
-    /// pipeline). The store must exist. Opening builds nothing; a [`Project::protocol`] builds
-    /// its world and condition set if they are missing, anything else is `osms make`'s.
+    /// pipeline). A store directory that does not exist yet is created, empty (said on stderr):
+    /// opening builds nothing, a [`Project::protocol`] builds its world and condition set if
+    /// they are missing, anything else is `osms make`'s.
     pub fn open(
         pipeline: Option<&Path>,
         store: Option<&Path>,
@@ -50,14 +51,16 @@ impl Project {
                 .unwrap_or(Path::new("."))
                 .join("store"),
         };
-        if !store_path.is_dir() {
-            return Err(GymError::Project(format!(
-                "no store at {}\nhint: `./osms make` in the project builds one, or pass store=PATH",
+        let created = !store_path.exists();
+        let store = Store::open(&store_path).map_err(|e| unwritable(&store_path, e))?;
+        if created {
+            eprintln!(
+                "osms: created an empty store at {} (a protocol builds its world and conditions there on first use)",
                 store_path.display()
-            )));
+            );
         }
         Ok(Project {
-            store: Store::open(&store_path)?,
+            store,
             pipeline_path,
             plan,
         })
@@ -456,6 +459,24 @@ fn find_pipeline() -> Result<PathBuf> {
         })
 }
 
+/// A store that cannot be created or written gets a hint; other store errors pass as they are.
+fn unwritable(path: &Path, e: osms_store::Error) -> GymError {
+    match &e {
+        osms_store::Error::Io { source, .. }
+            if matches!(
+                source.kind(),
+                std::io::ErrorKind::PermissionDenied | std::io::ErrorKind::ReadOnlyFilesystem
+            ) =>
+        {
+            GymError::Project(format!(
+                "{e}\nhint: the store at {} cannot be written, and a new or empty store needs its world and conditions built there on first use; pass store= a writable directory, or a store that already holds them (read-only stores are served as they are)",
+                path.display()
+            ))
+        }
+        _ => e.into(),
+    }
+}
+
 /// The make that builds a condition set on first use: silent, except that it says why it waits
 /// when another process (a running `osms make`) holds the store's lock, which it keeps for the
 /// whole make.
@@ -476,4 +497,37 @@ impl osms_make::Observer for FirstUse<'_> {
         Box::new(osms_make::NoProgress)
     }
     fn finished(&self, _: &osms_make::InstanceReport) {}
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn io(kind: std::io::ErrorKind) -> osms_store::Error {
+        osms_store::Error::Io {
+            path: "/ro/store/OSMS_STORE".into(),
+            source: std::io::Error::from(kind),
+        }
+    }
+
+    #[test]
+    fn a_store_that_cannot_be_written_gets_a_hint_and_other_errors_pass_as_they_are() {
+        for kind in [
+            std::io::ErrorKind::PermissionDenied,
+            std::io::ErrorKind::ReadOnlyFilesystem,
+        ] {
+            let text = unwritable(Path::new("/ro/store"), io(kind)).to_string();
+            assert!(
+                text.starts_with("I/O error on /ro/store/OSMS_STORE"),
+                "{text}"
+            );
+            assert!(
+                text.contains("hint: the store at /ro/store cannot be written"),
+                "{text}"
+            );
+            assert!(text.contains("store= a writable directory"), "{text}");
+        }
+        let other = unwritable(Path::new("/ro/store"), io(std::io::ErrorKind::NotFound));
+        assert!(!other.to_string().contains("hint"), "{other}");
+    }
 }

@@ -385,12 +385,15 @@ with open("/proc/self/maps", encoding="utf-8") as f:
 check(len(loaded) == 1, f"MuJoCo loaded from {sorted(loaded)}")
 out["mujoco"] = os.path.realpath(loaded.pop())
 
-# 10. A fresh store: the world and the condition set are built on first use, as `osms make dev`
-#     builds them (seconds), and `heldout` evaluates without any teacher: its default protocol,
-#     `eval_teacher`, takes its rollout spec from the teacher stage's params. The rows are those
-#     of the store that holds the teacher.
-empty = tempfile.mkdtemp(prefix="empty-store-", dir=os.path.dirname(pipeline))
+# 10. A store from nothing: a directory that does not exist yet is created on opening, the world
+#     and the condition set are built on first use, as `osms make dev` builds them (seconds), and
+#     `heldout` evaluates without any teacher: its default protocol, `eval_teacher`, takes its
+#     rollout spec from the teacher stage's params. The rows are those of the store that holds
+#     the teacher.
+empty = os.path.join(tempfile.mkdtemp(prefix="fresh-", dir=os.path.dirname(pipeline)), "store")
+check(not os.path.exists(empty), f"{empty} exists before the project opens it")
 fresh_project = osms.Project(pipeline, empty, "tiny")
+check(os.path.isfile(os.path.join(empty, "OSMS_STORE")), f"opening did not create a store at {empty}")
 fresh = gymnasium.make("osms/Catch-v0", project=fresh_project)
 obs, info = fresh.reset(seed=0)
 check(fresh.unwrapped.protocol.conditions == "dev", f"default protocol {fresh.unwrapped.protocol}")

@@ -241,8 +241,9 @@ def evaluate(
     Raises :class:`osms.ActionError` (naming the condition and control step) for an action
     that is not a real-valued array of the right shape, not finite, or outside [-1, 1];
     ``ValueError`` for bad arguments; :class:`osms.OsmsError` for a project, set, protocol
-    or policy osms cannot use (the message lists the valid ones). Nothing is written then,
-    and the store's artifacts are only ever read.
+    or policy osms cannot use (the message lists the valid ones). Nothing is written then.
+    The store is written only where a protocol's world or condition set is not built yet
+    (built on first use, as ``osms make`` would); no other artifact is ever changed.
     """
     proj = _project(pipeline, store, profile, project)
     proto = _protocol(proj, conditions, protocol)
