@@ -50,7 +50,8 @@ pub enum GymError {
         step: usize,
         problem: ActionProblem,
     },
-    /// An argument outside what the call accepts (`n_envs`, an empty list of conditions).
+    /// An argument outside what the call accepts (`n_envs`, an empty list of conditions, a
+    /// condition listed twice); raised in Python as `ValueError`, as [`GymError::Condition`] is.
     #[error("{0}")]
     Argument(String),
     /// A call that does not fit the object's state (a step after the end, a stale batch).

@@ -203,7 +203,7 @@ impl Pool {
             protocol.condition(i)?;
             let i = i as usize;
             if std::mem::replace(&mut seen[i], true) {
-                return Err(GymError::State(format!(
+                return Err(GymError::Argument(format!(
                     "condition {i} is listed twice: a protocol's rollout of a condition is one rollout"
                 )));
             }

@@ -14,14 +14,15 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+// Named under `osms`, where the package exports them, so a traceback reads `osms.OsmsError`.
 create_exception!(
-    _native,
+    osms,
     OsmsError,
     PyRuntimeError,
     "A project, stage, artifact or call osms cannot use; the message says which and what would do."
 );
 create_exception!(
-    _native,
+    osms,
     ActionError,
     PyValueError,
     "A policy's action the world cannot run (wrong shape, not finite, outside [-1, 1]); the message names the condition and the control step."
@@ -30,7 +31,7 @@ create_exception!(
 fn to_py(e: GymError) -> PyErr {
     match e {
         GymError::Action { .. } => ActionError::new_err(e.to_string()),
-        GymError::Argument(_) => PyValueError::new_err(e.to_string()),
+        GymError::Argument(_) | GymError::Condition { .. } => PyValueError::new_err(e.to_string()),
         other => OsmsError::new_err(other.to_string()),
     }
 }

@@ -301,7 +301,15 @@ errors["policy"] = raises(osms.OsmsError, lambda: osms.policies.load("teacherr",
 errors["empty"] = raises(ValueError, lambda: oe.evaluate(reach, indices=[], project=project), "empty")
 errors["n_envs"] = raises(ValueError, lambda: oe.evaluate(reach, indices=[0], n_envs=-1, project=project), "n_envs")
 errors["n_envs_zero"] = raises(ValueError, lambda: Pool(proto, [0], 0), "n_envs")
-errors["index"] = raises(osms.OsmsError, lambda: env2.reset(options={"index": 10**6}), "out of range")
+errors["index"] = raises(ValueError, lambda: env2.reset(options={"index": 10**6}), "out of range")
+errors["indices"] = raises(ValueError, lambda: oe.evaluate(reach, indices=[0, 10**6], project=project), "out of range")
+errors["repeated"] = raises(ValueError, lambda: oe.evaluate(reach, indices=[1, 1], project=project), "listed twice")
+check(
+    osms.OsmsError.__module__ == "osms" and osms.OsmsError.__name__ == "OsmsError",
+    f"OsmsError is named {osms.OsmsError.__module__}.{osms.OsmsError.__name__}",
+)
+check(osms.ActionError.__module__ == "osms", f"ActionError is named {osms.ActionError.__module__}.ActionError")
+check(osms.CatchEnv is osms.gym.CatchEnv, f"osms.CatchEnv is {osms.CatchEnv}")
 errors["option"] = raises(ValueError, lambda: env2.reset(options={"indx": 3}), "index")
 # A store policy: on a pool that runs another policy's spec, on observations from elsewhere,
 # twice on one batch, and from a second load that never saw the rollout's start.

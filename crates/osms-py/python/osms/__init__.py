@@ -1,10 +1,13 @@
 """osms from Python: the catching world of *Outcome-Sensitive Motion Search* as a gymnasium
 environment (``osms/Catch-v0``), bit-exact batch evaluation of any policy on osms's condition
 sets (:func:`osms.eval.evaluate`) and the store's teacher, students and scripted catcher as
-callables (:func:`osms.policies.load`).
+callables (:func:`osms.policies.load`). ``osms.CatchEnv`` is the environment's class
+(``osms.gym.CatchEnv``; it imports gymnasium on first use).
 
 Everything reads an osms project: its ``pipeline.toml`` (found from the working directory, or
-passed as ``pipeline=``), a profile and the store beside it that ``./osms make`` built.
+passed as ``pipeline=``), a profile and the store beside it that ``osms make`` built. A store
+that does not exist yet is created; the package writes into it only the world and condition
+sets a protocol needs (built on first use), never another artifact.
 """
 
 from osms._native import (
@@ -40,6 +43,17 @@ __all__ = [
     "policies",
     "row_columns",
 ]
+
+
+
+def __getattr__(name):
+    # `osms.CatchEnv` needs gymnasium, which evaluation does not: imported on first use.
+    if name == "CatchEnv":
+        from osms.gym import CatchEnv
+
+        return CatchEnv
+    raise AttributeError(f"module 'osms' has no attribute {name!r}")
+
 
 try:
     import gymnasium as _gymnasium

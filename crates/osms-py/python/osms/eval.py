@@ -111,16 +111,18 @@ class Evaluation:
 
     ``rows``: a list of dicts in the order the conditions were given; ``csv``: the same as
     ``osms export`` writes it; ``success`` and ``completion``: rates with ``*_ci`` Wilson 95 %
-    intervals; ``protocol``, ``policy``, ``n``, ``wall_secs``.
+    intervals; ``policy`` (the policy's name), ``protocol`` (the evaluation stage whose
+    rollout spec ran), ``conditions`` (the condition set), ``n``, ``wall_secs``.
     """
 
-    def __init__(self, csv_text, protocol, policy, wall_secs):
+    def __init__(self, csv_text, protocol, policy, wall_secs, conditions=None):
         self.csv = csv_text
         reader = csv.DictReader(io.StringIO(csv_text))
         self.columns = list(reader.fieldnames or [])
         self.rows = [{k: _cell(k, v) for k, v in row.items()} for row in reader]
         self.protocol = protocol
         self.policy = policy
+        self.conditions = conditions
         self.wall_secs = wall_secs
         self.n = len(self.rows)
         wins = sum(1 for r in self.rows if r["success"])
@@ -131,10 +133,13 @@ class Evaluation:
         self.completion_ci = wilson(caught, self.n)
 
     def __repr__(self):
-        lo, hi = self.success_ci
+        def rate(value, ci):
+            return f"{100 * value:.1f} % [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+
+        where = f"protocol {self.protocol}" + (f" on {self.conditions}" if self.conditions else "")
         return (
-            f"Evaluation({self.policy} on {self.protocol}: success {100 * self.success:.1f} % "
-            f"[{100 * lo:.1f}, {100 * hi:.1f}], n = {self.n})"
+            f"Evaluation(policy {self.policy}, {where}: success {rate(self.success, self.success_ci)}, "
+            f"completion {rate(self.completion, self.completion_ci)}, n = {self.n})"
         )
 
     def eval_info(self):
@@ -259,7 +264,7 @@ def evaluate(
             break
         pool.act(as_actions(policy(obs), obs))
     wall = time.perf_counter() - started
-    result = Evaluation(pool.rows_csv(), proto.name, name, wall)
+    result = Evaluation(pool.rows_csv(), proto.name, name, wall, proto.conditions)
     if out is not None:
         result.write(out)
     return result

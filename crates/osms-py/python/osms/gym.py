@@ -35,12 +35,19 @@ class CatchEnv(gym.Env):
     frame). Action: 24 values in [-1, 1] (7 arm target increments, 17 hand targets; names in
     ``env.unwrapped.channels["action"]``); anything else raises :class:`osms.ActionError`
     and leaves the episode where it was. An episode ends by the world's rules (the catch is
-    decided, or the object is lost): ``terminated`` then, never ``truncated``. The reward is
-    1 at the end of a successful catch, else 0. ``info``: ``is_success``, ``completion``,
-    ``v_rel_mps``, ``f_max_n``, ``l_max_m``, ``failures``, ``condition``, ``steps``.
+    decided, or the object is lost, at the latest after ``env.unwrapped.protocol.max_steps``
+    control steps): ``terminated`` then, never ``truncated``. The step that ends it returns
+    the last observation before the end again (the world observes nothing after it); a
+    ``step()`` after the end raises :class:`osms.OsmsError` until ``reset()`` starts the next
+    condition. The reward is 1 at the end of a successful catch, else 0. ``info``:
+    ``is_success``, ``completion``, ``v_rel_mps``, ``f_max_n``, ``l_max_m``, ``failures``,
+    ``condition``, ``steps``.
 
     ``conditions`` (``"dev"``, ``"heldout"``) runs under osms's default protocol for the set,
-    ``protocol`` (an evaluation stage, ``"eval_teacher"``) under that one. An environment
+    ``protocol`` (an evaluation stage, ``"eval_teacher"``) under that one. ``pipeline``,
+    ``profile`` and ``store`` name the osms project (default: the ``pipeline.toml`` of the
+    working directory or a parent, its default profile, the store beside it; a store that does
+    not exist yet is created), or ``project`` passes an opened :class:`osms.Project`. An environment
     holds MuJoCo's renderer, bound to the thread that made it: use it from that thread (one
     environment per thread, as gymnasium's vector environments do).
     """
