@@ -280,6 +280,74 @@ fn user_errors_exit_1_with_a_located_message() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("no pipeline.toml in"));
 }
 
+/// `osms init DIR` as a newcomer runs it, outside any project.
+fn init(dir: &Path, extra: &[&str]) -> Output {
+    std::process::Command::new(BIN)
+        .arg("init")
+        .arg(dir)
+        .args(extra)
+        .current_dir(dir.parent().unwrap_or(Path::new("/")))
+        .env("OSMS_NO_PROGRESS", "1")
+        .env_remove("OSMS_PIPELINE")
+        .env_remove("OSMS_STORE")
+        .output()
+        .expect("run")
+}
+
+#[test]
+fn init_writes_the_shipped_pipeline_and_an_empty_store_and_never_over_a_project() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let project = tmp.path().join("new-project");
+    let out = init(&project, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert_eq!(
+        std::fs::read_to_string(project.join("pipeline.toml")).expect("pipeline.toml"),
+        osms_kinds::PIPELINE
+    );
+    assert!(project.join("store/OSMS_STORE").is_file(), "no store");
+    assert!(
+        stderr.contains("osms make teacher --profile tiny"),
+        "{stderr}"
+    );
+
+    // A project is never overwritten: exit 1, the file as it was.
+    std::fs::write(project.join("pipeline.toml"), "# mine\n").expect("write");
+    let again = init(&project, &["--json"]);
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert_eq!(again.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("is an osms project already"), "{stderr}");
+    assert!(again.stdout.is_empty());
+    assert_eq!(
+        std::fs::read_to_string(project.join("pipeline.toml")).expect("read"),
+        "# mine\n"
+    );
+
+    // A store directory that is not a store is refused before the pipeline is written.
+    let other = tmp.path().join("other");
+    std::fs::create_dir_all(other.join("store")).expect("mkdir");
+    std::fs::write(other.join("store/notes.txt"), "mine").expect("write");
+    let refused = init(&other, &[]);
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("not an osms store"), "{stderr}");
+    assert!(!other.join("pipeline.toml").exists());
+
+    // --json names what was written.
+    let json_project = tmp.path().join("json");
+    let out = init(&json_project, &["--json"]);
+    assert_eq!(out.status.code(), Some(0));
+    let written = json_of(&out);
+    assert_eq!(
+        written["pipeline"],
+        json_project.join("pipeline.toml").display().to_string()
+    );
+    assert_eq!(
+        written["store"],
+        json_project.join("store").display().to_string()
+    );
+}
+
 #[test]
 fn doctor_reports_mujoco_from_the_library_itself() {
     let p = Project::new(CLI_PIPELINE);

@@ -80,6 +80,8 @@ pub enum Command {
     /// Named experiments: run variants of the pipeline (overrides, sweeps) and compare them
     #[command(subcommand)]
     Exp(ExpCommand),
+    /// Start a project: the pipeline osms ships (pipeline.toml) and an empty store in DIR
+    Init(InitArgs),
     /// Check the set-up: MuJoCo, store, pipeline, platform class
     Doctor(JsonArg),
     /// List the stage kinds this osms knows, with their inputs and code versions
@@ -235,6 +237,16 @@ pub struct WorldDumpArgs {
     /// The stage of kind `world` to read params from [default: the only one]
     #[arg(long)]
     pub stage: Option<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct InitArgs {
+    /// The project's directory, created if absent [default: the working directory]; the store
+    /// goes to DIR/store unless --store says otherwise
+    pub dir: Option<PathBuf>,
+    /// Print the written paths as JSON on stdout
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]

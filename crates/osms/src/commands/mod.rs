@@ -7,6 +7,7 @@ mod exp;
 mod export;
 mod export_dataset;
 mod gc;
+mod init;
 mod kinds;
 mod ls;
 mod make;
@@ -32,8 +33,9 @@ use crate::cli::{Cli, Command};
 use crate::context::Context;
 
 pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
-    // doctor and kinds must work without a pipeline.toml.
+    // init, doctor and kinds must work without a pipeline.toml.
     match &cli.command {
+        Command::Init(args) => return init::run(&cli.global, args),
         Command::Doctor(args) => return doctor::run(&cli.global, &registry, args.json),
         Command::Kinds(args) => return kinds::kinds(&registry, args.json),
         _ => {}
@@ -54,7 +56,7 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
         Command::Exp(command) => exp::run(&ctx, command),
         Command::World(crate::cli::WorldCommand::Dump(args)) => world::dump(&ctx, &args),
         Command::RunTask(args) => task::run(&ctx, &args),
-        Command::Doctor(_) | Command::Kinds(_) => unreachable!("handled above"),
+        Command::Init(_) | Command::Doctor(_) | Command::Kinds(_) => unreachable!("handled above"),
     }
 }
 
