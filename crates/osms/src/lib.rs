@@ -1,4 +1,4 @@
-//! The osms command line: make (local or Slurm), status, why, show, ls, export, verify, gc, exp
+//! The osms command line: init, make (local or Slurm), status, why, show, ls, export, verify, gc, exp
 //! (named experiments), doctor, kinds, export-dataset, replay, render and world dump; it plans with
 //! the stage kinds of osms-kinds and writes report directories with their provenance.
 //!
