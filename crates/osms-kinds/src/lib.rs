@@ -18,21 +18,6 @@ pub fn registry() -> Registry {
 }
 
 /// The pipeline osms ships (the checkout's `pipeline.toml`, byte for byte): what `osms init`
-/// writes into a new project, so a user of the wheel alone has the same stages and profiles.
+/// writes into a new project, so a user of the wheel alone has the same stages and profiles
+/// (tests/tests/cli.rs plans each of its profiles with [`registry`]).
 pub const PIPELINE: &str = include_str!("../../../pipeline.toml");
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn the_shipped_pipeline_plans_every_profile_with_the_shipped_kinds() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let path = dir.path().join("pipeline.toml");
-        std::fs::write(&path, super::PIPELINE).expect("write");
-        for profile in ["tiny", "small", "paper", "decide"] {
-            let loaded = osms_make::Pipeline::load(&path, Some(profile))
-                .unwrap_or_else(|e| panic!("{profile}: {e}"));
-            osms_make::Plan::new(&loaded, &super::registry())
-                .unwrap_or_else(|e| panic!("{profile}: {e}"));
-        }
-    }
-}
