@@ -116,30 +116,20 @@ impl Table {
 impl Column {
     /// The column as a nullable Parquet column (a null's slot holds a placeholder).
     fn parquet(&self) -> parquet_file::Column {
-        fn split<T: Clone + Default>(cells: &[Option<T>]) -> (Vec<T>, Vec<bool>) {
-            let values = cells
+        fn values<T: Clone + Default>(cells: &[Option<T>]) -> Vec<T> {
+            cells
                 .iter()
                 .map(|c| c.clone().unwrap_or_default())
-                .collect();
-            (values, cells.iter().map(Option::is_some).collect())
+                .collect()
+        }
+        fn defined<T>(cells: &[Option<T>]) -> Vec<bool> {
+            cells.iter().map(Option::is_some).collect()
         }
         let (values, defined) = match &self.cells {
-            Cells::Int(v) => {
-                let (v, d) = split(v);
-                (Values::I64(v), d)
-            }
-            Cells::Float(v) => {
-                let (v, d) = split(v);
-                (Values::F64(v), d)
-            }
-            Cells::Bool(v) => {
-                let (v, d) = split(v);
-                (Values::Bool(v), d)
-            }
-            Cells::Text(v) => {
-                let (v, d) = split(v);
-                (Values::Str(v), d)
-            }
+            Cells::Int(v) => (Values::I64(values(v)), defined(v)),
+            Cells::Float(v) => (Values::F64(values(v)), defined(v)),
+            Cells::Bool(v) => (Values::Bool(values(v)), defined(v)),
+            Cells::Text(v) => (Values::Str(values(v)), defined(v)),
         };
         parquet_file::Column::nullable(&self.name, values, defined)
     }

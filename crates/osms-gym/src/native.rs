@@ -110,15 +110,12 @@ impl Native {
     /// a student reads, or a teacher's own task under the protocol's domain randomisation.
     pub fn spec(&self, protocol: &Protocol) -> RolloutSpec {
         match &self.kind {
-            NativeKind::Scripted => protocol.scripted.rollout.clone(),
+            NativeKind::Scripted => protocol.rules.scripted.rollout.clone(),
             NativeKind::Teacher { teacher, .. } => {
-                teacher
-                    .task
-                    .with_dr(&Some(protocol.base.dr.clone()))
-                    .rollout
+                protocol.rules.teacher_task(&teacher.task).rollout
             }
             NativeKind::Student { student, .. } => {
-                student.borrow_owner().rollout_spec(&protocol.base)
+                protocol.rules.student_spec(student.borrow_owner())
             }
         }
     }
@@ -128,6 +125,7 @@ impl Native {
     pub fn check_protocol(&self, protocol: &Protocol) -> Result<()> {
         if let NativeKind::Student { student, name } = &self.kind {
             protocol
+                .rules
                 .execution
                 .check_for(&student.borrow_owner().params)
                 .map_err(|e| GymError::State(format!("`{name}` under `{}`: {e}", protocol.name)))?;
@@ -144,9 +142,9 @@ impl Native {
     pub fn start(&self, protocol: &Protocol, index: usize) -> NativeEpisode {
         match &self.kind {
             NativeKind::Scripted => NativeEpisode::Scripted(ScriptedCatcher::with_perception(
-                protocol.scripted.catcher.clone(),
-                protocol.base.control.clone(),
-                protocol.scripted.perception,
+                protocol.rules.scripted.catcher.clone(),
+                protocol.rules.rollout.control.clone(),
+                protocol.rules.scripted.perception,
             )),
             NativeKind::Teacher { teacher, .. } => {
                 NativeEpisode::Teacher(TeacherEpisode::new(teacher.clone(), |t| {
@@ -155,7 +153,7 @@ impl Native {
             }
             NativeKind::Student { student, .. } => NativeEpisode::Student(
                 protocol.policy_rng(index),
-                ChunkRunner::new(protocol.execution, &student.borrow_owner().params),
+                ChunkRunner::new(protocol.rules.execution, &student.borrow_owner().params),
             ),
         }
     }

@@ -7,12 +7,11 @@ use std::sync::Arc;
 use osms_core::Artifact;
 use osms_core::rng::{self, StreamRng};
 use osms_make::{InstanceId, Pipeline, Plan, Sharded, State, StoreObjects};
-use osms_policy::protocol::ScriptedSetup;
+use osms_policy::protocol::EvalProtocol;
 use osms_policy::stages::{TeacherParams, evaluation_kinds};
-use osms_policy::student::ChunkExecution;
+use osms_sim::World;
 use osms_sim::artifacts::{Conditions, WorldArtifact};
 use osms_sim::conditions::TaskCondition;
-use osms_sim::{RolloutSpec, World};
 use osms_store::Store;
 
 use crate::error::{GymError, Result};
@@ -263,9 +262,7 @@ impl Project {
             world: Arc::new(world),
             conditions_name,
             conditions: Arc::new(conditions.items),
-            base: protocol.rollout,
-            scripted: protocol.scripted,
-            execution: protocol.execution,
+            rules: protocol,
             seed: self.plan.effective_seed(id),
             stream: self.plan.stream_name(id),
         })
@@ -401,12 +398,9 @@ pub struct Protocol {
     /// The condition set's instance (`heldout`).
     pub conditions_name: String,
     pub conditions: Arc<Vec<TaskCondition>>,
-    /// The rollout spec a policy without needs of its own runs under (history: the policy's).
-    pub base: RolloutSpec,
-    /// How the scripted catcher runs under this protocol, as the stage's params say.
-    pub scripted: ScriptedSetup,
-    /// How a student's chunks are executed under this protocol (its stage's `execution`).
-    pub execution: ChunkExecution,
+    /// What the stage's params say its rollouts are: the rollout spec, the scripted catcher,
+    /// the chunk execution.
+    pub rules: EvalProtocol,
     /// The seed of the stage's streams; `None` when the stage draws nothing (no DR).
     pub seed: Option<u64>,
     /// The name the stage's streams go by (the stage, with `#fold` for folds).

@@ -181,7 +181,7 @@ impl PyProtocol {
     #[getter]
     fn max_steps(&self) -> usize {
         let period = self.inner.world.control_period_secs();
-        (self.inner.base.success.max_episode_secs / period).ceil() as usize + 1
+        (self.inner.rules.rollout.success.max_episode_secs / period).ceil() as usize + 1
     }
 
     /// The task of condition `index` as osms's LeRobot export names it ("catch the …").
@@ -411,7 +411,7 @@ fn type_name(value: &Bound<'_, PyAny>) -> String {
 /// The rollout spec of a policy outside osms: the protocol's, showing one frame (a policy keeps
 /// its own history).
 fn external_spec(protocol: &Protocol) -> osms_sim::RolloutSpec {
-    let mut spec = protocol.base.clone();
+    let mut spec = protocol.rules.rollout.clone();
     spec.history_steps = 1;
     spec
 }

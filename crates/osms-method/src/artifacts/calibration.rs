@@ -132,21 +132,13 @@ impl Calibration {
         f
     }
 
-    fn summary_of(label: String, rows: Vec<EvalRow>, error: Option<Difference>) -> RunSummary {
-        RunSummary {
-            label,
-            rollouts: EvalSummary::of(&rows),
-            calibration_error: error,
-        }
-    }
-
     /// π̄'s rollouts on `folds`' conditions.
     pub fn student_summary(&self, folds: Folds) -> RunSummary {
-        let rows = self
-            .items_of(folds)
-            .flat_map(|i| i.student.rows.iter().cloned())
-            .collect();
-        Self::summary_of("π̄ (its own rollouts)".into(), rows, None)
+        RunSummary {
+            label: "π̄ (its own rollouts)".into(),
+            rollouts: EvalSummary::of(self.items_of(folds).flat_map(|i| &i.student.rows)),
+            calibration_error: None,
+        }
     }
 
     /// Run spec `r` on `folds`' conditions, with its calibration error against π̄.
@@ -154,12 +146,11 @@ impl Calibration {
         let items: Vec<&CalibrationItem> = self.items_of(folds).collect();
         let model: Vec<f64> = items.iter().map(|i| i.runs[r].success_rate()).collect();
         let student: Vec<f64> = items.iter().map(|i| i.student.success_rate()).collect();
-        let error = paired_difference(&[model], &[student]);
-        let rows = items
-            .iter()
-            .flat_map(|i| i.runs[r].rows.iter().cloned())
-            .collect();
-        Self::summary_of(self.runs[r].label(), rows, error)
+        RunSummary {
+            label: self.runs[r].label(),
+            rollouts: EvalSummary::of(items.iter().flat_map(|i| &i.runs[r].rows)),
+            calibration_error: paired_difference(&[model], &[student]),
+        }
     }
 
     /// The pooled arm deviation of π̄ (`None`) or of run spec `r` on `folds`' conditions.

@@ -54,13 +54,9 @@ impl Evaluates for EvalStudentStage {
 
 impl Evaluates for EvalScriptedStage {
     fn protocol(params: &EvalParams, _: Option<&CatchTaskSpec>) -> Result<EvalProtocol, String> {
-        Ok(EvalProtocol {
-            scripted: ScriptedSetup {
-                catcher: params.catcher.clone(),
-                ..ScriptedSetup::default_on(params.rollout.clone())
-            },
-            ..EvalProtocol::on(params.rollout.clone())
-        })
+        let mut protocol = EvalProtocol::on(params.rollout.clone());
+        protocol.scripted.catcher = params.catcher.clone();
+        Ok(protocol)
     }
 }
 
