@@ -2705,6 +2705,28 @@ fn check_python_summary(summary: &serde_json::Value, teacher_csv: &str) {
             .all(|n| n.as_u64() == Some(conditions as u64)),
         "{summary}"
     );
+    // 18 vector-environment identity checks: three store policies against `osms export`'s rows
+    // and a NumPy policy in each of gymnasium's three autoreset modes against `evaluate`'s, at
+    // 1, 3 and 16 sub-environments.
+    let vector = summary["vector"].as_object().expect("vector");
+    assert_eq!(vector.len(), 18, "{summary}");
+    assert!(
+        vector.values().all(|n| n.as_u64().is_some_and(|n| n > 0)),
+        "{summary}"
+    );
+    for label in ["native", "sync"] {
+        assert!(
+            summary["lerobot_calls"][label]
+                .as_u64()
+                .is_some_and(|frames| frames > 1),
+            "{summary}"
+        );
+    }
+    assert_eq!(
+        summary["vector_errors"].as_object().map(|e| e.len()),
+        Some(10),
+        "{summary}"
+    );
     assert_eq!(summary["render"], serde_json::json!([480, 480, 3]));
     assert!(
         summary["dev_built_on_use"].as_u64().is_some_and(|n| n > 0),

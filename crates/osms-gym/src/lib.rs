@@ -6,8 +6,9 @@
 //! stage itself runs on condition `i` (domain randomisation from its ("item", i) stream, a
 //! student's noise from ("policy", i)), whichever policy acts, however many rollouts run at once
 //! and whatever order they finish in. A [`Pool`] steps many of them in parallel and hands their
-//! observations to one batch policy per control step; [`Native`] is a policy of the store
-//! (teacher, student, scripted catcher) acting on a pool's episodes. The Python package (crate
+//! observations to one batch policy per control step; [`VectorEpisodes`] keeps a fixed number of
+//! episodes running for a vector environment; [`Native`] is a policy of the store (teacher,
+//! student, scripted catcher) acting on a pool's or a vector environment's episodes. The Python package (crate
 //! `osms-py`) is a thin layer over this crate.
 
 pub mod baseline;
@@ -15,12 +16,14 @@ mod error;
 pub mod native;
 pub mod pool;
 pub mod project;
+pub mod vector;
 
 pub use error::{ActionProblem, GymError, Result};
 pub use native::{Native, NativeKind};
 pub use osms_policy::protocol::ScriptedSetup;
 pub use pool::{Pool, SingleEpisode, StepInfo, check_action, rows_csv};
 pub use project::{Project, Protocol};
+pub use vector::{Autoreset, Frame, SubStep, VectorEpisodes};
 
 /// The Wilson score interval of `successes` out of `n` at the normal quantile `z` (95 %,
 /// z = 1.96, if `None`), as osms's tables compute it, exact at its ends

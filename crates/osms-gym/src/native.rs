@@ -15,6 +15,7 @@ use osms_sim::{Policy, PolicyView, RolloutSpec};
 use self_cell::self_cell;
 
 use crate::error::{GymError, Result};
+use crate::pool::Slot;
 use crate::project::{Project, Protocol};
 
 /// A policy of the store, loaded once: its per-rollout state in a pool is keyed by this load
@@ -209,4 +210,92 @@ pub enum NativeEpisode {
     Teacher(TeacherEpisode),
     /// Its noise stream and chunk state.
     Student(StreamRng, ChunkRunner),
+}
+
+/// The store's policies' state in the running episodes of a pool or a vector environment, by
+/// (policy load, episode), with the generation each last acted in: a state lives and ends with
+/// its episode.
+#[derive(Default)]
+pub(crate) struct NativeStates {
+    states: std::collections::BTreeMap<(u64, u64), (NativeEpisode, u64)>,
+}
+
+/// One observed episode a native policy is asked to act on.
+pub(crate) struct Asked<'s> {
+    /// What keys the episode among the running ones (a pool's condition, an environment's
+    /// episode number).
+    pub episode: u64,
+    pub slot: &'s Slot,
+}
+
+impl NativeStates {
+    /// The actions of `native` for the observed episodes `asked` (an observation of generation
+    /// `generation`), under `spec`, the rollout spec the episodes run under: `native` acts as
+    /// its own evaluation stage does, which needs the episodes to run under its rollout spec,
+    /// the policy to act from each episode's first step and once per observation (a second
+    /// call on one observation would advance a student's noise stream). A refused call changes
+    /// nothing.
+    pub fn act(
+        &mut self,
+        native: &Native,
+        protocol: &Protocol,
+        spec: &RolloutSpec,
+        generation: u64,
+        asked: &[Asked<'_>],
+    ) -> Result<Vec<Action>> {
+        native.check_protocol(protocol)?;
+        if native.spec(protocol) != *spec {
+            return Err(GymError::State(format!(
+                "`{}` runs under a rollout spec of its own: make it the policy the episodes run for (osms.eval.evaluate's `policy`, CatchVectorEnv's `native`) to act on them",
+                native.name()
+            )));
+        }
+        for a in asked {
+            let (index, step) = (a.slot.index, a.slot.step());
+            match self.states.get(&(native.id(), a.episode)) {
+                Some((_, acted)) if *acted == generation => {
+                    return Err(GymError::State(format!(
+                        "`{}` already acted on this observation (condition {index}, control step {step}): a policy of the store answers each observation once, as its rollouts do",
+                        native.name(),
+                    )));
+                }
+                Some(_) => {}
+                None if step == 0 => {}
+                None => {
+                    return Err(GymError::State(format!(
+                        "`{}` first saw condition {index} at control step {step}: a policy of the store acts from a rollout's first step",
+                        native.name(),
+                    )));
+                }
+            }
+        }
+        let mut states: Vec<(u64, NativeEpisode)> = asked
+            .iter()
+            .map(|a| {
+                let state = match self.states.remove(&(native.id(), a.episode)) {
+                    Some((state, _)) => state,
+                    None => native.start(protocol, a.slot.index),
+                };
+                (a.episode, state)
+            })
+            .collect();
+        let mut batch: Vec<_> = states
+            .iter_mut()
+            .zip(asked)
+            .map(|((_, state), a)| (state, a.slot.view(), a.slot.last_phase()))
+            .collect();
+        let actions = native.act(&mut batch);
+        drop(batch);
+        self.states.extend(
+            states
+                .into_iter()
+                .map(|(episode, state)| ((native.id(), episode), (state, generation))),
+        );
+        Ok(actions)
+    }
+
+    /// Drops every policy's state in `episode` (it ended).
+    pub fn end(&mut self, episode: u64) {
+        self.states.retain(|(_, e), _| *e != episode);
+    }
 }

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use self_cell::self_cell;
 
 use crate::error::{ActionProblem, GymError, Result};
-use crate::native::{Native, NativeEpisode};
+use crate::native::{Asked, Native, NativeStates};
 use crate::project::Protocol;
 
 /// What an episode borrows: the world and its rollout spec.
@@ -32,14 +32,14 @@ self_cell!(
 );
 
 /// One rollout in progress: its condition index and the observation awaiting an action.
-struct Slot {
+pub(crate) struct Slot {
     live: LiveEpisode,
-    index: usize,
+    pub index: usize,
     observed: Option<Observed>,
 }
 
 impl Slot {
-    fn start(protocol: &Protocol, spec: &Arc<RolloutSpec>, index: usize) -> Slot {
+    pub fn start(protocol: &Protocol, spec: &Arc<RolloutSpec>, index: usize) -> Slot {
         let setting = Setting {
             world: protocol.world.clone(),
             spec: spec.clone(),
@@ -55,7 +55,7 @@ impl Slot {
         }
     }
 
-    fn episode(&self) -> &Episode<'_> {
+    pub fn episode(&self) -> &Episode<'_> {
         self.live
             .borrow_dependent()
             .as_ref()
@@ -63,7 +63,7 @@ impl Slot {
     }
 
     /// Observes the next control step; false once the episode is over.
-    fn observe(&mut self, reads_contact_force: bool) -> bool {
+    pub fn observe(&mut self, reads_contact_force: bool) -> bool {
         let observed = self.live.with_dependent_mut(|_, e| {
             e.as_mut().and_then(|e| e.observe_step(reads_contact_force))
         });
@@ -72,7 +72,7 @@ impl Slot {
     }
 
     /// Runs `action` on the observed step; false once the episode is over.
-    fn act_only(&mut self, action: Action) -> bool {
+    pub fn act_only(&mut self, action: Action) -> bool {
         let observed = self
             .observed
             .take()
@@ -85,7 +85,7 @@ impl Slot {
 
     /// Runs `action` on the observed step; the finished record once the episode is over (the
     /// episode is gone then).
-    fn act(&mut self, action: Action) -> Option<RolloutRecord> {
+    pub fn act(&mut self, action: Action) -> Option<RolloutRecord> {
         if self.act_only(action) {
             None
         } else {
@@ -93,20 +93,20 @@ impl Slot {
         }
     }
 
-    fn take_record(&mut self) -> Option<RolloutRecord> {
+    pub fn take_record(&mut self) -> Option<RolloutRecord> {
         self.live
             .with_dependent_mut(|_, e| e.take().map(Episode::finish))
     }
 
     /// The record as [`Episode::finish`] would return it, the episode kept (to draw it).
-    fn record_now(&self) -> RolloutRecord {
+    pub fn record_now(&self) -> RolloutRecord {
         let e = self.episode();
         let mut record = e.record().clone();
         (record.outcome, record.metrics) = e.outcome();
         record
     }
 
-    fn view(&self) -> PolicyView<'_> {
+    pub fn view(&self) -> PolicyView<'_> {
         let observed = self
             .observed
             .as_ref()
@@ -114,12 +114,34 @@ impl Slot {
         self.episode().view(observed)
     }
 
-    fn step(&self) -> usize {
+    pub fn step(&self) -> usize {
         self.episode().step_index()
     }
 
+    /// What an environment reports of this episode: running, or ended (`done`) with its
+    /// outcome.
+    pub fn info(&self, done: bool) -> StepInfo {
+        let e = self.episode();
+        let (o, m) = e.outcome();
+        StepInfo {
+            condition: self.index,
+            steps: e.step_index(),
+            done,
+            success: done && o.success(),
+            completion: done && o.completion(),
+            v_rel_mps: m.contact_speed_mps,
+            f_max_n: m.contact_time_secs.map(|_| m.max_force_n),
+            l_max_m: m.follow_through_m,
+            failures: o
+                .failures
+                .iter()
+                .map(|&f| osms_export::rollouts::failure_key(f))
+                .collect(),
+        }
+    }
+
     /// The phase the last control step ended in; none before the first.
-    fn last_phase(&self) -> Option<u8> {
+    pub fn last_phase(&self) -> Option<u8> {
         self.episode().record().phase.last().copied()
     }
 }
@@ -153,6 +175,15 @@ pub fn check_action(action: &[f64], condition: usize, step: usize) -> Result<Act
     }
 }
 
+/// Slot `k` of `slots`, if it awaits an action.
+fn awaiting(slots: &[Option<Slot>], k: usize) -> Result<&Slot> {
+    slots
+        .get(k)
+        .and_then(Option::as_ref)
+        .filter(|s| s.observed.is_some())
+        .ok_or_else(|| GymError::State(format!("slot {k} awaits no action")))
+}
+
 /// Rollouts of a protocol on a list of its conditions, `n_envs` at a time, stepped in lockstep
 /// for one batch policy: [`Pool::observe`] starts rollouts in free slots and observes every
 /// running one, the caller chooses their actions, [`Pool::act`] runs them. Slots refill in
@@ -170,9 +201,8 @@ pub struct Pool {
     position: Vec<usize>,
     /// Counts observations: a batch is answered at the generation it was observed in.
     generation: u64,
-    /// The store's policies' state in each running rollout, by (policy load, condition), with
-    /// the generation it last acted in: it lives and ends with the rollout.
-    native: std::collections::BTreeMap<(u64, usize), (NativeEpisode, u64)>,
+    /// The store's policies' state in each running rollout, keyed by its condition.
+    native: NativeStates,
 }
 
 impl Pool {
@@ -220,7 +250,7 @@ impl Pool {
             records: (0..n).map(|_| None).collect(),
             position: vec![0; n_envs.min(n.max(1))],
             generation: 0,
-            native: std::collections::BTreeMap::new(),
+            native: NativeStates::default(),
         })
     }
 
@@ -299,13 +329,8 @@ impl Pool {
         self.slot(k).step()
     }
 
-    /// Slot `k`, if it awaits an action.
     fn awaiting(&self, k: usize) -> Result<&Slot> {
-        self.slots
-            .get(k)
-            .and_then(Option::as_ref)
-            .filter(|s| s.observed.is_some())
-            .ok_or_else(|| GymError::State(format!("slot {k} awaits no action")))
+        awaiting(&self.slots, k)
     }
 
     /// Runs one action per observed slot (`(slot, action)`), in parallel; an action the world
@@ -336,7 +361,7 @@ impl Pool {
         for (k, record) in finished.into_iter().enumerate() {
             if let Some(record) = record {
                 let condition = self.indices[self.position[k]];
-                self.native.retain(|(_, c), _| *c != condition);
+                self.native.end(condition as u64);
                 self.records[self.position[k]] = Some(record);
                 self.slots[k] = None;
             }
@@ -361,65 +386,18 @@ impl Pool {
                     .to_string(),
             ));
         }
-        native.check_protocol(&self.protocol)?;
-        if native.spec(&self.protocol) != *self.spec {
-            return Err(GymError::State(format!(
-                "`{}` runs under a rollout spec of its own: make it the pool's policy (osms.eval.evaluate does) to act on its rollouts",
-                native.name()
-            )));
-        }
-        let mut keys = Vec::with_capacity(slots.len());
-        for &k in slots {
-            let (index, step) = {
-                let slot = self.awaiting(k)?;
-                (slot.index, slot.step())
-            };
-            let key = (native.id(), index);
-            match self.native.get(&key) {
-                Some((_, acted)) if *acted == generation => {
-                    return Err(GymError::State(format!(
-                        "`{}` already acted on this observation (condition {index}, control step {step}): a policy of the store answers each observation once, as its rollouts do",
-                        native.name(),
-                    )));
-                }
-                Some(_) => {}
-                None if step == 0 => {}
-                None => {
-                    return Err(GymError::State(format!(
-                        "`{}` first saw condition {index} at control step {step}: a policy of the store acts from a rollout's first step",
-                        native.name(),
-                    )));
-                }
-            }
-            keys.push((key, k));
-        }
-        let mut states: Vec<((u64, usize), NativeEpisode)> = keys
+        let asked = slots
             .iter()
-            .map(|&(key, _)| {
-                let state = match self.native.remove(&key) {
-                    Some((state, _)) => state,
-                    None => native.start(&self.protocol, key.1),
-                };
-                (key, state)
+            .map(|&k| {
+                let slot = awaiting(&self.slots, k)?;
+                Ok(Asked {
+                    episode: slot.index as u64,
+                    slot,
+                })
             })
-            .collect();
-        let slots_ref = &self.slots;
-        let mut batch: Vec<_> = states
-            .iter_mut()
-            .zip(&keys)
-            .map(|((_, state), &(_, k))| {
-                let slot = slots_ref[k].as_ref().expect("checked above");
-                (state, slot.view(), slot.last_phase())
-            })
-            .collect();
-        let actions = native.act(&mut batch);
-        drop(batch);
-        self.native.extend(
-            states
-                .into_iter()
-                .map(|(key, state)| (key, (state, generation))),
-        );
-        Ok(actions)
+            .collect::<Result<Vec<_>>>()?;
+        self.native
+            .act(native, &self.protocol, &self.spec, generation, &asked)
     }
 
     /// Whether every rollout has finished.
@@ -527,8 +505,9 @@ impl SingleEpisode {
 
     /// The episode's state: running, or ended with its outcome.
     pub fn info(&self) -> StepInfo {
-        let Some(slot) = &self.slot else {
-            return StepInfo {
+        match &self.slot {
+            Some(slot) => slot.info(!self.running),
+            None => StepInfo {
                 condition: 0,
                 steps: 0,
                 done: true,
@@ -538,25 +517,7 @@ impl SingleEpisode {
                 f_max_n: None,
                 l_max_m: 0.0,
                 failures: Vec::new(),
-            };
-        };
-        let e = slot.episode();
-        let (o, m) = e.outcome();
-        let done = !self.running;
-        StepInfo {
-            condition: slot.index,
-            steps: e.step_index(),
-            done,
-            success: done && o.success(),
-            completion: done && o.completion(),
-            v_rel_mps: m.contact_speed_mps,
-            f_max_n: m.contact_time_secs.map(|_| m.max_force_n),
-            l_max_m: m.follow_through_m,
-            failures: o
-                .failures
-                .iter()
-                .map(|&f| osms_export::rollouts::failure_key(f))
-                .collect(),
+            },
         }
     }
 

@@ -8,7 +8,9 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
-use osms_gym::{GymError, Native, Pool, Project, Protocol, SingleEpisode, StepInfo};
+use osms_gym::{
+    Autoreset, GymError, Native, Pool, Project, Protocol, SingleEpisode, StepInfo, VectorEpisodes,
+};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -180,8 +182,10 @@ impl PyProtocol {
     /// The longest rollout in control steps (the success criteria's episode limit).
     #[getter]
     fn max_steps(&self) -> usize {
-        let period = self.inner.world.control_period_secs();
-        (self.inner.rules.rollout.success.max_episode_secs / period).ceil() as usize + 1
+        max_steps(
+            self.inner.rules.rollout.success.max_episode_secs,
+            self.inner.world.control_period_secs(),
+        )
     }
 
     /// The task of condition `index` as osms's LeRobot export names it ("catch the …").
@@ -199,6 +203,11 @@ impl PyProtocol {
             self.inner.conditions_name
         )
     }
+}
+
+/// The most control steps an episode of `max_episode_secs` takes at `period` seconds a step.
+fn max_steps(max_episode_secs: f64, period: f64) -> usize {
+    (max_episode_secs / period).ceil() as usize + 1
 }
 
 /// A policy of the store as a Python callable over the observations of a [`PyPool`].
@@ -473,7 +482,7 @@ const RENDER_SIDE: u32 = 480;
 struct PyEnv {
     inner: SingleEpisode,
     privileged: bool,
-    renderers: Vec<(osms_sim::ObjectVariant, osms_render::Renderer)>,
+    renderers: Renderers,
 }
 
 #[pymethods]
@@ -536,27 +545,40 @@ impl PyEnv {
         let Some(episode) = self.inner.episode() else {
             return Ok(None);
         };
-        let protocol = self.inner.protocol();
-        let variant = episode.record().condition.variant;
-        let renderer = match self.renderers.iter().position(|(v, _)| *v == variant) {
-            Some(i) => &mut self.renderers[i].1,
-            None => {
-                let model =
-                    osms_render::render_model(&protocol.world, variant, RENDER_SIDE, RENDER_SIDE)
-                        .map_err(|e| OsmsError::new_err(e.to_string()))?;
-                let camera = osms_render::CameraSpec::catch_view(protocol.world.home_palm_pos);
-                let r = osms_render::Renderer::new(&model, RENDER_SIDE, RENDER_SIDE, &camera)
-                    .map_err(|e| OsmsError::new_err(format!("{e}\nhint: scripts/setup-render installs the offscreen renderer (Debian's OSMesa)")))?;
-                self.renderers.push((variant, r));
-                &mut self.renderers.last_mut().expect("just pushed").1
-            }
-        };
-        let image = renderer
-            .frame(episode.data())
-            .map_err(|e| OsmsError::new_err(e.to_string()))?;
-        let (h, w) = (image.height as usize, image.width as usize);
-        Ok(Some(image.rgb.into_pyarray(py).reshape([h, w, 3])?))
+        draw(py, &mut self.renderers, self.inner.protocol(), episode).map(Some)
     }
+}
+
+/// The renderers of one thread, one per object variant, made on first use.
+type Renderers = Vec<(osms_sim::ObjectVariant, osms_render::Renderer)>;
+
+/// `episode`'s current state drawn by MuJoCo's offscreen renderer (Mesa's OSMesa): an
+/// (height, width, 3) uint8 array.
+fn draw<'py>(
+    py: Python<'py>,
+    renderers: &mut Renderers,
+    protocol: &Protocol,
+    episode: &osms_sim::Episode<'_>,
+) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
+    let variant = episode.record().condition.variant;
+    let renderer = match renderers.iter().position(|(v, _)| *v == variant) {
+        Some(i) => &mut renderers[i].1,
+        None => {
+            let model =
+                osms_render::render_model(&protocol.world, variant, RENDER_SIDE, RENDER_SIDE)
+                    .map_err(|e| OsmsError::new_err(e.to_string()))?;
+            let camera = osms_render::CameraSpec::catch_view(protocol.world.home_palm_pos);
+            let r = osms_render::Renderer::new(&model, RENDER_SIDE, RENDER_SIDE, &camera)
+                .map_err(|e| OsmsError::new_err(format!("{e}\nhint: scripts/setup-render installs the offscreen renderer (Debian's OSMesa)")))?;
+            renderers.push((variant, r));
+            &mut renderers.last_mut().expect("just pushed").1
+        }
+    };
+    let image = renderer
+        .frame(episode.data())
+        .map_err(|e| OsmsError::new_err(e.to_string()))?;
+    let (h, w) = (image.height as usize, image.width as usize);
+    image.rgb.into_pyarray(py).reshape([h, w, 3])
 }
 
 impl PyEnv {
@@ -573,6 +595,297 @@ impl PyEnv {
         }
         Ok(dict)
     }
+}
+
+/// Sub-environments stepped together in Rust with the GIL released: the core of
+/// `osms.gym.CatchVectorEnv`. Bound to the thread that made it (its renderers).
+#[pyclass(name = "VectorEnv", module = "osms._native", unsendable)]
+struct PyVectorEnv {
+    inner: VectorEpisodes,
+    renderers: Renderers,
+}
+
+#[pymethods]
+impl PyVectorEnv {
+    /// `num_envs` sub-environments on `protocol`'s conditions; `autoreset` is gymnasium's
+    /// `AutoresetMode` value (`NextStep`, `SameStep`, `Disabled`). With `policy` (a
+    /// NativePolicy) the episodes run under that policy's rollout spec, so that it can act on
+    /// them (`native_actions`); `max_episode_steps` truncates episodes the world has not ended.
+    #[new]
+    #[pyo3(signature = (protocol, num_envs, autoreset, policy=None, privileged=false, max_episode_steps=None))]
+    fn new(
+        protocol: &PyProtocol,
+        num_envs: i64,
+        autoreset: &str,
+        policy: Option<PyRef<'_, PyNative>>,
+        privileged: bool,
+        max_episode_steps: Option<i64>,
+    ) -> PyResult<Self> {
+        let count = |what: &str, n: i64| {
+            usize::try_from(n)
+                .map_err(|_| PyValueError::new_err(format!("{what} is {n}; it must be at least 1")))
+        };
+        let num_envs = count("num_envs", num_envs)?;
+        let max_episode_steps = max_episode_steps
+            .map(|m| count("max_episode_steps", m))
+            .transpose()?;
+        let mode = match autoreset {
+            "NextStep" => Autoreset::NextStep,
+            "SameStep" => Autoreset::SameStep,
+            "Disabled" => Autoreset::Disabled,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "autoreset mode {other:?} is not one of gymnasium's: NextStep, SameStep, Disabled (gymnasium.vector.AutoresetMode)"
+                )));
+            }
+        };
+        let protocol = protocol.inner.clone();
+        let (spec, reads) = match &policy {
+            Some(p) => {
+                p.inner.check_protocol(&protocol).map_err(to_py)?;
+                (p.inner.spec(&protocol), p.inner.reads_contact_force())
+            }
+            None => (external_spec(&protocol), false),
+        };
+        let inner = VectorEpisodes::new(
+            protocol,
+            spec,
+            reads,
+            privileged,
+            num_envs,
+            mode,
+            max_episode_steps,
+        )
+        .map_err(to_py)?;
+        Ok(PyVectorEnv {
+            inner,
+            renderers: Vec::new(),
+        })
+    }
+
+    #[getter]
+    fn num_envs(&self) -> usize {
+        self.inner.num_envs()
+    }
+
+    /// Starts episodes in the sub-environments `starts` names, `(sub-environment, condition or
+    /// None for the next one)` in order, GIL released; (observation of every sub-environment,
+    /// infos of the reset ones with their `_key` masks).
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        starts: Vec<(usize, Option<i64>)>,
+    ) -> PyResult<(Bound<'py, PyDict>, Bound<'py, PyDict>)> {
+        let inner = &mut self.inner;
+        let reports = py.detach(|| inner.reset(&starts)).map_err(to_py)?;
+        let n = self.inner.num_envs();
+        let mut infos: Vec<Option<&StepInfo>> = vec![None; n];
+        for (k, r) in &reports {
+            infos[*k] = Some(&r.info);
+        }
+        let obs = self.observations(py)?;
+        Ok((obs, vector_infos(py, &infos)?))
+    }
+
+    /// Runs one action per sub-environment (`actions`: num_envs × 24, float64), GIL released;
+    /// (observations, rewards, terminations, truncations, infos) as gymnasium's vector
+    /// environments return them. Under SAME_STEP, infos hold `final_obs` and `final_info` of the
+    /// episodes that ended. A refused action moves nothing.
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        actions: PyReadonlyArray2<'_, f64>,
+    ) -> PyResult<(
+        Bound<'py, PyDict>,
+        Bound<'py, PyArray1<f64>>,
+        Bound<'py, PyArray1<bool>>,
+        Bound<'py, PyArray1<bool>>,
+        Bound<'py, PyDict>,
+    )> {
+        let rows: Vec<Vec<f64>> = actions
+            .as_array()
+            .rows()
+            .into_iter()
+            .map(|r| r.to_vec())
+            .collect();
+        let inner = &mut self.inner;
+        let reports = py.detach(|| inner.step(&rows)).map_err(to_py)?;
+        let infos: Vec<Option<&StepInfo>> = reports.iter().map(|r| Some(&r.info)).collect();
+        let info = vector_infos(py, &infos)?;
+        if reports.iter().any(|r| r.ended.is_some()) {
+            let ended: Vec<Option<&StepInfo>> = reports
+                .iter()
+                .map(|r| r.ended.as_ref().map(|(_, i)| i))
+                .collect();
+            let final_obs: Vec<Py<PyAny>> = reports
+                .iter()
+                .map(|r| match &r.ended {
+                    Some((frame, _)) => Ok(frame_dict(py, frame)?.into_any().unbind()),
+                    None => Ok(py.None()),
+                })
+                .collect::<PyResult<_>>()?;
+            let mask: Vec<bool> = reports.iter().map(|r| r.ended.is_some()).collect();
+            info.set_item("final_obs", PyArray1::from_vec(py, final_obs))?;
+            info.set_item("_final_obs", PyArray1::from_vec(py, mask.clone()))?;
+            info.set_item("final_info", vector_infos(py, &ended)?)?;
+            info.set_item("_final_info", PyArray1::from_vec(py, mask))?;
+        }
+        let rewards = PyArray1::from_vec(py, reports.iter().map(|r| r.reward).collect());
+        let terminated = PyArray1::from_vec(py, reports.iter().map(|r| r.terminated).collect());
+        let truncated = PyArray1::from_vec(py, reports.iter().map(|r| r.truncated).collect());
+        Ok((self.observations(py)?, rewards, terminated, truncated, info))
+    }
+
+    /// The actions of the store's policy `policy` (the one the environment was made for) for
+    /// the current observation, num_envs × 24 float64 (zeros for ended episodes), GIL released.
+    fn native_actions<'py>(
+        &mut self,
+        py: Python<'py>,
+        policy: PyRef<'_, PyNative>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let inner = &mut self.inner;
+        let native = &policy.inner;
+        let actions = py.detach(|| inner.native_act(native)).map_err(to_py)?;
+        let n = actions.len();
+        let flat: Vec<f64> = actions.into_iter().flatten().collect();
+        flat.into_pyarray(py).reshape([n, osms_sim::N_ACTION])
+    }
+
+    /// The condition sub-environment `k` runs (or ran); None before its first reset.
+    fn condition(&self, k: usize) -> Option<usize> {
+        self.inner.condition(k)
+    }
+
+    /// The rows of the episodes that ended by the world's rules, in the order they started, as
+    /// `rollouts.csv` (None before any ended).
+    fn rows_csv(&self) -> PyResult<Option<String>> {
+        let rows = self.inner.rows();
+        if rows.is_empty() {
+            return Ok(None);
+        }
+        osms_gym::rows_csv(&rows).map(Some).map_err(to_py)
+    }
+
+    /// Sub-environment `k`'s current state drawn offscreen; None before its first reset.
+    fn render<'py>(
+        &mut self,
+        py: Python<'py>,
+        k: usize,
+    ) -> PyResult<Option<Bound<'py, numpy::PyArray3<u8>>>> {
+        let Some(episode) = self.inner.episode(k) else {
+            return Ok(None);
+        };
+        draw(py, &mut self.renderers, self.inner.protocol(), episode).map(Some)
+    }
+}
+
+impl PyVectorEnv {
+    /// Every sub-environment's last observation, stacked (zeros before its first reset).
+    fn observations<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let frames = self.inner.frames();
+        let n = frames.len();
+        let (dep, priv_) = (
+            osms_sim::policy::DEPLOYABLE_LEN,
+            osms_sim::policy::PRIVILEGED_LEN,
+        );
+        let mut deployable = Vec::with_capacity(n * dep);
+        let mut privileged: Option<Vec<f32>> = None;
+        for f in &frames {
+            match f {
+                Some(f) => {
+                    deployable.extend_from_slice(&f.deployable);
+                    if let Some(p) = &f.privileged {
+                        privileged.get_or_insert_with(Vec::new).extend_from_slice(p);
+                    }
+                }
+                None => deployable.extend(std::iter::repeat_n(0.0, dep)),
+            }
+        }
+        let dict = PyDict::new(py);
+        dict.set_item("agent_pos", deployable.into_pyarray(py).reshape([n, dep])?)?;
+        if self.inner.privileged() {
+            let mut p = privileged.unwrap_or_default();
+            p.resize(n * priv_, 0.0);
+            dict.set_item("environment_state", p.into_pyarray(py).reshape([n, priv_])?)?;
+        }
+        Ok(dict)
+    }
+}
+
+/// One observation as the single environment returns it.
+fn frame_dict<'py>(py: Python<'py>, frame: &osms_gym::Frame) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item("agent_pos", PyArray1::from_slice(py, &frame.deployable))?;
+    if let Some(p) = &frame.privileged {
+        dict.set_item("environment_state", PyArray1::from_slice(py, p))?;
+    }
+    Ok(dict)
+}
+
+/// The infos of sub-environments as gymnasium's vector environments give them: one array per
+/// key over the sub-environments, beside a `_key` mask of those that have it (a sub-environment
+/// without an entry has none; `v_rel_mps` and `f_max_n` only after a contact).
+fn vector_infos<'py>(py: Python<'py>, infos: &[Option<&StepInfo>]) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let has: Vec<bool> = infos.iter().map(Option::is_some).collect();
+    let column =
+        |f: &dyn Fn(&StepInfo) -> i64| infos.iter().map(|i| i.map_or(0, f)).collect::<Vec<i64>>();
+    let flag = |f: &dyn Fn(&StepInfo) -> bool| {
+        infos
+            .iter()
+            .map(|i| i.is_some_and(f))
+            .collect::<Vec<bool>>()
+    };
+    let real = |f: &dyn Fn(&StepInfo) -> Option<f64>| {
+        let values: Vec<f64> = infos
+            .iter()
+            .map(|i| i.and_then(f).unwrap_or(f64::NAN))
+            .collect();
+        let mask: Vec<bool> = infos.iter().map(|i| i.and_then(f).is_some()).collect();
+        (values, mask)
+    };
+    let put = |key: &str, value: Bound<'py, PyAny>, mask: Vec<bool>| -> PyResult<()> {
+        d.set_item(key, value)?;
+        d.set_item(format!("_{key}"), PyArray1::from_vec(py, mask))
+    };
+    put(
+        "condition",
+        PyArray1::from_vec(py, column(&|i| i.condition as i64)).into_any(),
+        has.clone(),
+    )?;
+    put(
+        "steps",
+        PyArray1::from_vec(py, column(&|i| i.steps as i64)).into_any(),
+        has.clone(),
+    )?;
+    put(
+        "is_success",
+        PyArray1::from_vec(py, flag(&|i| i.success)).into_any(),
+        has.clone(),
+    )?;
+    put(
+        "completion",
+        PyArray1::from_vec(py, flag(&|i| i.completion)).into_any(),
+        has.clone(),
+    )?;
+    let (v, m) = real(&|i| i.v_rel_mps);
+    put("v_rel_mps", PyArray1::from_vec(py, v).into_any(), m)?;
+    let (v, m) = real(&|i| i.f_max_n);
+    put("f_max_n", PyArray1::from_vec(py, v).into_any(), m)?;
+    let (v, _) = real(&|i| Some(i.l_max_m));
+    put("l_max_m", PyArray1::from_vec(py, v).into_any(), has.clone())?;
+    let failures: Vec<Py<PyAny>> = infos
+        .iter()
+        .map(|i| match i {
+            Some(i) => Ok(pyo3::types::PyTuple::new(py, &i.failures)?
+                .into_any()
+                .unbind()),
+            None => Ok(py.None()),
+        })
+        .collect::<PyResult<_>>()?;
+    put("failures", PyArray1::from_vec(py, failures).into_any(), has)?;
+    Ok(d)
 }
 
 fn info_dict<'py>(py: Python<'py>, info: &StepInfo) -> PyResult<Bound<'py, PyDict>> {
@@ -677,6 +990,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyBatch>()?;
     m.add_class::<PyPool>()?;
     m.add_class::<PyEnv>()?;
+    m.add_class::<PyVectorEnv>()?;
     m.add_function(wrap_pyfunction!(channels, m)?)?;
     m.add_function(wrap_pyfunction!(row_columns, m)?)?;
     m.add_function(wrap_pyfunction!(row_column_types, m)?)?;
@@ -692,6 +1006,14 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add(
         "DEFAULT_CONTROL_HZ",
         1.0 / osms_sim::WorldSpec::default().control_dt_secs(),
+    )?;
+    // The default protocol's episode limit: `osms/Catch-v0` is registered with it.
+    m.add(
+        "DEFAULT_MAX_STEPS",
+        max_steps(
+            osms_sim::SuccessSpec::default().max_episode_secs,
+            osms_sim::WorldSpec::default().control_dt_secs(),
+        ),
     )?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

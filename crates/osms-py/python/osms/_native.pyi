@@ -11,6 +11,7 @@ N_ACTION: int
 DEPLOYABLE_LEN: int
 PRIVILEGED_LEN: int
 DEFAULT_CONTROL_HZ: float
+DEFAULT_MAX_STEPS: int
 
 class OsmsError(RuntimeError):
     """A project, stage, artifact or call osms cannot use; the message says which and what would do."""
@@ -89,6 +90,35 @@ class Env:
     def info(self) -> dict[str, Any]: ...
     def row_csv(self) -> Optional[str]: ...
     def render(self) -> Optional[npt.NDArray[np.uint8]]: ...
+
+class VectorEnv:
+    def __init__(
+        self,
+        protocol: Protocol,
+        num_envs: int,
+        autoreset: str,
+        policy: Optional[NativePolicy] = None,
+        privileged: bool = False,
+        max_episode_steps: Optional[int] = None,
+    ) -> None: ...
+    @property
+    def num_envs(self) -> int: ...
+    def reset(
+        self, starts: list[Tuple[int, Optional[int]]]
+    ) -> Tuple[dict[str, npt.NDArray[np.float32]], dict[str, Any]]: ...
+    def step(
+        self, actions: npt.NDArray[np.float64]
+    ) -> Tuple[
+        dict[str, npt.NDArray[np.float32]],
+        npt.NDArray[np.float64],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.bool_],
+        dict[str, Any],
+    ]: ...
+    def native_actions(self, policy: NativePolicy) -> npt.NDArray[np.float64]: ...
+    def condition(self, k: int) -> Optional[int]: ...
+    def rows_csv(self) -> Optional[str]: ...
+    def render(self, k: int) -> Optional[npt.NDArray[np.uint8]]: ...
 
 def channels() -> dict[str, list[str]]: ...
 def row_columns() -> list[str]: ...

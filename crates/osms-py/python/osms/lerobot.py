@@ -8,8 +8,13 @@ LeRobot seeds episode ``k`` of an evaluation with ``seed + k``, and the environm
 condition ``(seed + k) mod n`` of the set, so ``--seed=0 --eval.n_episodes=N`` evaluates the
 set's first N conditions, each under osms's own protocol. The policy sees ``agent_pos`` as
 ``observation.state`` (the deployable frame, the same 76 channels as the LeRobot export's
-``observation.state``) and answers 24 actions in [-1, 1]. Importing this module needs LeRobot;
-the rest of the package does not.
+``observation.state``) and answers 24 actions in [-1, 1]. LeRobot 0.5 and later build the
+environments through ``create_envs``, which here makes osms's native vector environment
+(:class:`osms.gym.CatchVectorEnv`, stepped in Rust) in LeRobot's SAME_STEP autoreset mode;
+LeRobot 0.4 vectorises ``osms/Catch-v0`` itself. Without this config, LeRobot's ``eval_policy``
+runs on ``gymnasium.make_vec("osms/Catch-v0", num_envs=n, vectorization_mode=
+"vector_entry_point")`` as it is (``scripts/check-lerobot-eval`` does both). Importing this
+module needs LeRobot; the rest of the package does not.
 """
 
 from dataclasses import dataclass, field
@@ -62,6 +67,16 @@ class OsmsEnv(EnvConfig):
     @property
     def gym_id(self) -> str:
         return f"osms/{self.task}"
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        """One native vector environment (LeRobot >= 0.5 calls this; ``use_async_envs`` has
+        nothing to add: the sub-environments already step in parallel in Rust)."""
+        from gymnasium.vector import AutoresetMode
+
+        from osms.gym import CatchVectorEnv
+
+        env = CatchVectorEnv(n_envs, autoreset_mode=AutoresetMode.SAME_STEP, **self.gym_kwargs)
+        return {self.type: {0: env}}
 
     @property
     def gym_kwargs(self) -> dict:
