@@ -7,6 +7,11 @@ use std::process::Output;
 
 use osms_tests::Project;
 
+// A new user's path from the wheel alone; here rather than in a test binary of its own, so that
+// its single-threaded teacher build overlaps the other tests of this binary.
+#[path = "cli/newcomer.rs"]
+mod newcomer;
+
 const BIN: &str = env!("CARGO_BIN_EXE_osms-test");
 
 /// A pipeline of pure-Rust kinds only, so its hashes are the same on every platform.

@@ -18,11 +18,15 @@ pub enum GymError {
         pipeline: String,
         known: String,
     },
+    /// The hint names the project the call opened, so it builds into the store the call reads
+    /// from wherever it runs (`osms` is the command the package installs; `./osms` in a
+    /// checkout is the same).
     #[error(
-        "`{instance}` has no current build in {store} under profile `{profile}` ({reason})\nhint: `./osms make {instance} --profile {profile}` builds it"
+        "`{instance}` has no current build in {store} under profile `{profile}` ({reason})\nhint: `osms make {instance} --profile {profile} --pipeline {pipeline} --store {store}` builds it (the `osms` command comes with the package)"
     )]
     NotBuilt {
         instance: String,
+        pipeline: String,
         store: String,
         profile: String,
         reason: String,

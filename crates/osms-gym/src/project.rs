@@ -163,6 +163,7 @@ impl Project {
             )),
             _ => Err(GymError::NotBuilt {
                 instance: display,
+                pipeline: self.pipeline_path.display().to_string(),
                 store: self.store.root().display().to_string(),
                 profile: self.plan.profile.clone(),
                 reason: osms_make::describe(&status.reasons),
@@ -447,7 +448,7 @@ fn find_pipeline() -> Result<PathBuf> {
         .find(|p| p.is_file())
         .ok_or_else(|| {
             GymError::Project(format!(
-                "no pipeline.toml in {} or any parent directory\nhint: run inside an osms project, or pass pipeline=PATH",
+                "no pipeline.toml in {} or any parent directory\nhint: run inside an osms project, or pass pipeline=PATH; `osms init DIR` writes a project (pipeline.toml and an empty store) into DIR",
                 cwd.display()
             ))
         })

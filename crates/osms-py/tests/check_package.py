@@ -3,7 +3,10 @@ default make, seed 0 current, and the stages of the identity check (tests/tests/
 builds them and writes the `rollouts.csv` of each protocol in PROTOCOLS as `osms export` does
 into REFERENCE/<stage>.csv).
 
-    python check_package.py PIPELINE REFERENCE
+    python check_package.py PIPELINE REFERENCE [--vector]
+
+``--vector`` adds section 11, the native vector environment (run once, not per install: it
+steps the same Rust code whichever install loads it).
 
 Every check is explicit (no `assert`, so `python -O` skips none) and exits non-zero with what
 failed; on success prints one JSON object of what was measured.
@@ -30,6 +33,7 @@ from osms import eval as oe
 from osms._native import Pool
 
 pipeline, reference = sys.argv[1], sys.argv[2]
+with_vector = sys.argv[3:] == ["--vector"]
 store = os.path.join(os.path.dirname(pipeline), "store")
 project = osms.Project(pipeline, None, "tiny")
 out = {}
@@ -415,163 +419,169 @@ check(
 )
 out["dev_built_on_use"] = fresh.unwrapped.protocol.n_conditions
 
-# 11. The native vector environment: each episode is its protocol's rollout, bit for bit the
-#     rows of `osms export` (store policies) and of `evaluate` (a NumPy policy), at 1, 3 and 16
-#     sub-environments and in each of gymnasium's autoreset modes; conditions handed out once
-#     each, in order; the calls LeRobot's evaluation makes, answered.
-def first_rows(env, n):
-    """The rows of the first ``n`` episodes once all of them have ended, else None."""
-    text = env.rows_csv()
-    if text is None:
-        return None
-    lines = text.splitlines()
-    col = lines[0].split(",").index("condition")
-    if [int(line.split(",")[col]) for line in lines[1 : n + 1]] != list(range(n)):
-        return None
-    return "\n".join(lines[: n + 1]) + "\n"
+def check_vector():
+    # 11. The native vector environment: each episode is its protocol's rollout, bit for bit the
+    #     rows of `osms export` (store policies) and of `evaluate` (a NumPy policy), at 1, 3 and 16
+    #     sub-environments and in each of gymnasium's autoreset modes; conditions handed out once
+    #     each, in order; the calls LeRobot's evaluation makes, answered.
+    def first_rows(env, n):
+        """The rows of the first ``n`` episodes once all of them have ended, else None."""
+        text = env.rows_csv()
+        if text is None:
+            return None
+        lines = text.splitlines()
+        col = lines[0].split(",").index("condition")
+        if [int(line.split(",")[col]) for line in lines[1 : n + 1]] != list(range(n)):
+            return None
+        return "\n".join(lines[: n + 1]) + "\n"
 
 
-def run_vector(env, act, n):
-    """Steps ``env`` with ``act(env, obs)`` until the set's first ``n`` episodes have ended;
-    their rows and the conditions each reset and autoreset started, in order."""
-    obs, info = env.reset()
-    starts = list(info["condition"])
-    mode = env.metadata["autoreset_mode"]
-    pending = np.zeros(env.num_envs, dtype=bool)
-    while (rows := first_rows(env, n)) is None:
-        obs, _, term, trunc, info = env.step(act(env, obs))
-        check(not trunc.any(), "a vector episode was truncated")
-        if mode == gymnasium.vector.AutoresetMode.NEXT_STEP:
-            starts += [int(c) for c, p in zip(info["condition"], pending) if p]
-            pending = term
-        elif mode == gymnasium.vector.AutoresetMode.SAME_STEP:
-            starts += [int(c) for c, t in zip(info["condition"], term) if t]
-            if term.any():
-                check(
-                    bool(np.array_equal(info["_final_info"], term)) and bool(np.array_equal(info["final_info"]["_is_success"], term)),
-                    "SAME_STEP's final_info masks differ from the terminations",
-                )
-        elif term.any():
-            obs, info = env.reset(options={"reset_mask": term})
-            starts += [int(c) for c, m in zip(info["condition"], info["_condition"]) if m]
-    return rows, starts
+    def run_vector(env, act, n):
+        """Steps ``env`` with ``act(env, obs)`` until the set's first ``n`` episodes have ended;
+        their rows and the conditions each reset and autoreset started, in order."""
+        obs, info = env.reset()
+        starts = list(info["condition"])
+        mode = env.metadata["autoreset_mode"]
+        pending = np.zeros(env.num_envs, dtype=bool)
+        while (rows := first_rows(env, n)) is None:
+            obs, _, term, trunc, info = env.step(act(env, obs))
+            check(not trunc.any(), "a vector episode was truncated")
+            if mode == gymnasium.vector.AutoresetMode.NEXT_STEP:
+                starts += [int(c) for c, p in zip(info["condition"], pending) if p]
+                pending = term
+            elif mode == gymnasium.vector.AutoresetMode.SAME_STEP:
+                starts += [int(c) for c, t in zip(info["condition"], term) if t]
+                if term.any():
+                    check(
+                        bool(np.array_equal(info["_final_info"], term)) and bool(np.array_equal(info["final_info"]["_is_success"], term)),
+                        "SAME_STEP's final_info masks differ from the terminations",
+                    )
+            elif term.any():
+                obs, info = env.reset(options={"reset_mask": term})
+                starts += [int(c) for c, m in zip(info["condition"], info["_condition"]) if m]
+        return rows, starts
 
 
-vector = {}
-for policy_name, protocol in [PROTOCOLS[0], PROTOCOLS[3], PROTOCOLS[5]]:
-    with open(os.path.join(reference, f"{protocol}.csv"), encoding="utf-8") as f:
-        expected = f.read()
-    policy = osms.policies.load(policy_name, project=project)
-    n_conditions = project.protocol(protocol).n_conditions
-    for n_envs in (1, 3, 16):
-        venv = osms.CatchVectorEnv(n_envs, protocol=protocol, native=policy, project=project)
-        rows, starts = run_vector(venv, lambda e, _obs: e.native_actions(policy), n_conditions)
-        check(rows == expected, f"{policy_name} on {protocol} in {n_envs} sub-environments: rows differ from osms export's")
+    vector = {}
+    for policy_name, protocol in [PROTOCOLS[0], PROTOCOLS[3], PROTOCOLS[5]]:
+        with open(os.path.join(reference, f"{protocol}.csv"), encoding="utf-8") as f:
+            expected = f.read()
+        policy = osms.policies.load(policy_name, project=project)
+        n_conditions = project.protocol(protocol).n_conditions
+        for n_envs in (1, 3, 16):
+            venv = osms.CatchVectorEnv(n_envs, protocol=protocol, native=policy, project=project)
+            rows, starts = run_vector(venv, lambda e, _obs: e.native_actions(policy), n_conditions)
+            check(rows == expected, f"{policy_name} on {protocol} in {n_envs} sub-environments: rows differ from osms export's")
+            check(
+                starts[:n_conditions] == list(range(n_conditions)),
+                f"{n_envs} sub-environments started conditions {starts[:n_conditions]}, not each once in order",
+            )
+            vector[f"{policy_name}@{protocol}/num_envs={n_envs}"] = n_conditions
+    heldout_rows = oe.evaluate(reach, "heldout", n_envs=4, project=project).csv
+    n_heldout = project.protocol(project.default_protocol("heldout")).n_conditions
+    for mode in gymnasium.vector.AutoresetMode:
+        for n_envs in (1, 3, 16):
+            venv = gymnasium.make_vec(
+                "osms/Catch-v0", num_envs=n_envs, vectorization_mode="vector_entry_point",
+                conditions="heldout", autoreset_mode=mode, project=project,
+            )
+            check(isinstance(venv, osms.CatchVectorEnv), f"make_vec's vector entry point made {type(venv)}")
+            rows, starts = run_vector(venv, lambda _e, obs: reach(obs), n_heldout)
+            check(rows == heldout_rows, f"reach in {n_envs} sub-environments under {mode}: rows differ from evaluate's")
+            check(starts[:n_heldout] == list(range(n_heldout)), f"{mode}, {n_envs} sub-environments: conditions {starts}")
+            vector[f"reach@{mode.value}/num_envs={n_envs}"] = n_heldout
+    out["vector"] = vector
+
+
+    def lerobot_rollout(env, seeds):
+        """The calls LeRobot's ``rollout()`` makes on a vector environment (lerobot/scripts/
+        lerobot_eval.py, 0.5 and later), with ``reach`` for its policy: each sub-environment's
+        success as LeRobot reads it, and the frames its video callback draws."""
+        observation, _ = env.reset(seed=seeds, options={"lerobot_new_rollout": True})
+        frames = [np.stack(env.call("render")[:1])]
+        check(isinstance(env.unwrapped.metadata.get("render_fps"), int), "no render_fps")
+        env.get_attr("task_description")
+        env.get_attr("task")
+        # LeRobot 0.4 reads the task from env.envs[0] (gymnasium 1.x's wrappers around a
+        # SyncVectorEnv's environments do not forward it: LeRobot's own limitation).
         check(
-            starts[:n_conditions] == list(range(n_conditions)),
-            f"{n_envs} sub-environments started conditions {starts[:n_conditions]}, not each once in order",
+            isinstance(env, gymnasium.vector.SyncVectorEnv) or hasattr(env.envs[0], "task_description"),
+            "LeRobot 0.4 reads env.envs[0].task_description",
         )
-        vector[f"{policy_name}@{protocol}/num_envs={n_envs}"] = n_conditions
-heldout_rows = oe.evaluate(reach, "heldout", n_envs=4, project=project).csv
-n_heldout = project.protocol(project.default_protocol("heldout")).n_conditions
-for mode in gymnasium.vector.AutoresetMode:
-    for n_envs in (1, 3, 16):
-        venv = gymnasium.make_vec(
-            "osms/Catch-v0", num_envs=n_envs, vectorization_mode="vector_entry_point",
-            conditions="heldout", autoreset_mode=mode, project=project,
-        )
-        check(isinstance(venv, osms.CatchVectorEnv), f"make_vec's vector entry point made {type(venv)}")
-        rows, starts = run_vector(venv, lambda _e, obs: reach(obs), n_heldout)
-        check(rows == heldout_rows, f"reach in {n_envs} sub-environments under {mode}: rows differ from evaluate's")
-        check(starts[:n_heldout] == list(range(n_heldout)), f"{mode}, {n_envs} sub-environments: conditions {starts}")
-        vector[f"reach@{mode.value}/num_envs={n_envs}"] = n_heldout
-out["vector"] = vector
+        check(all(isinstance(t, str) and t for t in env.call("task_description")), "no task descriptions")
+        max_steps = env.call("_max_episode_steps")[0]
+        done = np.zeros(env.num_envs, dtype=bool)
+        successes = [False] * env.num_envs
+        step = 0
+        while not np.all(done) and step < max_steps:
+            action = reach(observation)
+            observation, _, terminated, truncated, info = env.step(action)
+            frames.append(np.stack(env.call("render")[:1]))
+            if "final_info" in info:
+                is_success = info["final_info"].get("is_success", [False] * env.num_envs)
+                successes = is_success.tolist() if hasattr(is_success, "tolist") else [bool(is_success)] * env.num_envs
+            elif "is_success" in info:
+                is_success = info["is_success"]
+                successes = is_success.tolist() if hasattr(is_success, "tolist") else [bool(is_success)] * env.num_envs
+            else:
+                successes = [False] * env.num_envs
+            # LeRobot keeps each sub-environment's success from its first done step.
+            for k in range(env.num_envs):
+                if not done[k]:
+                    lerobot_rollout.first[k] = successes[k]
+            done = terminated | truncated | done
+            step += 1
+        check(bool(np.all(done)), f"episodes still running after the registered limit of {max_steps} steps")
+        return [bool(s) for s in lerobot_rollout.first], len(frames)
 
 
-def lerobot_rollout(env, seeds):
-    """The calls LeRobot's ``rollout()`` makes on a vector environment (lerobot/scripts/
-    lerobot_eval.py, 0.5 and later), with ``reach`` for its policy: each sub-environment's
-    success as LeRobot reads it, and the frames its video callback draws."""
-    observation, _ = env.reset(seed=seeds, options={"lerobot_new_rollout": True})
-    frames = [np.stack(env.call("render")[:1])]
-    check(isinstance(env.unwrapped.metadata.get("render_fps"), int), "no render_fps")
-    env.get_attr("task_description")
-    env.get_attr("task")
-    # LeRobot 0.4 reads the task from env.envs[0] (gymnasium 1.x's wrappers around a
-    # SyncVectorEnv's environments do not forward it: LeRobot's own limitation).
-    check(
-        isinstance(env, gymnasium.vector.SyncVectorEnv) or hasattr(env.envs[0], "task_description"),
-        "LeRobot 0.4 reads env.envs[0].task_description",
-    )
-    check(all(isinstance(t, str) and t for t in env.call("task_description")), "no task descriptions")
-    max_steps = env.call("_max_episode_steps")[0]
-    done = np.zeros(env.num_envs, dtype=bool)
-    successes = [False] * env.num_envs
-    step = 0
-    while not np.all(done) and step < max_steps:
-        action = reach(observation)
-        observation, _, terminated, truncated, info = env.step(action)
-        frames.append(np.stack(env.call("render")[:1]))
-        if "final_info" in info:
-            is_success = info["final_info"].get("is_success", [False] * env.num_envs)
-            successes = is_success.tolist() if hasattr(is_success, "tolist") else [bool(is_success)] * env.num_envs
-        elif "is_success" in info:
-            is_success = info["is_success"]
-            successes = is_success.tolist() if hasattr(is_success, "tolist") else [bool(is_success)] * env.num_envs
-        else:
-            successes = [False] * env.num_envs
-        # LeRobot keeps each sub-environment's success from its first done step.
-        for k in range(env.num_envs):
-            if not done[k]:
-                lerobot_rollout.first[k] = successes[k]
-        done = terminated | truncated | done
-        step += 1
-    check(bool(np.all(done)), f"episodes still running after the registered limit of {max_steps} steps")
-    return [bool(s) for s in lerobot_rollout.first], len(frames)
+    heldout_success = [row["success"] for row in oe.evaluate(reach, "heldout", indices=[4, 5, 6], project=project).rows]
+    lerobot = {}
+    for label, make in [
+        ("native", lambda: gymnasium.make_vec(
+            "osms/Catch-v0", num_envs=3, vectorization_mode="vector_entry_point", conditions="heldout",
+            autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP, render_mode="rgb_array", project=project)),
+        ("sync", lambda: gymnasium.vector.SyncVectorEnv(
+            [lambda: gymnasium.make("osms/Catch-v0", conditions="heldout", render_mode="rgb_array", project=project)] * 3,
+            autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)),
+    ]:
+        venv = make()
+        lerobot_rollout.first = [False] * 3
+        got, n_frames = lerobot_rollout(venv, [4, 5, 6])
+        check(got == heldout_success, f"LeRobot's reading of {label}'s successes {got} differs from evaluate's {heldout_success}")
+        check(venv.call("_max_episode_steps")[0] == osms.DEFAULT_MAX_STEPS, f"{label}: _max_episode_steps")
+        lerobot[label] = n_frames
+    out["lerobot_calls"] = lerobot
+
+    venv = osms.CatchVectorEnv(3, "heldout", project=project, autoreset_mode="Disabled")
+    obs, _ = venv.reset(seed=2)
+    vector_errors = {
+        "shape": raises(osms.ActionError, lambda: venv.step(np.zeros((2, osms.N_ACTION))), "(3, 24)"),
+        "nan": raises(osms.ActionError, lambda: venv.step(np.full((3, osms.N_ACTION), np.nan)), "condition 2", "channel 0"),
+        "seeds": raises(ValueError, lambda: venv.reset(seed=[1, 2]), "one per sub-environment"),
+        "mask": raises(ValueError, lambda: venv.reset(options={"reset_mask": np.zeros(3, dtype=bool)}), "no sub-environment"),
+        "option": raises(ValueError, lambda: venv.reset(options={"index": 3}), "reset_mask"),
+        "native": raises(osms.OsmsError, lambda: venv.native_actions(teacher), "rollout spec of its own"),
+        "num_envs": raises(ValueError, lambda: osms.CatchVectorEnv(0, project=project), "num_envs"),
+        "mode": raises(ValueError, lambda: osms.CatchVectorEnv(2, project=project, autoreset_mode="Sometimes"), "Sometimes"),
+        "attr": raises(AttributeError, lambda: venv.get_attr("velocity"), "task_description"),
+    }
+    while True:
+        obs, _, term, _, _ = venv.step(reach(obs))
+        if term.any():
+            break
+    vector_errors["disabled"] = raises(osms.OsmsError, lambda: venv.step(reach(obs)), "reset_mask", "autoreset is disabled")
+    other = []
+    worker = threading.Thread(target=lambda: other.append(raises(osms.OsmsError, lambda: venv.step(reach(obs)), "thread")))
+    worker.start()
+    worker.join()
+    check(len(other) == 1, "a vector environment stepped from another thread raised no OsmsError")
+    out["vector_errors"] = vector_errors
+    check(osms.CatchVectorEnv is osms.gym.CatchVectorEnv, f"osms.CatchVectorEnv is {osms.CatchVectorEnv}")
 
 
-heldout_success = [row["success"] for row in oe.evaluate(reach, "heldout", indices=[4, 5, 6], project=project).rows]
-lerobot = {}
-for label, make in [
-    ("native", lambda: gymnasium.make_vec(
-        "osms/Catch-v0", num_envs=3, vectorization_mode="vector_entry_point", conditions="heldout",
-        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP, render_mode="rgb_array", project=project)),
-    ("sync", lambda: gymnasium.vector.SyncVectorEnv(
-        [lambda: gymnasium.make("osms/Catch-v0", conditions="heldout", render_mode="rgb_array", project=project)] * 3,
-        autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)),
-]:
-    venv = make()
-    lerobot_rollout.first = [False] * 3
-    got, n_frames = lerobot_rollout(venv, [4, 5, 6])
-    check(got == heldout_success, f"LeRobot's reading of {label}'s successes {got} differs from evaluate's {heldout_success}")
-    check(venv.call("_max_episode_steps")[0] == osms.DEFAULT_MAX_STEPS, f"{label}: _max_episode_steps")
-    lerobot[label] = n_frames
-out["lerobot_calls"] = lerobot
 
-venv = osms.CatchVectorEnv(3, "heldout", project=project, autoreset_mode="Disabled")
-obs, _ = venv.reset(seed=2)
-vector_errors = {
-    "shape": raises(osms.ActionError, lambda: venv.step(np.zeros((2, osms.N_ACTION))), "(3, 24)"),
-    "nan": raises(osms.ActionError, lambda: venv.step(np.full((3, osms.N_ACTION), np.nan)), "condition 2", "channel 0"),
-    "seeds": raises(ValueError, lambda: venv.reset(seed=[1, 2]), "one per sub-environment"),
-    "mask": raises(ValueError, lambda: venv.reset(options={"reset_mask": np.zeros(3, dtype=bool)}), "no sub-environment"),
-    "option": raises(ValueError, lambda: venv.reset(options={"index": 3}), "reset_mask"),
-    "native": raises(osms.OsmsError, lambda: venv.native_actions(teacher), "rollout spec of its own"),
-    "num_envs": raises(ValueError, lambda: osms.CatchVectorEnv(0, project=project), "num_envs"),
-    "mode": raises(ValueError, lambda: osms.CatchVectorEnv(2, project=project, autoreset_mode="Sometimes"), "Sometimes"),
-    "attr": raises(AttributeError, lambda: venv.get_attr("velocity"), "task_description"),
-}
-while True:
-    obs, _, term, _, _ = venv.step(reach(obs))
-    if term.any():
-        break
-vector_errors["disabled"] = raises(osms.OsmsError, lambda: venv.step(reach(obs)), "reset_mask", "autoreset is disabled")
-other = []
-worker = threading.Thread(target=lambda: other.append(raises(osms.OsmsError, lambda: venv.step(reach(obs)), "thread")))
-worker.start()
-worker.join()
-check(len(other) == 1, "a vector environment stepped from another thread raised no OsmsError")
-out["vector_errors"] = vector_errors
-check(osms.CatchVectorEnv is osms.gym.CatchVectorEnv, f"osms.CatchVectorEnv is {osms.CatchVectorEnv}")
+if with_vector:
+    check_vector()
 
 print(json.dumps(out))

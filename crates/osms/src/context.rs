@@ -13,6 +13,9 @@ use crate::term::Printer;
 pub struct Context {
     pub pipeline_path: PathBuf,
     pub store_path: PathBuf,
+    /// The `--pipeline` and `--store` the call was given (on its command line or through
+    /// `OSMS_PIPELINE`/`OSMS_STORE`), as a command names them: a hint's command repeats them.
+    location_args: String,
     pub registry: Registry,
     pub printer: Printer,
 }
@@ -30,12 +33,29 @@ impl Context {
                 .unwrap_or(Path::new("."))
                 .join("store"),
         };
+        let mut location_args = String::new();
+        if let Some(p) = &global.pipeline {
+            location_args.push_str(&format!(" --pipeline {}", p.display()));
+        }
+        if let Some(s) = &global.store {
+            location_args.push_str(&format!(" --store {}", s.display()));
+        }
         Ok(Context {
             pipeline_path,
             store_path,
+            location_args,
             registry,
             printer: Printer::new(global),
         })
+    }
+
+    /// The `osms make` command that builds `target` under `profile` into this call's project,
+    /// in backticks, for a hint: it works where the user is.
+    pub fn make_command(&self, target: &str, profile: &str) -> String {
+        format!(
+            "`osms make {target} --profile {profile}{}`",
+            self.location_args
+        )
     }
 
     pub fn store(&self) -> Result<Store> {

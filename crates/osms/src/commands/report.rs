@@ -48,8 +48,9 @@ pub fn write(
     };
     let (Some(key), State::Cached) = (root.key, root.state) else {
         bail!(
-            "stage `{stage}` has no current build under profile `{}`\nhint: `osms make {stage}` builds it",
-            plan.profile
+            "stage `{stage}` has no current build under profile `{}`\nhint: {} builds it",
+            plan.profile,
+            ctx.make_command(stage, &plan.profile)
         );
     };
     let record = store

@@ -36,10 +36,11 @@ pub(super) fn resolve(ctx: &Context, target: &str, selection: &Selection) -> Res
         };
         let Some(record) = found else {
             bail!(
-                "stage `{}` has no current build under profile `{}` ({})\nhint: `osms make {target}` builds it",
+                "stage `{}` has no current build under profile `{}` ({})\nhint: {} builds it",
                 s.instance,
                 plan.profile,
-                describe(&s.reasons)
+                describe(&s.reasons),
+                ctx.make_command(target, &plan.profile)
             );
         };
         return Ok(Resolved {
