@@ -16,6 +16,7 @@ mod error;
 pub mod native;
 pub mod pool;
 pub mod project;
+mod slot;
 pub mod vector;
 
 pub use error::{ActionProblem, GymError, Result};

@@ -15,8 +15,8 @@ use osms_sim::{Policy, PolicyView, RolloutSpec};
 use self_cell::self_cell;
 
 use crate::error::{GymError, Result};
-use crate::pool::Slot;
 use crate::project::{Project, Protocol};
+use crate::slot::Slot;
 
 /// A policy of the store, loaded once: its per-rollout state in a pool is keyed by this load
 /// ([`Native::id`]), never by its name, so two loads (of one stage, or of same-named stages of

@@ -5,146 +5,14 @@ use std::sync::Arc;
 
 use osms_sim::artifacts::EvalRow;
 use osms_sim::control::{Action, N_ACTION};
-use osms_sim::episode::Observed;
-use osms_sim::{Episode, NoHooks, PolicyView, RolloutRecord, RolloutSpec, World};
+use osms_sim::{Episode, PolicyView, RolloutRecord, RolloutSpec};
 use rayon::prelude::*;
-use self_cell::self_cell;
 
 use crate::error::{ActionProblem, GymError, Result};
 use crate::native::{Asked, Native, NativeStates};
 use crate::project::Protocol;
-
-/// What an episode borrows: the world and its rollout spec.
-struct Setting {
-    world: Arc<World>,
-    spec: Arc<RolloutSpec>,
-}
-
-type MaybeEpisode<'a> = Option<Episode<'a>>;
-
-self_cell!(
-    /// A running episode with the world and spec it borrows; empty once finished.
-    struct LiveEpisode {
-        owner: Setting,
-        #[covariant]
-        dependent: MaybeEpisode,
-    }
-);
-
-/// One rollout in progress: its condition index and the observation awaiting an action.
-pub(crate) struct Slot {
-    live: LiveEpisode,
-    pub index: usize,
-    observed: Option<Observed>,
-}
-
-impl Slot {
-    pub fn start(protocol: &Protocol, spec: &Arc<RolloutSpec>, index: usize) -> Slot {
-        let setting = Setting {
-            world: protocol.world.clone(),
-            spec: spec.clone(),
-        };
-        let condition = protocol.conditions[index].clone();
-        let dr = protocol.dr_rng(index);
-        Slot {
-            live: LiveEpisode::new(setting, |s| {
-                Some(Episode::new(&s.world, &s.spec, condition, dr))
-            }),
-            index,
-            observed: None,
-        }
-    }
-
-    pub fn episode(&self) -> &Episode<'_> {
-        self.live
-            .borrow_dependent()
-            .as_ref()
-            .expect("a slot holds its episode until it is finished")
-    }
-
-    /// Observes the next control step; false once the episode is over.
-    pub fn observe(&mut self, reads_contact_force: bool) -> bool {
-        let observed = self.live.with_dependent_mut(|_, e| {
-            e.as_mut().and_then(|e| e.observe_step(reads_contact_force))
-        });
-        self.observed = observed;
-        self.observed.is_some()
-    }
-
-    /// Runs `action` on the observed step; false once the episode is over.
-    pub fn act_only(&mut self, action: Action) -> bool {
-        let observed = self
-            .observed
-            .take()
-            .expect("an action answers an observation");
-        self.live.with_dependent_mut(|_, e| {
-            e.as_mut()
-                .is_some_and(|e| e.act_step(observed, action, &mut NoHooks))
-        })
-    }
-
-    /// Runs `action` on the observed step; the finished record once the episode is over (the
-    /// episode is gone then).
-    pub fn act(&mut self, action: Action) -> Option<RolloutRecord> {
-        if self.act_only(action) {
-            None
-        } else {
-            self.take_record()
-        }
-    }
-
-    pub fn take_record(&mut self) -> Option<RolloutRecord> {
-        self.live
-            .with_dependent_mut(|_, e| e.take().map(Episode::finish))
-    }
-
-    /// The record as [`Episode::finish`] would return it, the episode kept (to draw it).
-    pub fn record_now(&self) -> RolloutRecord {
-        let e = self.episode();
-        let mut record = e.record().clone();
-        (record.outcome, record.metrics) = e.outcome();
-        record
-    }
-
-    pub fn view(&self) -> PolicyView<'_> {
-        let observed = self
-            .observed
-            .as_ref()
-            .expect("a view is of an observed step");
-        self.episode().view(observed)
-    }
-
-    pub fn step(&self) -> usize {
-        self.episode().step_index()
-    }
-
-    /// What an environment reports of this episode: running, or ended (`done`) with its
-    /// outcome.
-    pub fn info(&self, done: bool) -> StepInfo {
-        let e = self.episode();
-        let (o, m) = e.outcome();
-        StepInfo {
-            condition: self.index,
-            steps: e.step_index(),
-            done,
-            success: done && o.success(),
-            completion: done && o.completion(),
-            v_rel_mps: m.contact_speed_mps,
-            f_max_n: m.contact_time_secs.map(|_| m.max_force_n),
-            l_max_m: m.follow_through_m,
-            failures: o
-                .failures
-                .iter()
-                .map(|&f| osms_export::rollouts::failure_key(f))
-                .collect(),
-        }
-    }
-
-    /// The phase the last control step ended in; none before the first.
-    pub fn last_phase(&self) -> Option<u8> {
-        self.episode().record().phase.last().copied()
-    }
-}
+use crate::slot::Slot;
+pub use crate::slot::StepInfo;
 
 /// Fails unless `action` is one the world runs: 24 finite channels in [−1, 1].
 pub fn check_action(action: &[f64], condition: usize, step: usize) -> Result<Action> {
@@ -180,7 +48,7 @@ fn awaiting(slots: &[Option<Slot>], k: usize) -> Result<&Slot> {
     slots
         .get(k)
         .and_then(Option::as_ref)
-        .filter(|s| s.observed.is_some())
+        .filter(|s| s.awaits_action())
         .ok_or_else(|| GymError::State(format!("slot {k} awaits no action")))
 }
 
@@ -287,7 +155,7 @@ impl Pool {
                 .slots
                 .par_iter_mut()
                 .map(|slot| match slot {
-                    Some(s) if s.observed.is_none() => s.observe(reads),
+                    Some(s) if !s.awaits_action() => s.observe(reads),
                     Some(_) => true,
                     None => false,
                 })
@@ -341,9 +209,11 @@ impl Pool {
             let slot = self.awaiting(k)?;
             checked[k] = Some(check_action(&a, slot.index, slot.step())?);
         }
-        if let Some(k) = self.slots.iter().enumerate().position(|(k, s)| {
-            s.as_ref().is_some_and(|s| s.observed.is_some()) && checked[k].is_none()
-        }) {
+        if let Some(k) =
+            self.slots.iter().enumerate().position(|(k, s)| {
+                s.as_ref().is_some_and(Slot::awaits_action) && checked[k].is_none()
+            })
+        {
             return Err(GymError::State(format!(
                 "condition {} awaits an action",
                 self.slot(k).index
@@ -419,26 +289,6 @@ impl Pool {
             .filter_map(|(&i, r)| r.as_ref().map(|r| (i, EvalRow::of(r.clone()))))
             .collect())
     }
-}
-
-/// What an environment reports after a step.
-#[derive(Debug, Clone, PartialEq)]
-pub struct StepInfo {
-    pub condition: usize,
-    /// Control steps taken.
-    pub steps: usize,
-    pub done: bool,
-    /// The outcome as it stands (final once done).
-    pub success: bool,
-    pub completion: bool,
-    /// v_rel at first contact (m/s), once it happened.
-    pub v_rel_mps: Option<f64>,
-    /// f_max within Δt_eval of first contact (N), once it happened.
-    pub f_max_n: Option<f64>,
-    /// ℓ_max (m).
-    pub l_max_m: f64,
-    /// The failure kinds, by their stored names (`drop`, `force_exceeded`).
-    pub failures: Vec<String>,
 }
 
 /// One episode at a time, stepped by the caller: a gymnasium environment's core. An ended

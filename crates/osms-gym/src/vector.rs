@@ -12,8 +12,9 @@ use rayon::prelude::*;
 
 use crate::error::{GymError, Result};
 use crate::native::{Asked, Native, NativeStates};
-use crate::pool::{Slot, StepInfo, check_action};
+use crate::pool::check_action;
 use crate::project::Protocol;
+use crate::slot::{Slot, StepInfo};
 
 /// When an ended episode's sub-environment starts its next one (gymnasium's `AutoresetMode`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

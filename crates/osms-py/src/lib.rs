@@ -569,7 +569,7 @@ fn draw<'py>(
                     .map_err(|e| OsmsError::new_err(e.to_string()))?;
             let camera = osms_render::CameraSpec::catch_view(protocol.world.home_palm_pos);
             let r = osms_render::Renderer::new(&model, RENDER_SIDE, RENDER_SIDE, &camera)
-                .map_err(|e| OsmsError::new_err(format!("{e}\nhint: scripts/setup-render installs the offscreen renderer (Debian's OSMesa)")))?;
+                .map_err(|e| OsmsError::new_err(format!("{e}\nhint: rendering needs Mesa's offscreen OpenGL library libOSMesa.so.8 (Debian: `apt-get install libosmesa6`; in a checkout, `scripts/setup-render`)")))?;
             renderers.push((variant, r));
             &mut renderers.last_mut().expect("just pushed").1
         }
