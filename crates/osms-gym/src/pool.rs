@@ -197,16 +197,12 @@ impl Pool {
         self.slot(k).step()
     }
 
-    fn awaiting(&self, k: usize) -> Result<&Slot> {
-        awaiting(&self.slots, k)
-    }
-
     /// Runs one action per observed slot (`(slot, action)`), in parallel; an action the world
     /// cannot run fails the call before any episode moves.
     pub fn act(&mut self, actions: Vec<(usize, Vec<f64>)>) -> Result<()> {
         let mut checked: Vec<Option<Action>> = vec![None; self.slots.len()];
         for (k, a) in actions {
-            let slot = self.awaiting(k)?;
+            let slot = awaiting(&self.slots, k)?;
             checked[k] = Some(check_action(&a, slot.index, slot.step())?);
         }
         if let Some(k) =

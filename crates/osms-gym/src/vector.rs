@@ -73,6 +73,20 @@ struct Sub {
     frame: Frame,
 }
 
+impl Sub {
+    /// What a sub-environment reports when this episode has just started.
+    fn first_report(&self) -> SubStep {
+        SubStep {
+            frame: self.frame.clone(),
+            reward: 0.0,
+            terminated: false,
+            truncated: false,
+            info: self.slot.info(!self.running),
+            ended: None,
+        }
+    }
+}
+
 /// What a step does to one sub-environment.
 enum Move {
     Act(Action),
@@ -162,10 +176,6 @@ impl VectorEpisodes {
         self.privileged
     }
 
-    pub fn mode(&self) -> Autoreset {
-        self.mode
-    }
-
     /// The condition sub-environment `k`'s episode runs (or ran, once ended); none before its
     /// first reset.
     pub fn condition(&self, k: usize) -> Option<usize> {
@@ -229,18 +239,7 @@ impl VectorEpisodes {
         let started = self.start_all(&planned);
         let mut out = Vec::with_capacity(started.len());
         for (k, sub) in started {
-            let info = sub.slot.info(!sub.running);
-            out.push((
-                k,
-                SubStep {
-                    frame: sub.frame.clone(),
-                    reward: 0.0,
-                    terminated: false,
-                    truncated: false,
-                    info,
-                    ended: None,
-                },
-            ));
+            out.push((k, sub.first_report()));
             self.subs[k] = Some(sub);
         }
         self.generation += 1;
@@ -320,14 +319,7 @@ impl VectorEpisodes {
             .map(|(sub, m)| match m {
                 Move::Start(index, episode) => {
                     let new = start(protocol, spec, index, episode, reads, privileged);
-                    let report = SubStep {
-                        frame: new.frame.clone(),
-                        reward: 0.0,
-                        terminated: false,
-                        truncated: false,
-                        info: new.slot.info(!new.running),
-                        ended: None,
-                    };
+                    let report = new.first_report();
                     (Some(new), report)
                 }
                 Move::Act(action) => {
@@ -382,10 +374,10 @@ impl VectorEpisodes {
                 self.end_native(k);
             }
             for (k, new) in self.start_all(&planned) {
+                let first = new.first_report();
                 let report = &mut reports[k];
-                let (frame, info) = (new.frame.clone(), new.slot.info(!new.running));
-                let ended_frame = std::mem::replace(&mut report.frame, frame);
-                let ended_info = std::mem::replace(&mut report.info, info);
+                let ended_frame = std::mem::replace(&mut report.frame, first.frame);
+                let ended_info = std::mem::replace(&mut report.info, first.info);
                 report.ended = Some((ended_frame, ended_info));
                 self.subs[k] = Some(new);
             }

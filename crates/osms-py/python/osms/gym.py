@@ -79,8 +79,7 @@ class CatchEnv(gym.Env):
         self._project = _project(pipeline, store, profile, project)
         self._privileged = bool(privileged)
         self._set_protocol(_protocol(self._project, conditions, protocol))
-        names = _channels()
-        self.channels = names if privileged else {k: v for k, v in names.items() if k != "environment_state"}
+        self.channels = _channels_shown(privileged)
         self.observation_space = _observation_space(self._privileged)
         self.action_space = spaces.Box(-1.0, 1.0, (N_ACTION,), np.float32)
         self._next = 0
@@ -93,11 +92,7 @@ class CatchEnv(gym.Env):
         self._core = _Env(proto, self._privileged)
 
     def _same_thread(self, call):
-        if threading.get_ident() != self._thread:
-            raise OsmsError(
-                f"CatchEnv.{call}() from another thread than the one that made the environment: "
-                "its MuJoCo renderer is bound to that thread; make one environment per thread"
-            )
+        _check_thread(self, call)
 
     def reset(self, *, seed=None, options=None):
         """Starts a condition: ``options={"index": i}``, else ``seed mod n``, else the next
@@ -151,6 +146,22 @@ class CatchEnv(gym.Env):
         """The ended episode's row of ``rollouts.csv`` (with its header), else None."""
         self._same_thread("row_csv")
         return self._core.row_csv()
+
+
+def _check_thread(env, call):
+    """Refuses a call from another thread than the one that made ``env``: its MuJoCo renderers
+    are bound to that thread."""
+    if threading.get_ident() != env._thread:
+        raise OsmsError(
+            f"{type(env).__name__}.{call}() from another thread than the one that made the environment: "
+            "its MuJoCo renderers are bound to that thread; make one environment per thread"
+        )
+
+
+def _channels_shown(privileged):
+    """The channel names of the observations an environment returns."""
+    names = _channels()
+    return names if privileged else {k: v for k, v in names.items() if k != "environment_state"}
 
 
 def _observation_space(privileged):
@@ -247,8 +258,7 @@ class CatchVectorEnv(VectorEnv):
             "render_modes": ["rgb_array"],
             "render_fps": int(round(self.protocol.control_hz)),
         }
-        names = _channels()
-        self.channels = names if privileged else {k: v for k, v in names.items() if k != "environment_state"}
+        self.channels = _channels_shown(privileged)
         self.single_observation_space = _observation_space(self._privileged)
         self.single_action_space = spaces.Box(-1.0, 1.0, (N_ACTION,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -256,11 +266,7 @@ class CatchVectorEnv(VectorEnv):
         self.closed = False
 
     def _same_thread(self, call):
-        if threading.get_ident() != self._thread:
-            raise OsmsError(
-                f"CatchVectorEnv.{call}() from another thread than the one that made the environment: "
-                "its MuJoCo renderers are bound to that thread; make one environment per thread"
-            )
+        _check_thread(self, call)
 
     def reset(self, *, seed=None, options=None):
         """Starts episodes in every sub-environment (or those ``options["reset_mask"]``
