@@ -133,6 +133,7 @@ pub fn outcomes(report: &MakeReport) -> BTreeMap<String, &'static str> {
             let label = match r.outcome {
                 Outcome::Built { .. } => "built",
                 Outcome::Cached => "cached",
+                Outcome::Pulled { .. } => "pulled",
                 Outcome::CutOff => "cut off",
                 Outcome::WouldBuild { .. } => "would build",
                 Outcome::Failed { .. } => "failed",

@@ -43,6 +43,10 @@ pub enum Outcome {
     },
     /// Found in the store.
     Cached,
+    /// Not in the store, found on a remote and downloaded (`osms make --remote`).
+    Pulled {
+        bytes: u64,
+    },
     /// Found in the store although an input was rebuilt in this run: the rebuilt input
     /// reproduced the bytes it had before, so nothing downstream had to run.
     CutOff,
@@ -114,6 +118,15 @@ impl Observer for Silent {
 
 pub const OSMS_VERSION: &str = env!("CARGO_PKG_VERSION");
 
+/// Where a make looks for an artifact it lacks before building it: a remote cache
+/// (`osms_remote`, which this crate does not depend on: the CLI joins the two).
+pub trait Fetch: Sync {
+    /// Brings the artifact of stage key `key` into `store` (objects first, then the record)
+    /// and returns its record with the bytes downloaded, or `None` if the remote lacks it.
+    /// An error is the remote's trouble, not the stage's: the make warns and builds.
+    fn fetch(&self, store: &Store, key: &Hash) -> std::result::Result<Option<(Record, u64)>, String>;
+}
+
 /// Builds `opts.targets`, holding the store's lock for the make (none for a dry run).
 pub fn make(
     plan: &Plan,
@@ -126,7 +139,24 @@ pub fn make(
     } else {
         Some(store.lock(|| observer.waiting_for_lock())?)
     };
-    make_locked(plan, store, opts, observer)
+    make_locked(plan, store, opts, observer, None)
+}
+
+/// [`make`] that asks `fetch` for every instance it would build, and builds only what the
+/// remote lacks. A dry run asks nothing.
+pub fn make_fetching(
+    plan: &Plan,
+    store: &Store,
+    opts: &MakeOptions,
+    observer: &dyn Observer,
+    fetch: &dyn Fetch,
+) -> Result<MakeReport> {
+    let _lock = if opts.dry_run {
+        None
+    } else {
+        Some(store.lock(|| observer.waiting_for_lock())?)
+    };
+    make_locked(plan, store, opts, observer, Some(fetch))
 }
 
 /// [`make`] for a caller that already holds the store's lock (`_held`) and keeps it past the
@@ -138,7 +168,7 @@ pub fn make_holding(
     opts: &MakeOptions,
     observer: &dyn Observer,
 ) -> Result<MakeReport> {
-    make_locked(plan, store, opts, observer)
+    make_locked(plan, store, opts, observer, None)
 }
 
 fn make_locked(
@@ -146,6 +176,7 @@ fn make_locked(
     store: &Store,
     opts: &MakeOptions,
     observer: &dyn Observer,
+    fetch: Option<&dyn Fetch>,
 ) -> Result<MakeReport> {
     let jobs = opts.jobs.max(1);
     let instances = plan.instances(&opts.targets, &opts.seeds)?;
@@ -321,6 +352,35 @@ fn make_locked(
                 }
                 Found::Build(reason) => reason,
             };
+            if let Some(fetch) = fetch.filter(|_| !opts.dry_run) {
+                let started = Instant::now();
+                match fetch.fetch(store, &key) {
+                    Ok(Some((rec, bytes))) => {
+                        available.insert(id, rec.content_hash);
+                        if plan.record_heads
+                            && let Err(e) = heads.update(&name, &rec)
+                        {
+                            tracing::warn!("`{name}`: cannot update its head in the store: {e}");
+                        }
+                        let r = InstanceReport {
+                            instance: name,
+                            key: Some(key),
+                            content_hash: Some(rec.content_hash),
+                            outcome: Outcome::Pulled { bytes },
+                            wall_time_secs: started.elapsed().as_secs_f64(),
+                            cpu_secs: 0.0,
+                        };
+                        observer.finished(&r);
+                        report.instances.push(r);
+                        continue;
+                    }
+                    Ok(None) => {}
+                    Err(e) => observer.note(&format!(
+                        "warning: `{name}`: the remote could not serve key {} ({e}); building it here",
+                        key.short()
+                    )),
+                }
+            }
 
             if opts.dry_run {
                 unavailable.insert(id, name.clone());

@@ -299,12 +299,14 @@ pub fn user_config_path() -> Option<PathBuf> {
     path.is_file().then_some(path)
 }
 
-/// A user config file: only an `[executor]` table.
+/// A user config file: an `[executor]` table and `[remotes.NAME]` tables.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct UserConfig {
     #[serde(default)]
     executor: ExecutorConfig,
+    #[serde(default)]
+    remotes: BTreeMap<String, crate::RemoteSpec>,
 }
 
 /// Reads a user config file, with errors located in it. Per-stage tables for stages this
@@ -315,6 +317,20 @@ pub fn load_user_config(
     stage_names: &[&str],
     unknown: &mut Vec<String>,
 ) -> Result<ExecutorConfig> {
+    Ok(read_user_config(path, stage_names, unknown)?.executor)
+}
+
+/// The `[remotes.NAME]` tables of a user config file (which win over the pipeline's of the
+/// same name, as its `[executor]` does).
+pub fn load_user_remotes(path: &Path) -> Result<BTreeMap<String, crate::RemoteSpec>> {
+    Ok(read_user_config(path, &[], &mut Vec::new())?.remotes)
+}
+
+fn read_user_config(
+    path: &Path,
+    stage_names: &[&str],
+    unknown: &mut Vec<String>,
+) -> Result<UserConfig> {
     let source = std::fs::read_to_string(path).map_err(|source| Error::Read {
         path: path.to_path_buf(),
         source,
@@ -332,8 +348,8 @@ pub fn load_user_config(
             location,
             e.message().trim_end().to_string(),
             Some(
-                "a user config holds only [executor] and [executor.slurm] tables; see \
-                 \"Running on a cluster\" in README.md"
+                "a user config holds only [executor], [executor.slurm] and [remotes.NAME] \
+                 tables; see \"Running on a cluster\" and \"Remotes\" in README.md"
                     .into(),
             ),
         )
@@ -357,7 +373,7 @@ pub fn load_user_config(
             .filter(|n| !stage_names.contains(&n.as_str()))
             .cloned(),
     );
-    Ok(parsed.executor)
+    Ok(parsed)
 }
 
 #[cfg(test)]

@@ -24,8 +24,8 @@ pub use cpu::{free_bytes, thread_secs as thread_cpu_secs};
 pub use error::{Error, Invalid, Location, Result};
 pub use estimate::{Estimate, InstanceEstimate, Measured, estimate, scales};
 pub use exec::{
-    InstanceReport, MakeOptions, MakeReport, Observer, Outcome, Silent, StoreObjects, make,
-    make_holding, storage_hint,
+    Fetch, InstanceReport, MakeOptions, MakeReport, Observer, Outcome, Silent, StoreObjects, make,
+    make_fetching, make_holding, storage_hint,
 };
 pub use heads::{ParamChange, Reason, describe};
 pub use kind::{
@@ -34,7 +34,7 @@ pub use kind::{
     RunOutput, Scale, ShardRun, Sharded, Slot, Stage, StageError, Summarize, assemble,
     items_one_by_one,
 };
-pub use pipeline::{Pipeline, StageSpec};
+pub use pipeline::{Pipeline, RemoteSpec, StageSpec};
 pub use plan::{
     FoldRef, InputInstance, InstanceId, Plan, PlannedInput, PlannedStage, checkpoint_key,
     shard_key, shard_ranges,

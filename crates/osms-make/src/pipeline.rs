@@ -31,7 +31,12 @@
 //!
 //! [profiles.decide]
 //! seeds = [0, 1, 2, 3, 4]     # a profile's own run seeds replace [pipeline]'s
+//!
+//! [remotes.lab]               # a remote artifact cache (`osms push`, `osms pull`)
+//! url = "s3://bucket/osms"    # s3://, http(s):// or file:///; credentials from AWS_*
 //! ```
+//!
+//! `[pipeline] remote = "lab"` makes a remote the default of push, pull and `make --remote`.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -53,6 +58,17 @@ struct RawPipeline {
     profiles: BTreeMap<String, RawProfile>,
     #[serde(default)]
     executor: ExecutorConfig,
+    #[serde(default)]
+    remotes: BTreeMap<String, RemoteSpec>,
+}
+
+/// `[remotes.NAME]`: a remote artifact cache. Credentials never go here: they come from the
+/// environment (the standard `AWS_*` variables).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RemoteSpec {
+    /// `s3://BUCKET/PREFIX`, `http(s)://HOST/PATH` or `file:///PATH`.
+    pub url: String,
 }
 
 #[derive(Deserialize)]
@@ -68,6 +84,7 @@ struct RawMeta {
     experiment_targets: Vec<String>,
     #[serde(default)]
     held_out: Vec<String>,
+    remote: Option<String>,
 }
 
 fn default_profile() -> String {
@@ -83,6 +100,7 @@ impl Default for RawMeta {
             targets: Vec::new(),
             experiment_targets: Vec::new(),
             held_out: Vec::new(),
+            remote: None,
         }
     }
 }
@@ -197,6 +215,10 @@ pub struct Pipeline {
     pub stages: BTreeMap<String, StageSpec>,
     /// `[executor]`: where stages run (never part of a key).
     pub executor: ExecutorConfig,
+    /// `[remotes.NAME]`: remote artifact caches (never part of a key).
+    pub remotes: BTreeMap<String, RemoteSpec>,
+    /// `[pipeline] remote`: the remote push, pull and `make --remote` use when given none.
+    pub default_remote: Option<String>,
     source: String,
     doc: toml_edit::Document<String>,
 }
@@ -337,6 +359,15 @@ impl Pipeline {
         let names: Vec<&str> = stages.keys().map(String::as_str).collect();
         raw.executor
             .validate(&names, &|keys| key_location(path, &source, &doc, keys))?;
+        for name in raw.remotes.keys() {
+            if !valid_name(name) {
+                return Err(Error::invalid(
+                    key_location(path, &source, &doc, &["remotes", name]),
+                    format!("remote name `{name}` is not allowed"),
+                    Some("use letters, digits, `_` and `-`, starting with a letter".into()),
+                ));
+            }
+        }
         Ok(Pipeline {
             path: path.to_path_buf(),
             profile,
@@ -347,6 +378,8 @@ impl Pipeline {
             held_out: raw.pipeline.held_out,
             stages,
             executor: raw.executor,
+            remotes: raw.remotes,
+            default_remote: raw.pipeline.remote,
             source,
             doc,
         })

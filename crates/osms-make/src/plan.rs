@@ -80,6 +80,10 @@ pub struct Plan {
     pub held_out: Vec<String>,
     /// `[executor]` of the pipeline (a user config may overlay it).
     pub executor: crate::executor::ExecutorConfig,
+    /// `[remotes.NAME]` of the pipeline (a user config may add or replace some).
+    pub remotes: BTreeMap<String, crate::RemoteSpec>,
+    /// `[pipeline] remote`.
+    pub default_remote: Option<String>,
     /// Whether a make of this plan records what it built as the instances' heads (what
     /// `status` compares against). Off for experiments, whose variants leave them be.
     pub record_heads: bool,
@@ -403,6 +407,8 @@ impl Plan {
             experiment_targets: pipeline.experiment_targets.clone(),
             held_out: pipeline.held_out.clone(),
             executor: pipeline.executor.clone(),
+            remotes: pipeline.remotes.clone(),
+            default_remote: pipeline.default_remote.clone(),
             record_heads: true,
             index,
         })

@@ -77,6 +77,11 @@ pub enum Command {
     Verify(JsonArg),
     /// Remove objects that no current stage key and no named experiment reaches
     Gc(GcArgs),
+    /// Upload the targets' current builds (objects, then their stage records) to a remote cache
+    Push(TransferArgs),
+    /// Download the targets' builds from a remote cache, following stage keys from the first
+    /// stage down; builds nothing
+    Pull(TransferArgs),
     /// Named experiments: run variants of the pipeline (overrides, sweeps) and compare them
     #[command(subcommand)]
     Exp(ExpCommand),
@@ -278,7 +283,34 @@ pub struct MakeArgs {
     /// cluster" in README.md) [default: `[executor] kind`, else local]
     #[arg(long, value_name = "local|slurm")]
     pub executor: Option<osms_make::executor::ExecutorKind>,
+    /// Before building an instance, look its stage key up on this remote cache and download it
+    /// if found [default: `[pipeline] remote`, if set]
+    #[arg(long, short = 'r', value_name = "NAME", conflicts_with = "no_remote")]
+    pub remote: Option<String>,
+    /// Build everything here, even if the pipeline names a default remote
+    #[arg(long)]
+    pub no_remote: bool,
     /// Print the report as JSON on stdout
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `osms push` and `osms pull`.
+#[derive(Debug, Args)]
+pub struct TransferArgs {
+    /// Stages whose builds move, with everything they need [default: the pipeline's
+    /// `targets`, else every stage]
+    pub targets: Vec<String>,
+    #[command(flatten)]
+    pub selection: Selection,
+    /// The remote: a `[remotes.NAME]` of pipeline.toml or of the user config
+    /// [default: `[pipeline] remote`]
+    #[arg(long, short = 'r', value_name = "NAME")]
+    pub remote: Option<String>,
+    /// Transfers at once
+    #[arg(long, value_name = "N", default_value_t = osms_remote::DEFAULT_JOBS)]
+    pub transfers: usize,
+    /// Print what moved as JSON on stdout
     #[arg(long)]
     pub json: bool,
 }

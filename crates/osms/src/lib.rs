@@ -43,13 +43,14 @@ pub fn main_with(registry: Registry) -> ExitCode {
 
 fn init_logging(global: &cli::Global) {
     // MuJoCo's own messages (targets `mujoco`, `mujoco::<topic>`) include compile timings at
-    // info level: show its warnings and errors only, unless asked to be verbose.
+    // info level, and object_store logs each retry of a remote's request: show their warnings
+    // and errors only, unless asked to be verbose (a failed transfer's error says it all).
     let default = if global.quiet {
         "error"
     } else if global.verbose {
         "debug"
     } else {
-        "info,mujoco=warn"
+        "info,mujoco=warn,object_store=warn"
     };
     let filter = tracing_subscriber::EnvFilter::try_from_env("OSMS_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));

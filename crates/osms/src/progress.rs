@@ -112,6 +112,12 @@ impl Observer for MakeObserver {
                 "  cut off {} {hash} (inputs rebuilt to the same bytes)",
                 r.instance
             )),
+            Outcome::Pulled { bytes } => self.line(&format!(
+                "  pulled {} -> {hash} ({}) in {:.2}s",
+                r.instance,
+                crate::commands::human_bytes(*bytes),
+                r.wall_time_secs
+            )),
             Outcome::Cached | Outcome::CutOff => {}
         }
     }

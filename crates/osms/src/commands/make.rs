@@ -41,8 +41,31 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     if !args.dry_run && ctx.printer.says() {
         warn_if_short_of_space(ctx, &plan, &store, &opts, &seeds);
     }
+    // The remote is opened (and asked for its listing) before anything builds, so a bad URL,
+    // server or credential fails at once; a dry run asks it nothing.
+    let remote_name = if args.no_remote {
+        None
+    } else {
+        args.remote.as_deref().or(plan.default_remote.as_deref())
+    };
+    let fetch = match remote_name {
+        Some(name) if !args.dry_run => {
+            if executor == ExecutorKind::Slurm {
+                bail!(
+                    "--remote does not combine with --executor slurm yet\nhint: `osms pull --remote {name}` first, then `osms make --executor slurm --no-remote`"
+                );
+            }
+            Some(crate::commands::remote::MakeFetch {
+                remote: crate::commands::remote::open(ctx, &plan, Some(name), osms_remote::DEFAULT_JOBS)?,
+                bar: crate::commands::remote::Bar::new(ctx, "pulling"),
+            })
+        }
+        _ => None,
+    };
     // A dry run submits nothing: it is the same plan whatever the executor.
-    let report = if executor == ExecutorKind::Slurm && !args.dry_run {
+    let report = if let Some(fetch) = &fetch {
+        osms_make::make_fetching(&plan, &store, &opts, &observer, fetch)?
+    } else if executor == ExecutorKind::Slurm && !args.dry_run {
         let launch = launch(ctx, &store, &config)?;
         osms_make::slurm::make_slurm(&plan, &store, &opts, &config, &SlurmCli, &launch, &observer)?
     } else {
@@ -73,6 +96,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     let built = report.count(|o| matches!(o, Outcome::Built { .. }));
     let cached = report.count(|o| matches!(o, Outcome::Cached));
     let cut = report.count(|o| matches!(o, Outcome::CutOff));
+    let pulled = report.count(|o| matches!(o, Outcome::Pulled { .. }));
     let failed = report.failed();
     if ctx.printer.says() {
         let seeds_text = seeds
@@ -100,7 +124,12 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             format!(", {skipped} skipped")
         };
         errln!(
-            "osms make: {what}, {cached} cached, {cut} cut off{failed_text}{skipped_text} (profile {}, seed {seeds_text}) in {:.2}s",
+            "osms make: {what}, {cached} cached, {cut} cut off{}{failed_text}{skipped_text} (profile {}, seed {seeds_text}) in {:.2}s",
+            if fetch.is_some() {
+                format!(", {pulled} pulled")
+            } else {
+                String::new()
+            },
             plan.profile,
             started.elapsed().as_secs_f64()
         );
@@ -357,7 +386,10 @@ fn write_reports(
             i.instance == stage.name
                 && matches!(
                     i.outcome,
-                    Outcome::Built { .. } | Outcome::Cached | Outcome::CutOff
+                    Outcome::Built { .. }
+                        | Outcome::Cached
+                        | Outcome::CutOff
+                        | Outcome::Pulled { .. }
                 )
         });
         if !done {

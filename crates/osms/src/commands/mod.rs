@@ -12,6 +12,7 @@ mod kinds;
 mod ls;
 mod make;
 mod outdir;
+mod remote;
 mod render;
 mod replay;
 mod report;
@@ -53,6 +54,8 @@ pub fn run(cli: Cli, registry: Registry) -> Result<ExitCode> {
         Command::Ls(args) => ls::ls(&ctx, args.json),
         Command::Verify(args) => verify::run(&ctx, args.json),
         Command::Gc(args) => gc::run(&ctx, &args),
+        Command::Push(args) => remote::push(&ctx, &args),
+        Command::Pull(args) => remote::pull(&ctx, &args),
         Command::Exp(command) => exp::run(&ctx, command),
         Command::World(crate::cli::WorldCommand::Dump(args)) => world::dump(&ctx, &args),
         Command::RunTask(args) => task::run(&ctx, &args),
