@@ -9,6 +9,7 @@ pub mod artifacts;
 pub mod golden;
 pub mod project;
 pub mod python;
+pub mod s3;
 pub mod stages;
 
 pub use project::Project;

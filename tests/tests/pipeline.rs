@@ -12,6 +12,9 @@ use osms_store::{Hash, Store};
 use osms_tests::golden;
 use osms_tests::project::{Silent, hashes};
 
+#[path = "pipeline/remote.rs"]
+mod remote;
+
 fn shipped() -> String {
     std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml"))
         .expect("pipeline.toml")
@@ -201,6 +204,7 @@ fn tiny_outputs_do_not_depend_on_threads_or_shards_and_match_the_golden_hashes()
         "other shard counts"
     );
     the_report_shows_its_sources(&first);
+    remote::a_remote_cache_serves_a_fresh_store(&first);
     datasets_export_replay_and_render(&first);
     a_sweep_rebuilds_only_its_seeds_and_the_aggregates(&first, &text);
     paired_experiments_compare_rollout_by_rollout(&first);

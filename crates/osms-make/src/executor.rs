@@ -306,7 +306,7 @@ struct UserConfig {
     #[serde(default)]
     executor: ExecutorConfig,
     #[serde(default)]
-    remotes: BTreeMap<String, crate::RemoteSpec>,
+    remotes: BTreeMap<String, crate::remotes::RemoteSpec>,
 }
 
 /// Reads a user config file, with errors located in it. Per-stage tables for stages this
@@ -322,7 +322,7 @@ pub fn load_user_config(
 
 /// The `[remotes.NAME]` tables of a user config file (which win over the pipeline's of the
 /// same name, as its `[executor]` does).
-pub fn load_user_remotes(path: &Path) -> Result<BTreeMap<String, crate::RemoteSpec>> {
+pub fn load_user_remotes(path: &Path) -> Result<BTreeMap<String, crate::remotes::RemoteSpec>> {
     Ok(read_user_config(path, &[], &mut Vec::new())?.remotes)
 }
 
@@ -349,7 +349,7 @@ fn read_user_config(
             e.message().trim_end().to_string(),
             Some(
                 "a user config holds only [executor], [executor.slurm] and [remotes.NAME] \
-                 tables; see \"Running on a cluster\" and \"Remotes\" in README.md"
+                 tables; see \"Running on a cluster\" and \"Share what you built: remotes\" in README.md"
                     .into(),
             ),
         )

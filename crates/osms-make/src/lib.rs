@@ -17,6 +17,7 @@ mod kind;
 pub mod overrides;
 mod pipeline;
 mod plan;
+mod remotes;
 pub mod slurm;
 mod status;
 
@@ -34,11 +35,12 @@ pub use kind::{
     RunOutput, Scale, ShardRun, Sharded, Slot, Stage, StageError, Summarize, assemble,
     items_one_by_one,
 };
-pub use pipeline::{Pipeline, RemoteSpec, StageSpec};
+pub use pipeline::{Pipeline, StageSpec};
 pub use plan::{
     FoldRef, InputInstance, InstanceId, Plan, PlannedInput, PlannedStage, checkpoint_key,
     shard_key, shard_ranges,
 };
+pub use remotes::RemoteSpec;
 pub use status::{InstanceStatus, Lineage, State, status, why};
 
 /// The osms version recorded in every artifact's metadata.

@@ -45,6 +45,7 @@ use serde::Deserialize;
 
 use crate::error::{Error, Location, Result, key_location, list, location_of};
 use crate::executor::ExecutorConfig;
+use crate::remotes::RemoteSpec;
 use crate::overrides::{Field, Override, set_path, unknown_stage};
 
 #[derive(Deserialize)]
@@ -60,15 +61,6 @@ struct RawPipeline {
     executor: ExecutorConfig,
     #[serde(default)]
     remotes: BTreeMap<String, RemoteSpec>,
-}
-
-/// `[remotes.NAME]`: a remote artifact cache. Credentials never go here: they come from the
-/// environment (the standard `AWS_*` variables).
-#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RemoteSpec {
-    /// `s3://BUCKET/PREFIX`, `http(s)://HOST/PATH` or `file:///PATH`.
-    pub url: String,
 }
 
 #[derive(Deserialize)]

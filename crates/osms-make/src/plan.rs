@@ -81,7 +81,7 @@ pub struct Plan {
     /// `[executor]` of the pipeline (a user config may overlay it).
     pub executor: crate::executor::ExecutorConfig,
     /// `[remotes.NAME]` of the pipeline (a user config may add or replace some).
-    pub remotes: BTreeMap<String, crate::RemoteSpec>,
+    pub remotes: BTreeMap<String, crate::remotes::RemoteSpec>,
     /// `[pipeline] remote`.
     pub default_remote: Option<String>,
     /// Whether a make of this plan records what it built as the instances' heads (what

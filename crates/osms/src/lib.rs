@@ -1,6 +1,7 @@
-//! The osms command line: init, make (local or Slurm), status, why, show, ls, export, verify, gc, exp
-//! (named experiments), doctor, kinds, export-dataset, replay, render and world dump; it plans with
-//! the stage kinds of osms-kinds and writes report directories with their provenance.
+//! The osms command line: init, make (local or Slurm), status, why, show, ls, export, verify, gc,
+//! push and pull (remote caches), exp (named experiments), doctor, kinds, export-dataset, replay,
+//! render and world dump; it plans with the stage kinds of osms-kinds and writes report
+//! directories with their provenance.
 //!
 //! [`main_with`] runs the command line with any [`Registry`], so end-to-end tests can drive the
 //! same code with stage kinds of their own; `osms_kinds::registry` holds the kinds osms ships.

@@ -115,7 +115,7 @@ impl Observer for MakeObserver {
             Outcome::Pulled { bytes } => self.line(&format!(
                 "  pulled {} -> {hash} ({}) in {:.2}s",
                 r.instance,
-                crate::commands::human_bytes(*bytes),
+                osms_core::table::human_bytes(*bytes),
                 r.wall_time_secs
             )),
             Outcome::Cached | Outcome::CutOff => {}

@@ -190,7 +190,7 @@ pub fn push(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
 /// What `osms pull` did to one instance.
 #[derive(Debug, Serialize)]
 #[serde(tag = "outcome", rename_all = "snake_case")]
-enum Pulled {
+enum PullOutcome {
     /// Its artifact was in the store already.
     Present,
     Pulled { bytes: u64 },
@@ -205,7 +205,7 @@ struct PullRow {
     instance: String,
     key: Option<Hash>,
     #[serde(flatten)]
-    outcome: Pulled,
+    outcome: PullOutcome,
 }
 
 pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
@@ -246,7 +246,7 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
             rows.push(PullRow {
                 instance,
                 key: None,
-                outcome: Pulled::Blocked { input },
+                outcome: PullOutcome::Blocked { input },
             });
             continue;
         }
@@ -256,7 +256,7 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
             rows.push(PullRow {
                 instance,
                 key: Some(key),
-                outcome: Pulled::Present,
+                outcome: PullOutcome::Present,
             });
             continue;
         }
@@ -271,11 +271,11 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
                         human_bytes(fetched.bytes_received)
                     );
                 }
-                Pulled::Pulled {
+                PullOutcome::Pulled {
                     bytes: fetched.bytes_received,
                 }
             }
-            None => Pulled::NotOnRemote,
+            None => PullOutcome::NotOnRemote,
         };
         rows.push(PullRow {
             instance,
@@ -295,22 +295,22 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
     let pulled: Vec<u64> = rows
         .iter()
         .filter_map(|r| match r.outcome {
-            Pulled::Pulled { bytes } => Some(bytes),
+            PullOutcome::Pulled { bytes } => Some(bytes),
             _ => None,
         })
         .collect();
     let present = rows
         .iter()
-        .filter(|r| matches!(r.outcome, Pulled::Present))
+        .filter(|r| matches!(r.outcome, PullOutcome::Present))
         .count();
     let lacking: Vec<&str> = rows
         .iter()
-        .filter(|r| matches!(r.outcome, Pulled::NotOnRemote))
+        .filter(|r| matches!(r.outcome, PullOutcome::NotOnRemote))
         .map(|r| r.instance.as_str())
         .collect();
     let blocked = rows
         .iter()
-        .filter(|r| matches!(r.outcome, Pulled::Blocked { .. }))
+        .filter(|r| matches!(r.outcome, PullOutcome::Blocked { .. }))
         .count();
     say!(
         ctx,
