@@ -8,10 +8,11 @@
 //! remote's writers are trusted for what a record says (key → content hash), as Bazel trusts
 //! its action cache; the bytes are never trusted.
 //!
-//! Entry points: [`Remote::open`], [`Remote::check`], [`Remote::push`], [`Remote::fetch`].
+//! Entry points: [`Remote::open`], [`Remote::check`], [`Remote::push`], [`Remote::fetch`] (one
+//! key), [`Remote::record`] and [`Remote::download`] (many keys' objects at once).
 
 mod error;
 mod remote;
 
 pub use error::{Error, Result};
-pub use remote::{DEFAULT_JOBS, Fetched, NoProgress, Progress, PushReport, Remote};
+pub use remote::{DEFAULT_JOBS, Fetched, NoProgress, Progress, PushReport, Received, Remote};

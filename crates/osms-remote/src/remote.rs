@@ -53,6 +53,13 @@ pub struct Fetched {
     pub bytes_received: u64,
 }
 
+/// What a download moved.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Received {
+    pub objects: u64,
+    pub bytes: u64,
+}
+
 /// A remote artifact cache: content-addressed objects under `cas/`, stage records under `ac/`
 /// (Bazel's names: content-addressable storage, action cache).
 pub struct Remote {
@@ -110,7 +117,17 @@ impl Remote {
                         .filter(|b| !b.is_empty())
                         .ok_or_else(|| bad("an s3 URL names its bucket: s3://BUCKET/PREFIX".into()))?
                         .to_string();
-                    let store = AmazonS3Builder::from_env()
+                    let from_env = AmazonS3Builder::from_env();
+                    // object_store unwraps the endpoint's parse deep in request signing: a
+                    // variable set to nothing or to a host without a scheme must fail here.
+                    if let Some(endpoint) = from_env.get_config_value(&AmazonS3ConfigKey::Endpoint)
+                        && url::Url::parse(&endpoint).is_err()
+                    {
+                        return Err(bad(format!(
+                            "AWS_ENDPOINT_URL is `{endpoint}`, not a URL: set it to the server's address, e.g. http://127.0.0.1:8333, or unset it for AWS"
+                        )));
+                    }
+                    let store = from_env
                         .with_bucket_name(&bucket)
                         .with_config(
                             AmazonS3ConfigKey::Client(ClientConfigKey::ConnectTimeout),
@@ -291,10 +308,9 @@ impl Remote {
         Ok(Some(record))
     }
 
-    /// Downloads what stage key `key` needs into `store` if the remote has it: the objects the
-    /// record names that the store lacks, each checked against its blake3 name before it enters
-    /// the store through the store's own temp-and-rename path, then the record. `None`: the
-    /// remote has no record for the key. Callers hold the store's lock.
+    /// Downloads what stage key `key` needs into `store` if the remote has it ([`Remote::download`]
+    /// of its record). `None`: the remote has no record for the key. Callers hold the store's
+    /// lock.
     pub fn fetch(
         &self,
         store: &Store,
@@ -304,19 +320,40 @@ impl Remote {
         let Some(record) = self.record(key)? else {
             return Ok(None);
         };
-        let wanted: Vec<Hash> = std::iter::once(record.content_hash)
-            .chain(record.parts.iter().copied())
-            .collect::<BTreeSet<_>>()
-            .into_iter()
-            .collect();
-        let mut missing = Vec::new();
-        for hash in wanted {
-            if store.object_state(&hash)? != ObjectState::Present {
-                missing.push(hash);
+        let received = self.download(store, std::slice::from_ref(&record), progress)?;
+        Ok(Some(Fetched {
+            record,
+            objects_received: received.objects,
+            bytes_received: received.bytes,
+        }))
+    }
+
+    /// Brings `records` (read from this remote with [`Remote::record`]) into `store`: every
+    /// object they name that the store lacks, all at once, each checked against its blake3 name
+    /// before it enters the store through the store's own temp-and-rename path; then the
+    /// records, in order. Callers hold the store's lock.
+    pub fn download(
+        &self,
+        store: &Store,
+        records: &[Record],
+        progress: &dyn Progress,
+    ) -> Result<Received> {
+        // Each object once, with the first record that names it (for a message).
+        let mut named_by: std::collections::BTreeMap<Hash, Hash> = std::collections::BTreeMap::new();
+        for r in records {
+            for h in std::iter::once(r.content_hash).chain(r.parts.iter().copied()) {
+                named_by.entry(h).or_insert(r.key);
             }
         }
-        progress.begin("objects", missing.len() as u64, record.size_bytes);
-        let received = self.parallel(&missing, |hash| {
+        let mut missing = Vec::new();
+        for (hash, key) in named_by {
+            if store.object_state_cached(&hash)? != ObjectState::Present {
+                missing.push((hash, key));
+            }
+        }
+        let expected: u64 = records.iter().map(|r| r.size_bytes).sum();
+        progress.begin("objects", missing.len() as u64, expected);
+        let received = self.parallel(&missing, |(hash, key)| {
             let bytes = match self.runtime.block_on(async {
                 let got = self.inner.get(&self.object_path(hash)).await?;
                 got.bytes().await
@@ -348,12 +385,13 @@ impl Remote {
             Ok(bytes.len() as u64)
         })?;
         progress.end();
-        store.put_record(&record)?;
-        Ok(Some(Fetched {
-            record,
-            objects_received: received.len() as u64,
-            bytes_received: received.iter().sum(),
-        }))
+        for r in records {
+            store.put_record(r)?;
+        }
+        Ok(Received {
+            objects: received.len() as u64,
+            bytes: received.iter().sum(),
+        })
     }
 
     /// The size of object `hash` on the remote, if it is there.

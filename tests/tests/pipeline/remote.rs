@@ -291,6 +291,8 @@ pub(super) fn a_remote_cache_serves_a_fresh_store(made: &Made) {
         &[("AWS_ENDPOINT_URL", &format!("http://127.0.0.1:{port}"))],
         &["remote `ci`", "unreachable", "AWS_ENDPOINT_URL"],
     );
+    // An endpoint variable set to nothing: object_store would panic signing the request.
+    fails(&bad, &[("AWS_ENDPOINT_URL", "")], &["remote `ci`", "AWS_ENDPOINT_URL is ``, not a URL"]);
     let nobucket = project(tmp.path(), "nobucket", "s3://no-such-bucket-osms/x", None);
     fails(&nobucket, &[], &["remote `ci`", "no bucket `no-such-bucket-osms`"]);
     for p in [&bad, &nobucket] {

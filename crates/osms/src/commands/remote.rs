@@ -193,7 +193,8 @@ pub fn push(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
 enum PullOutcome {
     /// Its artifact was in the store already.
     Present,
-    Pulled { bytes: u64 },
+    /// Its record and objects came from the remote.
+    Pulled,
     /// The remote has no build of its key.
     NotOnRemote,
     /// An input is neither here nor on the remote, so its key is unknown.
@@ -225,6 +226,7 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
         );
     }
     let bar = Bar::new(ctx, "pulling");
+    let mut wanted: Vec<Record> = Vec::new();
     // Keys follow content: an instance's key is known once each input's content hash is, from
     // the store or from the remote's record.
     let mut known: BTreeMap<InstanceId, Hash> = BTreeMap::new();
@@ -260,20 +262,11 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
             });
             continue;
         }
-        let outcome = match remote.fetch(&store, &key, &bar)? {
-            Some(fetched) => {
-                known.insert(id, fetched.record.content_hash);
-                if ctx.printer.verbose {
-                    say!(
-                        ctx,
-                        "  pulled {instance} -> {} ({})",
-                        fetched.record.content_hash.short(),
-                        human_bytes(fetched.bytes_received)
-                    );
-                }
-                PullOutcome::Pulled {
-                    bytes: fetched.bytes_received,
-                }
+        let outcome = match remote.record(&key)? {
+            Some(record) => {
+                known.insert(id, record.content_hash);
+                wanted.push(record);
+                PullOutcome::Pulled
             }
             None => PullOutcome::NotOnRemote,
         };
@@ -283,22 +276,25 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
             outcome,
         });
     }
+    // Every object at once (a walk needs only the records: keys follow content hashes), then
+    // the records; a pull killed before the end leaves objects no record names yet, which the
+    // next pull skips.
+    let received = remote.download(&store, &wanted, &bar)?;
     let secs = started.elapsed().as_secs_f64();
     if args.json {
         print_json(&serde_json::json!({
             "remote": remote.name(),
             "url": remote.url(),
             "instances": rows,
+            "objects_received": received.objects,
+            "bytes_received": received.bytes,
             "secs": secs,
         }))?;
     }
-    let pulled: Vec<u64> = rows
+    let pulled = rows
         .iter()
-        .filter_map(|r| match r.outcome {
-            PullOutcome::Pulled { bytes } => Some(bytes),
-            _ => None,
-        })
-        .collect();
+        .filter(|r| matches!(r.outcome, PullOutcome::Pulled))
+        .count();
     let present = rows
         .iter()
         .filter(|r| matches!(r.outcome, PullOutcome::Present))
@@ -314,9 +310,9 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
         .count();
     say!(
         ctx,
-        "osms pull: {} pulled ({}), {present} already here, {} not on `{}`{} (profile {}) in {secs:.2}s",
-        pulled.len(),
-        human_bytes(pulled.iter().sum()),
+        "osms pull: {pulled} pulled ({} objects, {}), {present} already here, {} not on `{}`{} (profile {}) in {secs:.2}s",
+        received.objects,
+        human_bytes(received.bytes),
         lacking.len(),
         remote.name(),
         if blocked > 0 {
