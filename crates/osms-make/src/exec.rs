@@ -134,12 +134,7 @@ pub fn make(
     opts: &MakeOptions,
     observer: &dyn Observer,
 ) -> Result<MakeReport> {
-    let _lock = if opts.dry_run {
-        None
-    } else {
-        Some(store.lock(|| observer.waiting_for_lock())?)
-    };
-    make_locked(plan, store, opts, observer, None)
+    make_locking(plan, store, opts, observer, None)
 }
 
 /// [`make`] that asks `fetch` for every instance it would build, and builds only what the
@@ -151,12 +146,22 @@ pub fn make_fetching(
     observer: &dyn Observer,
     fetch: &dyn Fetch,
 ) -> Result<MakeReport> {
+    make_locking(plan, store, opts, observer, Some(fetch))
+}
+
+fn make_locking(
+    plan: &Plan,
+    store: &Store,
+    opts: &MakeOptions,
+    observer: &dyn Observer,
+    fetch: Option<&dyn Fetch>,
+) -> Result<MakeReport> {
     let _lock = if opts.dry_run {
         None
     } else {
         Some(store.lock(|| observer.waiting_for_lock())?)
     };
-    make_locked(plan, store, opts, observer, Some(fetch))
+    make_locked(plan, store, opts, observer, fetch)
 }
 
 /// [`make`] for a caller that already holds the store's lock (`_held`) and keeps it past the

@@ -458,36 +458,33 @@ impl Remote {
         let remote = self.name.clone();
         let url = self.url.clone();
         let detail = chain(&e);
-        match e {
+        // S3 names the cause in its XML body whatever the status; a missing bucket may come
+        // back as 403 or 404.
+        if detail.contains("NoSuchBucket") {
+            return Error::NoBucket {
+                remote,
+                url,
+                bucket: self.bucket.clone().unwrap_or_default(),
+            };
+        }
+        let denied = matches!(
+            e,
             object_store::Error::PermissionDenied { .. }
-            | object_store::Error::Unauthenticated { .. } => {
-                if detail.contains("NoSuchBucket") {
-                    return self.no_bucket();
-                }
-                Error::Denied { remote, url, detail }
-            }
-            _ if detail.contains("NoSuchBucket") => self.no_bucket(),
-            _ if detail.contains("InvalidAccessKeyId")
-                || detail.contains("SignatureDoesNotMatch")
-                || detail.contains("AccessDenied") =>
-            {
-                Error::Denied { remote, url, detail }
-            }
-            _ if unreachable(&e) => Error::Unreachable { remote, url, detail },
-            _ => Error::Transfer {
+                | object_store::Error::Unauthenticated { .. }
+        ) || ["InvalidAccessKeyId", "SignatureDoesNotMatch", "AccessDenied"]
+            .iter()
+            .any(|code| detail.contains(code));
+        if denied {
+            Error::Denied { remote, url, detail }
+        } else if unreachable(&e) {
+            Error::Unreachable { remote, url, detail }
+        } else {
+            Error::Transfer {
                 remote,
                 url,
                 what: what.to_string(),
                 detail,
-            },
-        }
-    }
-
-    fn no_bucket(&self) -> Error {
-        Error::NoBucket {
-            remote: self.name.clone(),
-            url: self.url.clone(),
-            bucket: self.bucket.clone().unwrap_or_default(),
+            }
         }
     }
 }
@@ -572,6 +569,17 @@ mod tests {
         record
     }
 
+    /// A store holding one artifact (`b"an artifact"`, no parts) and a `file://` remote in
+    /// `dir/remote` it was pushed to.
+    fn pushed_one(dir: &std::path::Path) -> (Store, Record, std::path::PathBuf, Remote) {
+        let from = Store::open(dir.join("from")).expect("store");
+        let a = record(&from, "a", b"an artifact", &[]);
+        let remote_dir = dir.join("remote");
+        let remote = file_remote(&remote_dir);
+        remote.push(&from, std::slice::from_ref(&a), &NoProgress).expect("push");
+        (from, a, remote_dir, remote)
+    }
+
     fn file_remote(dir: &std::path::Path) -> Remote {
         let url = url::Url::from_directory_path(dir).expect("url").to_string();
         Remote::open("shared", &url).expect("open")
@@ -608,11 +616,7 @@ mod tests {
     #[test]
     fn a_damaged_object_on_the_remote_is_refused_and_nothing_is_stored() {
         let tmp = tempfile::tempdir().expect("tmp");
-        let from = Store::open(tmp.path().join("from")).expect("store");
-        let a = record(&from, "a", b"an artifact", &[]);
-        let dir = tmp.path().join("remote");
-        let remote = file_remote(&dir);
-        remote.push(&from, std::slice::from_ref(&a), &NoProgress).expect("push");
+        let (from, a, dir, remote) = pushed_one(tmp.path());
         let on_disk = dir.join(remote.object_path(&a.content_hash).as_ref());
         std::fs::write(&on_disk, b"an artifacT").expect("damage");
 
@@ -637,11 +641,7 @@ mod tests {
     #[test]
     fn a_record_without_its_object_or_under_another_key_is_an_error() {
         let tmp = tempfile::tempdir().expect("tmp");
-        let from = Store::open(tmp.path().join("from")).expect("store");
-        let a = record(&from, "a", b"an artifact", &[]);
-        let dir = tmp.path().join("remote");
-        let remote = file_remote(&dir);
-        remote.push(&from, std::slice::from_ref(&a), &NoProgress).expect("push");
+        let (_from, a, dir, remote) = pushed_one(tmp.path());
         let to = Store::open(tmp.path().join("to")).expect("store");
 
         std::fs::remove_file(dir.join(remote.object_path(&a.content_hash).as_ref())).expect("rm");

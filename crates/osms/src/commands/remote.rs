@@ -114,11 +114,41 @@ impl Progress for Bar {
     }
 }
 
-fn targets(args: &TransferArgs, plan: &Plan) -> Vec<String> {
-    if args.targets.is_empty() {
-        plan.default_targets.clone()
-    } else {
-        args.targets.clone()
+/// What push and pull both start from: the plan, the store under its lock (so `osms gc` waits
+/// for the transfer), the run seeds, the targets and the opened remote.
+struct Transfer {
+    started: Instant,
+    plan: Plan,
+    store: Store,
+    seeds: Vec<u64>,
+    targets: Vec<String>,
+    remote: Remote,
+    _lock: osms_store::StoreLock,
+}
+
+impl Transfer {
+    fn begin(ctx: &Context, args: &TransferArgs) -> Result<Transfer> {
+        let started = Instant::now();
+        let plan = ctx.selected_plan(&args.selection)?;
+        let store = ctx.store()?;
+        let seeds = Context::seeds(&args.selection, &plan);
+        let targets = if args.targets.is_empty() {
+            plan.default_targets.clone()
+        } else {
+            args.targets.clone()
+        };
+        let remote = open(ctx, &plan, args.remote.as_deref(), args.transfers)?;
+        let lock = store
+            .lock(|| errln!("waiting for another osms process to release the store lock..."))?;
+        Ok(Transfer {
+            started,
+            plan,
+            store,
+            seeds,
+            targets,
+            remote,
+            _lock: lock,
+        })
     }
 }
 
@@ -132,15 +162,15 @@ struct PushJson<'a> {
 }
 
 pub fn push(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
-    let started = Instant::now();
-    let plan = ctx.selected_plan(&args.selection)?;
-    let store = ctx.store()?;
-    let seeds = Context::seeds(&args.selection, &plan);
-    let targets = targets(args, &plan);
-    let remote = open(ctx, &plan, args.remote.as_deref(), args.transfers)?;
-    // Under the lock: gc waits until every object of the push is on the remote.
-    let _lock =
-        store.lock(|| errln!("waiting for another osms process to release the store lock..."))?;
+    let Transfer {
+        started,
+        plan,
+        store,
+        seeds,
+        targets,
+        remote,
+        _lock,
+    } = Transfer::begin(ctx, args)?;
     let statuses = osms_make::status(&plan, &store, &targets, &seeds)?;
     let unbuilt: Vec<&str> = statuses
         .iter()
@@ -210,15 +240,15 @@ struct PullRow {
 }
 
 pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
-    let started = Instant::now();
-    let plan = ctx.selected_plan(&args.selection)?;
-    let store = ctx.store()?;
-    let seeds = Context::seeds(&args.selection, &plan);
-    let targets = targets(args, &plan);
-    let remote = open(ctx, &plan, args.remote.as_deref(), args.transfers)?;
-    // Under the lock: gc never sees a pulled object before its record names it.
-    let _lock =
-        store.lock(|| errln!("waiting for another osms process to release the store lock..."))?;
+    let Transfer {
+        started,
+        plan,
+        store,
+        seeds,
+        targets,
+        remote,
+        _lock,
+    } = Transfer::begin(ctx, args)?;
     if store.is_read_only() {
         bail!(
             "store {} is read-only: nothing can be pulled into it\nhint: pull into a store that can be written (--store DIR)",
