@@ -330,8 +330,8 @@ impl Remote {
 
     /// Brings `records` (read from this remote with [`Remote::record`]) into `store`: every
     /// object they name that the store lacks, all at once, each checked against its blake3 name
-    /// before it enters the store through the store's own temp-and-rename path; then the
-    /// records, in order. Callers hold the store's lock.
+    /// before it enters the store through one [`osms_store::Batch`] (temp files, a sync, renames);
+    /// then the records, after the objects are durable. Callers hold the store's lock.
     pub fn download(
         &self,
         store: &Store,
@@ -353,6 +353,7 @@ impl Remote {
         }
         let expected: u64 = records.iter().map(|r| r.size_bytes).sum();
         progress.begin("objects", missing.len() as u64, expected);
+        let batch = store.batch()?;
         let received = self.parallel(&missing, |(hash, key)| {
             let bytes = match self.runtime.block_on(async {
                 let got = self.inner.get(&self.object_path(hash)).await?;
@@ -380,14 +381,12 @@ impl Remote {
                     actual,
                 });
             }
-            store.put(&bytes)?;
+            batch.put(&bytes)?;
             progress.advance(bytes.len() as u64);
             Ok(bytes.len() as u64)
         })?;
         progress.end();
-        for r in records {
-            store.put_record(r)?;
-        }
+        batch.commit(records)?;
         Ok(Received {
             objects: received.len() as u64,
             bytes: received.iter().sum(),

