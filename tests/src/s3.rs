@@ -1,5 +1,5 @@
-//! The S3-compatible server of the remote-cache tests (SeaweedFS on loopback, started by
-//! scripts/test through scripts/s3-server, which exports `OSMS_TEST_S3_*`).
+//! The S3-compatible server of the remote-cache tests and its WebDAV gateway (SeaweedFS on
+//! loopback, started by scripts/test through scripts/s3-server, which exports `OSMS_TEST_S3_*`).
 
 /// Where the test server is and how to sign requests to it.
 #[derive(Debug, Clone)]
@@ -12,6 +12,8 @@ pub struct Server {
     /// The server's filer (`http://127.0.0.1:PORT`): a back door that writes bytes under an
     /// object's name without S3, to plant a damaged object.
     pub filer: String,
+    /// The server's WebDAV gateway (`http://127.0.0.1:PORT`) on the same files as the filer.
+    pub webdav: String,
 }
 
 impl Server {
@@ -32,12 +34,20 @@ impl Server {
 /// the test: the test command always starts one there.
 pub fn server(check: &str) -> Option<Server> {
     let var = |name: &str| std::env::var(name).ok().filter(|v| !v.is_empty());
-    if let (Some(endpoint), Some(bucket), Some(access_key), Some(secret_key), Some(filer)) = (
+    if let (
+        Some(endpoint),
+        Some(bucket),
+        Some(access_key),
+        Some(secret_key),
+        Some(filer),
+        Some(webdav),
+    ) = (
         var("OSMS_TEST_S3_ENDPOINT"),
         var("OSMS_TEST_S3_BUCKET"),
         var("OSMS_TEST_S3_ACCESS_KEY"),
         var("OSMS_TEST_S3_SECRET_KEY"),
         var("OSMS_TEST_S3_FILER"),
+        var("OSMS_TEST_S3_WEBDAV"),
     ) {
         return Some(Server {
             endpoint,
@@ -45,6 +55,7 @@ pub fn server(check: &str) -> Option<Server> {
             access_key,
             secret_key,
             filer,
+            webdav,
         });
     }
     let mode = crate::golden::Mode::from_env();

@@ -170,7 +170,9 @@ fn mujoco_under_the_engine_and_a_network_crate_below_the_command_line_fail_with_
         "{err}"
     );
     assert!(
-        err.contains("`osms-gym` reaches a network crate: osms-gym -> osms-kinds -> osms-report -> reqwest"),
+        err.contains(
+            "`osms-gym` reaches a network crate: osms-gym -> osms-kinds -> osms-report -> reqwest"
+        ),
         "{err}"
     );
     // The command line and the remote crate may: their rows say so.

@@ -124,7 +124,11 @@ pub trait Fetch: Sync {
     /// Brings the artifact of stage key `key` into `store` (objects first, then the record)
     /// and returns its record with the bytes downloaded, or `None` if the remote lacks it.
     /// An error is the remote's trouble, not the stage's: the make warns and builds.
-    fn fetch(&self, store: &Store, key: &Hash) -> std::result::Result<Option<(Record, u64)>, String>;
+    fn fetch(
+        &self,
+        store: &Store,
+        key: &Hash,
+    ) -> std::result::Result<Option<(Record, u64)>, String>;
 }
 
 /// Builds `opts.targets`, holding the store's lock for the make (none for a dry run).

@@ -45,8 +45,8 @@ use serde::Deserialize;
 
 use crate::error::{Error, Location, Result, key_location, list, location_of};
 use crate::executor::ExecutorConfig;
-use crate::remotes::RemoteSpec;
 use crate::overrides::{Field, Override, set_path, unknown_stage};
+use crate::remotes::RemoteSpec;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]

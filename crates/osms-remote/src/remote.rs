@@ -70,6 +70,8 @@ pub struct Remote {
     prefix: Vec<String>,
     runtime: tokio::runtime::Runtime,
     jobs: usize,
+    /// A WebDAV server: directories (collections) exist apart from the files in them.
+    collections: bool,
 }
 
 impl std::fmt::Debug for Remote {
@@ -115,7 +117,9 @@ impl Remote {
                     let bucket = parsed
                         .host_str()
                         .filter(|b| !b.is_empty())
-                        .ok_or_else(|| bad("an s3 URL names its bucket: s3://BUCKET/PREFIX".into()))?
+                        .ok_or_else(
+                            || bad("an s3 URL names its bucket: s3://BUCKET/PREFIX".into()),
+                        )?
                         .to_string();
                     let from_env = AmazonS3Builder::from_env();
                     // object_store unwraps the endpoint's parse deep in request signing: a
@@ -139,27 +143,32 @@ impl Remote {
                     (Box::new(store), segments(parsed.path()), Some(bucket))
                 }
                 "http" | "https" => {
+                    // The store is rooted at the server and the URL's path is the prefix: a PUT
+                    // whose collections are missing makes them (MKCOL) walking up from the
+                    // object, but never the base URL's own path, which a fresh remote lacks.
+                    let mut root = parsed.clone();
+                    root.set_path("/");
                     let store = HttpBuilder::new()
-                        .with_url(url)
+                        .with_url(root.as_str())
                         .with_config(ClientConfigKey::ConnectTimeout, "5s")
                         .with_config(ClientConfigKey::AllowHttp, "true")
                         .with_retry(retry)
                         .build()
                         .map_err(|e| bad(e.to_string()))?;
-                    (Box::new(store), Vec::new(), None)
+                    (Box::new(store), segments(parsed.path()), None)
                 }
                 "file" => {
-                    let dir = parsed
-                        .to_file_path()
-                        .map_err(|()| bad("a file URL names an absolute path: file:///PATH".into()))?;
+                    let dir = parsed.to_file_path().map_err(|()| {
+                        bad("a file URL names an absolute path: file:///PATH".into())
+                    })?;
                     std::fs::create_dir_all(&dir).map_err(|e| Error::Transfer {
                         remote: name.to_string(),
                         url: url.to_string(),
                         what: format!("creating {}", dir.display()),
                         detail: e.to_string(),
                     })?;
-                    let store = LocalFileSystem::new_with_prefix(&dir)
-                        .map_err(|e| bad(e.to_string()))?;
+                    let store =
+                        LocalFileSystem::new_with_prefix(&dir).map_err(|e| bad(e.to_string()))?;
                     (Box::new(store), Vec::new(), None)
                 }
                 other => {
@@ -179,6 +188,7 @@ impl Remote {
             prefix,
             runtime,
             jobs: DEFAULT_JOBS,
+            collections: matches!(parsed.scheme(), "http" | "https"),
         })
     }
 
@@ -198,7 +208,12 @@ impl Remote {
     }
 
     fn path(&self, parts: &[&str]) -> Path {
-        Path::from_iter(self.prefix.iter().map(String::as_str).chain(parts.iter().copied()))
+        Path::from_iter(
+            self.prefix
+                .iter()
+                .map(String::as_str)
+                .chain(parts.iter().copied()),
+        )
     }
 
     /// Where object `hash` lives on the remote: `cas/<first two hex digits>/<hash>`.
@@ -255,27 +270,41 @@ impl Remote {
             .collect();
         let sizes: u64 = missing.iter().map(local_size).sum();
         progress.begin("objects", missing.len() as u64, sizes);
-        let sent = self.parallel(&missing, |hash| {
-            let bytes = store.get(hash)?;
-            let n = bytes.len() as u64;
-            self.runtime
-                .block_on(self.inner.put(&self.object_path(hash), Bytes::from(bytes).into()))
-                .map_err(|e| self.error(&format!("uploading object {}", hash.short()), e))?;
-            progress.advance(n);
-            Ok(n)
-        })?;
+        let sent = self.upload(
+            &missing,
+            |hash| hash.to_hex()[..2].to_string(),
+            |hash| {
+                let bytes = store.get(hash)?;
+                let n = bytes.len() as u64;
+                self.runtime
+                    .block_on(
+                        self.inner
+                            .put(&self.object_path(hash), Bytes::from(bytes).into()),
+                    )
+                    .map_err(|e| self.error(&format!("uploading object {}", hash.short()), e))?;
+                progress.advance(n);
+                Ok(n)
+            },
+        )?;
         progress.end();
-        self.parallel(records, |record| {
-            let json = serde_json::to_vec_pretty(record).map_err(|e| Error::Transfer {
-                remote: self.name.clone(),
-                url: self.url.clone(),
-                what: format!("encoding the record of {}", record.key.short()),
-                detail: e.to_string(),
-            })?;
-            self.runtime
-                .block_on(self.inner.put(&self.record_path(&record.key), Bytes::from(json).into()))
-                .map_err(|e| self.error(&format!("uploading record {}", record.key.short()), e))
-        })?;
+        self.upload(
+            records,
+            |record| record.key.to_hex()[..2].to_string(),
+            |record| {
+                let json = serde_json::to_vec_pretty(record).map_err(|e| Error::Transfer {
+                    remote: self.name.clone(),
+                    url: self.url.clone(),
+                    what: format!("encoding the record of {}", record.key.short()),
+                    detail: e.to_string(),
+                })?;
+                self.runtime
+                    .block_on(
+                        self.inner
+                            .put(&self.record_path(&record.key), Bytes::from(json).into()),
+                    )
+                    .map_err(|e| self.error(&format!("uploading record {}", record.key.short()), e))
+            },
+        )?;
         Ok(PushReport {
             objects_sent: sent.len() as u64,
             bytes_sent: sent.iter().sum(),
@@ -339,7 +368,8 @@ impl Remote {
         progress: &dyn Progress,
     ) -> Result<Received> {
         // Each object once, with the first record that names it (for a message).
-        let mut named_by: std::collections::BTreeMap<Hash, Hash> = std::collections::BTreeMap::new();
+        let mut named_by: std::collections::BTreeMap<Hash, Hash> =
+            std::collections::BTreeMap::new();
         for r in records {
             for h in std::iter::once(r.content_hash).chain(r.parts.iter().copied()) {
                 named_by.entry(h).or_insert(r.key);
@@ -395,11 +425,37 @@ impl Remote {
 
     /// The size of object `hash` on the remote, if it is there.
     fn size_of(&self, hash: &Hash) -> Result<Option<u64>> {
-        match self.runtime.block_on(self.inner.head(&self.object_path(hash))) {
+        match self
+            .runtime
+            .block_on(self.inner.head(&self.object_path(hash)))
+        {
             Ok(meta) => Ok(Some(meta.size)),
             Err(object_store::Error::NotFound { .. }) => Ok(None),
             Err(e) => Err(self.error(&format!("looking up object {}", hash.short()), e)),
         }
+    }
+
+    /// Uploads `items` with `f`, `jobs` at once. A WebDAV server makes a PUT's missing
+    /// directories one MKCOL at a time and answers two racing MKCOLs of one directory with an
+    /// error (rclone's server: 423 Locked), so there the first upload into each directory
+    /// (`dir` of the item) goes alone, before the rest go in parallel.
+    fn upload<T: Sync, R: Send>(
+        &self,
+        items: &[T],
+        dir: impl Fn(&T) -> String,
+        f: impl Fn(&T) -> Result<R> + Sync,
+    ) -> Result<Vec<R>> {
+        if !self.collections {
+            return self.parallel(items, f);
+        }
+        let mut seen = BTreeSet::new();
+        let (first, rest): (Vec<&T>, Vec<&T>) = items.iter().partition(|t| seen.insert(dir(t)));
+        let mut out = Vec::with_capacity(items.len());
+        for t in first {
+            out.push(f(t)?);
+        }
+        out.extend(self.parallel(&rest, |t| f(t))?);
+        Ok(out)
     }
 
     /// `f` over `items` on up to `jobs` threads, results in `items`' order; the first error
@@ -426,8 +482,9 @@ impl Remote {
                         if r.is_err() {
                             failed.store(true, Ordering::Relaxed);
                         }
-                        results.lock().unwrap_or_else(std::sync::PoisonError::into_inner)[k] =
-                            Some(r);
+                        results
+                            .lock()
+                            .unwrap_or_else(std::sync::PoisonError::into_inner)[k] = Some(r);
                     }
                 });
             }
@@ -470,13 +527,25 @@ impl Remote {
             e,
             object_store::Error::PermissionDenied { .. }
                 | object_store::Error::Unauthenticated { .. }
-        ) || ["InvalidAccessKeyId", "SignatureDoesNotMatch", "AccessDenied"]
-            .iter()
-            .any(|code| detail.contains(code));
+        ) || [
+            "InvalidAccessKeyId",
+            "SignatureDoesNotMatch",
+            "AccessDenied",
+        ]
+        .iter()
+        .any(|code| detail.contains(code));
         if denied {
-            Error::Denied { remote, url, detail }
+            Error::Denied {
+                remote,
+                url,
+                detail,
+            }
         } else if unreachable(&e) {
-            Error::Unreachable { remote, url, detail }
+            Error::Unreachable {
+                remote,
+                url,
+                detail,
+            }
         } else {
             Error::Transfer {
                 remote,
@@ -575,7 +644,9 @@ mod tests {
         let a = record(&from, "a", b"an artifact", &[]);
         let remote_dir = dir.join("remote");
         let remote = file_remote(&remote_dir);
-        remote.push(&from, std::slice::from_ref(&a), &NoProgress).expect("push");
+        remote
+            .push(&from, std::slice::from_ref(&a), &NoProgress)
+            .expect("push");
         (from, a, remote_dir, remote)
     }
 
@@ -592,24 +663,39 @@ mod tests {
         let b = record(&from, "b", b"second artifact", &[b"part one"]);
         let remote = file_remote(&tmp.path().join("remote"));
         remote.check().expect("check");
-        let report = remote.push(&from, &[a.clone(), b.clone()], &NoProgress).expect("push");
+        let report = remote
+            .push(&from, &[a.clone(), b.clone()], &NoProgress)
+            .expect("push");
         assert_eq!(report.objects_sent, 4, "{report:?}");
         assert_eq!(report.objects_present, 0);
         assert_eq!(report.records, 2);
         // Pushed again, every object is skipped by name.
-        let again = remote.push(&from, &[a.clone(), b.clone()], &NoProgress).expect("push");
+        let again = remote
+            .push(&from, &[a.clone(), b.clone()], &NoProgress)
+            .expect("push");
         assert_eq!((again.objects_sent, again.objects_present), (0, 4));
 
         let to = Store::open(tmp.path().join("to")).expect("store");
-        let fetched = remote.fetch(&to, &a.key, &NoProgress).expect("fetch").expect("found");
+        let fetched = remote
+            .fetch(&to, &a.key, &NoProgress)
+            .expect("fetch")
+            .expect("found");
         assert_eq!(fetched.record, a);
         assert_eq!(fetched.objects_received, 3);
         assert_eq!(to.get(&a.content_hash).expect("object"), b"first artifact");
         assert_eq!(to.record(&a.key).expect("record"), Some(a.clone()));
         // b's shared part is in the store already: only its own object moves.
-        let fetched = remote.fetch(&to, &b.key, &NoProgress).expect("fetch").expect("found");
+        let fetched = remote
+            .fetch(&to, &b.key, &NoProgress)
+            .expect("fetch")
+            .expect("found");
         assert_eq!(fetched.objects_received, 1);
-        assert!(remote.fetch(&to, &Hash::of(b"never built"), &NoProgress).expect("fetch").is_none());
+        assert!(
+            remote
+                .fetch(&to, &Hash::of(b"never built"), &NoProgress)
+                .expect("fetch")
+                .is_none()
+        );
     }
 
     #[test]
@@ -626,14 +712,24 @@ mod tests {
             "{err}"
         );
         assert!(err.to_string().contains("remote `shared`"), "{err}");
-        assert_eq!(to.object_state(&a.content_hash).expect("state"), ObjectState::Missing);
+        assert_eq!(
+            to.object_state(&a.content_hash).expect("state"),
+            ObjectState::Missing
+        );
         assert_eq!(to.record(&a.key).expect("record"), None);
         // A copy of the wrong size (an interrupted upload by another tool, say) is mended by
         // the next push; one of the right size by removing it first, as the hint says.
         std::fs::write(&on_disk, b"trunc").expect("truncate");
-        let mended = remote.push(&from, std::slice::from_ref(&a), &NoProgress).expect("push");
+        let mended = remote
+            .push(&from, std::slice::from_ref(&a), &NoProgress)
+            .expect("push");
         assert_eq!((mended.objects_sent, mended.objects_present), (1, 0));
-        assert!(remote.fetch(&to, &a.key, &NoProgress).expect("fetch").is_some());
+        assert!(
+            remote
+                .fetch(&to, &a.key, &NoProgress)
+                .expect("fetch")
+                .is_some()
+        );
         assert_eq!(to.get(&a.content_hash).expect("object"), b"an artifact");
     }
 
@@ -644,7 +740,9 @@ mod tests {
         let to = Store::open(tmp.path().join("to")).expect("store");
 
         std::fs::remove_file(dir.join(remote.object_path(&a.content_hash).as_ref())).expect("rm");
-        let err = remote.fetch(&to, &a.key, &NoProgress).expect_err("no object");
+        let err = remote
+            .fetch(&to, &a.key, &NoProgress)
+            .expect_err("no object");
         assert!(matches!(err, Error::MissingObject { .. }), "{err}");
         assert_eq!(to.record(&a.key).expect("record"), None);
 
@@ -652,7 +750,9 @@ mod tests {
         let moved = dir.join(remote.record_path(&other).as_ref());
         std::fs::create_dir_all(moved.parent().expect("parent")).expect("mkdir");
         std::fs::copy(dir.join(remote.record_path(&a.key).as_ref()), &moved).expect("copy");
-        let err = remote.fetch(&to, &other, &NoProgress).expect_err("wrong key");
+        let err = remote
+            .fetch(&to, &other, &NoProgress)
+            .expect_err("wrong key");
         assert!(matches!(err, Error::BadRecord { .. }), "{err}");
     }
 
@@ -660,7 +760,10 @@ mod tests {
     fn urls_are_checked_and_never_carry_credentials() {
         let err = Remote::open("r", "s3://user:secret@bucket/p").expect_err("credentials");
         let text = err.to_string();
-        assert!(text.contains("environment") && !text.contains("secret"), "{text}");
+        assert!(
+            text.contains("environment") && !text.contains("secret"),
+            "{text}"
+        );
         let err = Remote::open("r", "ftp://host/x").expect_err("scheme");
         assert!(err.to_string().contains("unknown scheme `ftp`"), "{err}");
         let err = Remote::open("r", "not a url").expect_err("url");

@@ -14,6 +14,6 @@ pub use error::{Error, Result};
 pub use fscheck::{FsCheck, FsClass, classify};
 pub use hash::Hash;
 pub use store::{
-    Batch, GcReport, ObjectState, Record, ShardOf, Store, StoreLock, UnreadableRecord, VerifyProblem,
-    VerifyReport, host_name,
+    Batch, GcReport, ObjectState, Record, ShardOf, Store, StoreLock, UnreadableRecord,
+    VerifyProblem, VerifyReport, host_name,
 };

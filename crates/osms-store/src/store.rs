@@ -1019,7 +1019,10 @@ mod tests {
         assert!(matches!(store.get(&hash), Err(Error::Missing { .. })));
         assert!(fs::read_dir(dir.path().join("s/tmp")).expect("tmp").count() > 0);
         let _lock = store.lock(|| {}).expect("lock");
-        assert_eq!(fs::read_dir(dir.path().join("s/tmp")).expect("tmp").count(), 0);
+        assert_eq!(
+            fs::read_dir(dir.path().join("s/tmp")).expect("tmp").count(),
+            0
+        );
         assert!(store.verify().expect("verify").problems.is_empty());
     }
 

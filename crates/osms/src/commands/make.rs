@@ -56,7 +56,12 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
                 );
             }
             Some(crate::commands::remote::MakeFetch {
-                remote: crate::commands::remote::open(ctx, &plan, Some(name), osms_remote::DEFAULT_JOBS)?,
+                remote: crate::commands::remote::open(
+                    ctx,
+                    &plan,
+                    Some(name),
+                    osms_remote::DEFAULT_JOBS,
+                )?,
                 bar: crate::commands::remote::Bar::new(ctx, "pulling"),
             })
         }

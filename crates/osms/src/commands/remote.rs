@@ -23,7 +23,12 @@ pub(crate) fn open(ctx: &Context, plan: &Plan, name: Option<&str>, jobs: usize) 
     let mut remotes: BTreeMap<String, (RemoteSpec, String)> = plan
         .remotes
         .iter()
-        .map(|(n, s)| (n.clone(), (s.clone(), ctx.pipeline_path.display().to_string())))
+        .map(|(n, s)| {
+            (
+                n.clone(),
+                (s.clone(), ctx.pipeline_path.display().to_string()),
+            )
+        })
         .collect();
     if let Some(path) = user_config_path() {
         for (n, s) in load_user_remotes(&path)? {
@@ -94,9 +99,7 @@ impl Progress for Bar {
         if objects == 0 {
             return;
         }
-        self.bar.reset();
-        self.bar.set_length(bytes);
-        self.bar.set_prefix(format!("{} {objects} {what}", self.prefix));
+        // Styled before anything else, or the first draws show indicatif's default bar.
         self.bar.set_style(
             ProgressStyle::with_template(
                 "{spinner} {prefix:.bold} [{bar:30}] {bytes}/{total_bytes} {bytes_per_sec} (eta {eta})",
@@ -104,6 +107,10 @@ impl Progress for Bar {
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> "),
         );
+        self.bar
+            .set_prefix(format!("{} {objects} {what}", self.prefix));
+        self.bar.reset();
+        self.bar.set_length(bytes);
         self.bar.enable_steady_tick(Duration::from_millis(120));
     }
     fn advance(&self, bytes: u64) {
