@@ -501,6 +501,64 @@ fn a_full_disk_with_everything_cached_still_answers() {
     assert!(!store.join("state").join("statcache").exists());
 }
 
+/// A pull onto a full disk fails with what to do, leaves nothing half-written (verify is clean),
+/// and once space is freed the same pull finishes with every object and record.
+#[test]
+fn a_pull_onto_a_full_disk_says_so_and_resumes_once_there_is_space() {
+    let p = Project::engine();
+    let remote = p.dir.path().join("remote");
+    let text = std::fs::read_to_string(&p.pipeline).expect("pipeline");
+    p.write_pipeline(&format!(
+        "{text}\n[remotes.shared]\nurl = \"file://{}\"\n",
+        remote.display()
+    ));
+    assert!(p.run(bin(), &["make", "-q"]).status.success());
+    assert!(
+        p.run(bin(), &["push", "-q", "-r", "shared"])
+            .status
+            .success()
+    );
+    let disk = p.dir.path().join("disk");
+    let check = "a_pull_onto_a_full_disk_says_so_and_resumes_once_there_is_space";
+    let Some(_tmpfs) = Mount::tmpfs(&disk, "8m", check) else {
+        return;
+    };
+    let store = disk.join("store");
+    let run = |args: &[&str]| run_on(&p, &store, args);
+    assert!(run(&["verify", "-q"]).status.success());
+    fill_disk(&disk);
+    let o = run(&["pull", "-r", "shared"]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("No space left on device"), "{err}");
+    assert!(
+        err.contains(
+            "hint: no space left on the store's filesystem: free space and run the pull again"
+        ),
+        "{err}"
+    );
+    std::fs::remove_file(disk.join("fill")).expect("free space");
+    let v = run(&["verify", "--json"]);
+    let report: serde_json::Value = serde_json::from_slice(&v.stdout).expect("verify --json");
+    assert_eq!(report["problems"], serde_json::json!([]), "{report}");
+    assert_eq!(
+        report["records_checked"], 0,
+        "a record before its objects: {report}"
+    );
+    let o = run(&["pull", "-r", "shared", "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let pulled: serde_json::Value = serde_json::from_slice(&o.stdout).expect("pull --json");
+    assert!(
+        pulled["instances"]
+            .as_array()
+            .expect("instances")
+            .iter()
+            .all(|i| i["outcome"] == "pulled"),
+        "{pulled}"
+    );
+    assert!(run(&["verify", "-q"]).status.success());
+}
+
 /// A make that will not fit: before it starts, a warning says how much space the stages it
 /// builds took when last measured (here: the tiny profile's builds, scaled to `small`).
 #[test]

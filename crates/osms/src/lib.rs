@@ -93,12 +93,31 @@ fn exit_code_of(err: &anyhow::Error) -> u8 {
 /// What to do about a filesystem error under the store, if `err` holds one: a failing disk or
 /// a full one is the machine's trouble, not osms's (exit 1, as uv reports a failing cache).
 fn storage_hint(err: &anyhow::Error) -> Option<String> {
-    err.chain()
-        .find(|c| {
-            matches!(
-                c.downcast_ref::<osms_store::Error>(),
-                Some(osms_store::Error::Io { .. })
-            )
-        })
-        .map(|io| osms_make::storage_hint(io, None))
+    err.chain().find_map(|c| {
+        if matches!(
+            c.downcast_ref::<osms_store::Error>(),
+            Some(osms_store::Error::Io { .. })
+        ) {
+            return Some(osms_make::storage_hint(c, None));
+        }
+        // A pull's store error (the remote's error wraps it transparently, so the chain skips it).
+        match c.downcast_ref::<osms_remote::Error>() {
+            Some(osms_remote::Error::Store(osms_store::Error::Io { source, .. }))
+                if matches!(
+                    source.kind(),
+                    std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded
+                ) =>
+            {
+                Some(
+                    "no space left on the store's filesystem: free space and run the pull again; \
+                     a failed pull leaves no object or record half-written"
+                        .to_string(),
+                )
+            }
+            Some(osms_remote::Error::Store(e @ osms_store::Error::Io { .. })) => {
+                Some(osms_make::storage_hint(e, None))
+            }
+            _ => None,
+        }
+    })
 }
