@@ -1,3 +1,4 @@
+use std::collections::BTreeMap;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -48,23 +49,32 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     } else {
         args.remote.as_deref().or(plan.default_remote.as_deref())
     };
+    // On a cluster the driver pulls what the remote holds before it submits anything: its
+    // tasks write the store directly, so the lookup cannot sit between a stage and its job.
+    let mut cluster_pulled = BTreeMap::new();
     let fetch = match remote_name {
-        Some(name) if !args.dry_run => {
-            if executor == ExecutorKind::Slurm {
-                bail!(
-                    "--remote does not combine with --executor slurm yet\nhint: `osms pull --remote {name}` first, then `osms make --executor slurm --no-remote`"
-                );
-            }
-            Some(crate::commands::remote::MakeFetch {
-                remote: crate::commands::remote::open(
-                    ctx,
-                    &plan,
-                    Some(name),
-                    osms_remote::DEFAULT_JOBS,
-                )?,
-                bar: crate::commands::remote::Bar::new(ctx, "pulling"),
-            })
+        Some(name) if !args.dry_run && executor == ExecutorKind::Slurm => {
+            let remote =
+                crate::commands::remote::open(ctx, &plan, Some(name), osms_remote::DEFAULT_JOBS)?;
+            cluster_pulled = crate::commands::remote::pull_before_cluster_make(
+                ctx,
+                &plan,
+                &store,
+                &seeds,
+                &opts.targets,
+                &remote,
+            )?;
+            None
         }
+        Some(name) if !args.dry_run => Some(crate::commands::remote::MakeFetch {
+            remote: crate::commands::remote::open(
+                ctx,
+                &plan,
+                Some(name),
+                osms_remote::DEFAULT_JOBS,
+            )?,
+            bar: crate::commands::remote::Bar::new(ctx, "pulling"),
+        }),
         _ => None,
     };
     // A dry run submits nothing: it is the same plan whatever the executor.
@@ -72,7 +82,15 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
         osms_make::make_fetching(&plan, &store, &opts, &observer, fetch)?
     } else if executor == ExecutorKind::Slurm && !args.dry_run {
         let launch = launch(ctx, &store, &config)?;
-        osms_make::slurm::make_slurm(&plan, &store, &opts, &config, &SlurmCli, &launch, &observer)?
+        let mut report = osms_make::slurm::make_slurm(
+            &plan, &store, &opts, &config, &SlurmCli, &launch, &observer,
+        )?;
+        for r in &mut report.instances {
+            if let (Outcome::Cached, Some(bytes)) = (&r.outcome, cluster_pulled.get(&r.instance)) {
+                r.outcome = Outcome::Pulled { bytes: *bytes };
+            }
+        }
+        report
     } else {
         osms_make::make(&plan, &store, &opts, &observer)?
     };

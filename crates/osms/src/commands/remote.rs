@@ -262,61 +262,14 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
             store.root().display()
         );
     }
-    let bar = Bar::new(ctx, "pulling");
-    let mut wanted: Vec<Record> = Vec::new();
-    // Keys follow content: an instance's key is known once each input's content hash is, from
-    // the store or from the remote's record.
-    let mut known: BTreeMap<InstanceId, Hash> = BTreeMap::new();
-    let mut rows = Vec::new();
-    for id in plan.instances(&targets, &seeds)? {
-        let instance = plan.display(id);
-        let mut hashes = Vec::new();
-        let mut blocked = None;
-        for input in plan.input_instances(id, &seeds) {
-            match known.get(&input.id) {
-                Some(h) => hashes.push((input.label, *h)),
-                None => {
-                    blocked = Some(plan.display(input.id));
-                    break;
-                }
-            }
-        }
-        if let Some(input) = blocked {
-            rows.push(PullRow {
-                instance,
-                key: None,
-                outcome: PullOutcome::Blocked { input },
-            });
-            continue;
-        }
-        let key = plan.key(id, &hashes);
-        if let Some(record) = intact(&store, &key)? {
-            known.insert(id, record.content_hash);
-            rows.push(PullRow {
-                instance,
-                key: Some(key),
-                outcome: PullOutcome::Present,
-            });
-            continue;
-        }
-        let outcome = match remote.record(&key)? {
-            Some(record) => {
-                known.insert(id, record.content_hash);
-                wanted.push(record);
-                PullOutcome::Pulled
-            }
-            None => PullOutcome::NotOnRemote,
-        };
-        rows.push(PullRow {
-            instance,
-            key: Some(key),
-            outcome,
-        });
-    }
-    // Every object at once (a walk needs only the records: keys follow content hashes), then
-    // the records; a pull killed before the end leaves objects no record names yet, which the
-    // next pull skips.
-    let received = remote.download(&store, &wanted, &bar)?;
+    let (rows, received) = pull_closure(
+        &plan,
+        &store,
+        &seeds,
+        &targets,
+        &remote,
+        &Bar::new(ctx, "pulling"),
+    )?;
     let secs = started.elapsed().as_secs_f64();
     if args.json {
         print_json(&serde_json::json!({
@@ -369,6 +322,106 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
         ctx.make_command(&targets.join(" "), &plan.profile)
     );
     Ok(ExitCode::from(EXIT_FAILURE))
+}
+
+/// Walks `targets`' instances from the first stage down, reading the remote's record of each
+/// key the store lacks, then downloads every object those records name (at once) and writes the
+/// records. Callers hold the store's lock.
+fn pull_closure(
+    plan: &Plan,
+    store: &Store,
+    seeds: &[u64],
+    targets: &[String],
+    remote: &Remote,
+    bar: &Bar,
+) -> Result<(Vec<PullRow>, osms_remote::Received)> {
+    let mut wanted: Vec<Record> = Vec::new();
+    // Keys follow content: an instance's key is known once each input's content hash is, from
+    // the store or from the remote's record.
+    let mut known: BTreeMap<InstanceId, Hash> = BTreeMap::new();
+    let mut rows = Vec::new();
+    for id in plan.instances(targets, seeds)? {
+        let instance = plan.display(id);
+        let mut hashes = Vec::new();
+        let mut blocked = None;
+        for input in plan.input_instances(id, seeds) {
+            match known.get(&input.id) {
+                Some(h) => hashes.push((input.label, *h)),
+                None => {
+                    blocked = Some(plan.display(input.id));
+                    break;
+                }
+            }
+        }
+        if let Some(input) = blocked {
+            rows.push(PullRow {
+                instance,
+                key: None,
+                outcome: PullOutcome::Blocked { input },
+            });
+            continue;
+        }
+        let key = plan.key(id, &hashes);
+        if let Some(record) = intact(store, &key)? {
+            known.insert(id, record.content_hash);
+            rows.push(PullRow {
+                instance,
+                key: Some(key),
+                outcome: PullOutcome::Present,
+            });
+            continue;
+        }
+        let outcome = match remote.record(&key)? {
+            Some(record) => {
+                known.insert(id, record.content_hash);
+                wanted.push(record);
+                PullOutcome::Pulled
+            }
+            None => PullOutcome::NotOnRemote,
+        };
+        rows.push(PullRow {
+            instance,
+            key: Some(key),
+            outcome,
+        });
+    }
+    // Every object at once (a walk needs only the records: keys follow content hashes), then
+    // the records; a pull killed before the end leaves objects no record names yet, which the
+    // next pull skips.
+    let received = remote.download(store, &wanted, bar)?;
+    Ok((rows, received))
+}
+
+/// For `osms make --executor slurm --remote NAME`: pulls what the remote holds of `targets`
+/// (from the first stage down, as `osms pull` does, without failing on what it lacks) under
+/// the store's lock, released before the cluster make takes it. The instances pulled, with
+/// their bytes.
+pub(crate) fn pull_before_cluster_make(
+    ctx: &Context,
+    plan: &Plan,
+    store: &Store,
+    seeds: &[u64],
+    targets: &[String],
+    remote: &Remote,
+) -> Result<BTreeMap<String, u64>> {
+    let _lock =
+        store.lock(|| errln!("waiting for another osms process to release the store lock..."))?;
+    let (rows, _) = pull_closure(
+        plan,
+        store,
+        seeds,
+        targets,
+        remote,
+        &Bar::new(ctx, "pulling"),
+    )?;
+    let mut pulled = BTreeMap::new();
+    for row in rows {
+        if let (PullOutcome::Pulled, Some(key)) = (row.outcome, row.key) {
+            let bytes = store.record(&key)?.map_or(0, |r| r.size_bytes);
+            pulled.insert(row.instance, bytes);
+        }
+    }
+    Ok(pulled)
 }
 
 /// The record of `key` if the store holds it with every object intact.
