@@ -1,6 +1,6 @@
 //! One remote: where its objects and records live, and the transfers between it and a store.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
@@ -368,8 +368,7 @@ impl Remote {
         progress: &dyn Progress,
     ) -> Result<Received> {
         // Each object once, with the first record that names it (for a message).
-        let mut named_by: std::collections::BTreeMap<Hash, Hash> =
-            std::collections::BTreeMap::new();
+        let mut named_by: BTreeMap<Hash, Hash> = BTreeMap::new();
         for r in records {
             for h in std::iter::once(r.content_hash).chain(r.parts.iter().copied()) {
                 named_by.entry(h).or_insert(r.key);

@@ -49,13 +49,20 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
     } else {
         args.remote.as_deref().or(plan.default_remote.as_deref())
     };
+    let remote = match remote_name {
+        Some(name) if !args.dry_run => Some(crate::commands::remote::open(
+            ctx,
+            &plan,
+            Some(name),
+            osms_remote::DEFAULT_JOBS,
+        )?),
+        _ => None,
+    };
     // On a cluster the driver pulls what the remote holds before it submits anything: its
     // tasks write the store directly, so the lookup cannot sit between a stage and its job.
     let mut cluster_pulled = BTreeMap::new();
-    let fetch = match remote_name {
-        Some(name) if !args.dry_run && executor == ExecutorKind::Slurm => {
-            let remote =
-                crate::commands::remote::open(ctx, &plan, Some(name), osms_remote::DEFAULT_JOBS)?;
+    let fetch = match remote {
+        Some(remote) if executor == ExecutorKind::Slurm => {
             cluster_pulled = crate::commands::remote::pull_before_cluster_make(
                 ctx,
                 &plan,
@@ -66,16 +73,11 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
             )?;
             None
         }
-        Some(name) if !args.dry_run => Some(crate::commands::remote::MakeFetch {
-            remote: crate::commands::remote::open(
-                ctx,
-                &plan,
-                Some(name),
-                osms_remote::DEFAULT_JOBS,
-            )?,
+        Some(remote) => Some(crate::commands::remote::MakeFetch {
+            remote,
             bar: crate::commands::remote::Bar::new(ctx, "pulling"),
         }),
-        _ => None,
+        None => None,
     };
     // A dry run submits nothing: it is the same plan whatever the executor.
     let report = if let Some(fetch) = &fetch {

@@ -262,7 +262,7 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
             store.root().display()
         );
     }
-    let (rows, received) = pull_closure(
+    let (rows, received, _) = pull_closure(
         &plan,
         &store,
         &seeds,
@@ -326,7 +326,7 @@ pub fn pull(ctx: &Context, args: &TransferArgs) -> Result<ExitCode> {
 
 /// Walks `targets`' instances from the first stage down, reading the remote's record of each
 /// key the store lacks, then downloads every object those records name (at once) and writes the
-/// records. Callers hold the store's lock.
+/// records, which it returns with the rows. Callers hold the store's lock.
 fn pull_closure(
     plan: &Plan,
     store: &Store,
@@ -334,7 +334,7 @@ fn pull_closure(
     targets: &[String],
     remote: &Remote,
     bar: &Bar,
-) -> Result<(Vec<PullRow>, osms_remote::Received)> {
+) -> Result<(Vec<PullRow>, osms_remote::Received, Vec<Record>)> {
     let mut wanted: Vec<Record> = Vec::new();
     // Keys follow content: an instance's key is known once each input's content hash is, from
     // the store or from the remote's record.
@@ -389,7 +389,7 @@ fn pull_closure(
     // the records; a pull killed before the end leaves objects no record names yet, which the
     // next pull skips.
     let received = remote.download(store, &wanted, bar)?;
-    Ok((rows, received))
+    Ok((rows, received, wanted))
 }
 
 /// For `osms make --executor slurm --remote NAME`: pulls what the remote holds of `targets`
@@ -406,7 +406,7 @@ pub(crate) fn pull_before_cluster_make(
 ) -> Result<BTreeMap<String, u64>> {
     let _lock =
         store.lock(|| errln!("waiting for another osms process to release the store lock..."))?;
-    let (rows, _) = pull_closure(
+    let (rows, _, records) = pull_closure(
         plan,
         store,
         seeds,
@@ -414,14 +414,14 @@ pub(crate) fn pull_before_cluster_make(
         remote,
         &Bar::new(ctx, "pulling"),
     )?;
-    let mut pulled = BTreeMap::new();
-    for row in rows {
-        if let (PullOutcome::Pulled, Some(key)) = (row.outcome, row.key) {
-            let bytes = store.record(&key)?.map_or(0, |r| r.size_bytes);
-            pulled.insert(row.instance, bytes);
-        }
-    }
-    Ok(pulled)
+    let sizes: BTreeMap<Hash, u64> = records.iter().map(|r| (r.key, r.size_bytes)).collect();
+    Ok(rows
+        .into_iter()
+        .filter_map(|row| match (row.outcome, row.key) {
+            (PullOutcome::Pulled, Some(key)) => Some((row.instance, sizes[&key])),
+            _ => None,
+        })
+        .collect())
 }
 
 /// The record of `key` if the store holds it with every object intact.
