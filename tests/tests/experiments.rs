@@ -119,6 +119,38 @@ fn the_decide_profile_is_small_with_twenty_six_run_seeds() {
 }
 
 #[test]
+fn the_de4k_profile_is_small_at_the_data_curves_four_thousand_point() {
+    // The profile and `curve-pibar-4k` (scripts/issue74-experiments) must set the same params,
+    // so the profile's π̄ builds are the curve point's, and everything else is small's.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
+    let load = |profile| Pipeline::load(&path, Some(profile)).expect("load");
+    let de4k = load("de4k");
+    let mut curve = load("small");
+    let overrides: Vec<Override> = ["d_e.n=8000", "student_il.steps=60000"]
+        .iter()
+        .map(|o| o.parse().expect("override"))
+        .collect();
+    curve.apply(&overrides).expect("apply");
+    let spec = |p: &Pipeline| -> Vec<String> {
+        p.stages
+            .values()
+            .map(|s| format!("{} {:?} {:?} {}", s.name, s.inputs, s.params, s.shards))
+            .collect()
+    };
+    assert_eq!(spec(&de4k), spec(&curve));
+    assert_ne!(spec(&de4k), spec(&load("small")));
+    assert_eq!(de4k.default_seeds, [0, 1, 2]);
+    let script = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/issue74-experiments"),
+    )
+    .expect("script");
+    assert!(
+        script.contains("curve-pibar-4k --set d_e.n=8000 --set student_il.steps=60000 "),
+        "curve-pibar-4k's settings changed: change [profiles.de4k] with them"
+    );
+}
+
+#[test]
 fn the_development_stream_shares_no_condition_with_the_held_out_set() {
     // The paper profile's sizes: all 3,000 held-out conditions against all 500 of the stream.
     let (plan, _dir, store) = shipped_plan("paper");
