@@ -8,7 +8,7 @@
 //! and the noise's innovations from ("noise", …) of the same index.
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoEntry, DemoGroup, DemoSet, Execution, Origin, Teacher};
 use osms_sim::World;
 use osms_sim::artifacts::WorldArtifact;
@@ -74,6 +74,12 @@ impl Kind for DartStage {
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
+    }
+
+    /// D_R's rollouts: the sets are built on its conditions, whatever the size of the error
+    /// model (which follows D_E) or of the other inputs.
+    fn scale(_: &DartParams, inputs: &[(&str, f64)]) -> Scale {
+        Scale::items(Scale::input(inputs, "data"))
     }
 }
 

@@ -2,7 +2,7 @@
 //! step 4).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoGroup, DemoSet, Teacher};
 use osms_sim::artifacts::WorldArtifact;
 use serde::{Deserialize, Serialize};
@@ -33,6 +33,12 @@ impl Kind for DstarStage {
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
+    }
+
+    /// D_R's rollouts: the sets are built on its conditions, whatever the size of the error
+    /// model (which follows D_E) or of the other inputs.
+    fn scale(_: &DstarParams, inputs: &[(&str, f64)]) -> Scale {
+        Scale::items(Scale::input(inputs, "data"))
     }
 }
 

@@ -215,3 +215,49 @@ pub fn register(registry: &mut osms_make::Registry) {
         .register(ConstructionTableStage)
         .register_itemised(IosProfileStage);
 }
+
+#[cfg(test)]
+mod tests {
+    use osms_make::Kind;
+
+    use super::*;
+
+    #[test]
+    fn demonstration_sets_cost_what_d_r_holds_not_what_the_error_model_was_fitted_on() {
+        // The error model's size follows D_E; a larger D_E must not scale D_*'s estimate.
+        let small = [
+            ("data", 1000.0),
+            ("error_model", 500.0),
+            ("validation", 1000.0),
+        ];
+        let de4k = [
+            ("data", 1000.0),
+            ("error_model", 8000.0),
+            ("validation", 1000.0),
+        ];
+        let larger_d_r = [
+            ("data", 4000.0),
+            ("error_model", 500.0),
+            ("validation", 4000.0),
+        ];
+        let work =
+            |f: &dyn Fn(&[(&str, f64)]) -> f64| (f(&small[..]), f(&de4k[..]), f(&larger_d_r[..]));
+        let expected = (1000.0, 1000.0, 4000.0);
+        assert_eq!(
+            work(&|i| DstarStage::scale(&DstarParams::default(), i).work),
+            expected
+        );
+        assert_eq!(
+            work(&|i| NaiveStage::scale(&BaselineParams::default(), i).work),
+            expected
+        );
+        assert_eq!(
+            work(&|i| NormalStage::scale(&BaselineParams::default(), i).work),
+            expected
+        );
+        assert_eq!(
+            work(&|i| DartStage::scale(&DartParams::default(), i).work),
+            expected
+        );
+    }
+}

@@ -4,7 +4,7 @@
 //! and its projection samples from ("projection", j).
 
 use osms_core::rng::StreamRng;
-use osms_make::{Ctx, ItemStage, Kind, Numerics, Slot, StageError};
+use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoGroup, DemoSet, Teacher};
 use osms_policy::catch::CatchTaskSpec;
 use osms_sim::artifacts::WorldArtifact;
@@ -51,6 +51,12 @@ impl Kind for NormalStage {
 
     fn numerics() -> Vec<Numerics> {
         osms_policy::stages::numerics()
+    }
+
+    /// D_R's rollouts: the sets are built on its conditions, whatever the size of the error
+    /// model (which follows D_E) or of the other inputs.
+    fn scale(_: &BaselineParams, inputs: &[(&str, f64)]) -> Scale {
+        Scale::items(Scale::input(inputs, "data"))
     }
 }
 
