@@ -240,24 +240,22 @@ mod tests {
             ("error_model", 500.0),
             ("validation", 4000.0),
         ];
-        let work =
-            |f: &dyn Fn(&[(&str, f64)]) -> f64| (f(&small[..]), f(&de4k[..]), f(&larger_d_r[..]));
-        let expected = (1000.0, 1000.0, 4000.0);
-        assert_eq!(
-            work(&|i| DstarStage::scale(&DstarParams::default(), i).work),
-            expected
-        );
-        assert_eq!(
-            work(&|i| NaiveStage::scale(&BaselineParams::default(), i).work),
-            expected
-        );
-        assert_eq!(
-            work(&|i| NormalStage::scale(&BaselineParams::default(), i).work),
-            expected
-        );
-        assert_eq!(
-            work(&|i| DartStage::scale(&DartParams::default(), i).work),
-            expected
-        );
+        type Work = fn(&[(&str, f64)]) -> f64;
+        let kinds: [(&str, Work); 4] = [
+            ("dstar", |i| {
+                DstarStage::scale(&DstarParams::default(), i).work
+            }),
+            ("naive", |i| {
+                NaiveStage::scale(&BaselineParams::default(), i).work
+            }),
+            ("normal", |i| {
+                NormalStage::scale(&BaselineParams::default(), i).work
+            }),
+            ("dart", |i| DartStage::scale(&DartParams::default(), i).work),
+        ];
+        for (kind, work) in kinds {
+            let got = (work(&small), work(&de4k), work(&larger_d_r));
+            assert_eq!(got, (1000.0, 1000.0, 4000.0), "{kind}");
+        }
     }
 }
