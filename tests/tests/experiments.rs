@@ -96,24 +96,30 @@ fn build(plan: &Plan, store: &Store, targets: &[&str]) -> BTreeMap<String, osms_
     osms_tests::project::hashes(&report)
 }
 
+/// The shipped pipeline under `profile`.
+fn shipped_pipeline(profile: &str) -> Pipeline {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
+    Pipeline::load(&path, Some(profile)).expect("load")
+}
+
+/// What decides a stage's builds, stage by stage.
+fn stage_spec(p: &Pipeline) -> Vec<String> {
+    p.stages
+        .values()
+        .map(|s| {
+            format!(
+                "{} {} {:?} {:?} {} {:?} {:?}",
+                s.name, s.kind, s.inputs, s.params, s.shards, s.folds, s.fixed_seed
+            )
+        })
+        .collect()
+}
+
 #[test]
 fn the_decide_profile_is_small_with_twenty_six_run_seeds() {
     // Same stages, params and seeds as small, so its first three run seeds are small's builds.
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
-    let load = |profile| Pipeline::load(&path, Some(profile)).expect("load");
-    let (small, decide) = (load("small"), load("decide"));
-    let spec = |p: &Pipeline| -> Vec<String> {
-        p.stages
-            .values()
-            .map(|s| {
-                format!(
-                    "{} {} {:?} {:?} {} {:?} {:?}",
-                    s.name, s.kind, s.inputs, s.params, s.shards, s.folds, s.fixed_seed
-                )
-            })
-            .collect()
-    };
-    assert_eq!(spec(&small), spec(&decide));
+    let (small, decide) = (shipped_pipeline("small"), shipped_pipeline("decide"));
+    assert_eq!(stage_spec(&small), stage_spec(&decide));
     assert_eq!(small.default_seeds, [0, 1, 2]);
     assert_eq!(decide.default_seeds, (0..26).collect::<Vec<u64>>());
 }
@@ -122,23 +128,15 @@ fn the_decide_profile_is_small_with_twenty_six_run_seeds() {
 fn the_de4k_profile_is_small_at_the_data_curves_four_thousand_point() {
     // The profile and `curve-pibar-4k` (scripts/issue74-experiments) must set the same params,
     // so the profile's π̄ builds are the curve point's, and everything else is small's.
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../pipeline.toml");
-    let load = |profile| Pipeline::load(&path, Some(profile)).expect("load");
-    let de4k = load("de4k");
-    let mut curve = load("small");
+    let de4k = shipped_pipeline("de4k");
+    let mut curve = shipped_pipeline("small");
     let overrides: Vec<Override> = ["d_e.n=8000", "student_il.steps=60000"]
         .iter()
         .map(|o| o.parse().expect("override"))
         .collect();
     curve.apply(&overrides).expect("apply");
-    let spec = |p: &Pipeline| -> Vec<String> {
-        p.stages
-            .values()
-            .map(|s| format!("{} {:?} {:?} {}", s.name, s.inputs, s.params, s.shards))
-            .collect()
-    };
-    assert_eq!(spec(&de4k), spec(&curve));
-    assert_ne!(spec(&de4k), spec(&load("small")));
+    assert_eq!(stage_spec(&de4k), stage_spec(&curve));
+    assert_ne!(stage_spec(&de4k), stage_spec(&shipped_pipeline("small")));
     assert_eq!(de4k.default_seeds, [0, 1, 2]);
     let script = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/issue74-experiments"),

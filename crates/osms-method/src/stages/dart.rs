@@ -20,6 +20,8 @@ use crate::construct::used;
 use crate::error_model::{ErrorModel, ErrorVariant, Perturber};
 use crate::intervene::{Errors, execute};
 
+use super::demonstration_set_scale;
+
 /// DART-IL's collection. Every default lives here.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -76,10 +78,8 @@ impl Kind for DartStage {
         osms_policy::stages::numerics()
     }
 
-    /// D_R's rollouts: the sets are built on its conditions, whatever the size of the error
-    /// model (which follows D_E) or of the other inputs.
     fn scale(_: &DartParams, inputs: &[(&str, f64)]) -> Scale {
-        Scale::items(Scale::input(inputs, "data"))
+        demonstration_set_scale(inputs)
     }
 }
 

@@ -10,6 +10,8 @@ use serde::{Deserialize, Serialize};
 use crate::artifacts::{CandidateSets, ErrorModelArtifact, Validation};
 use crate::construct::{Inputs, PerturbedLabels, dstar_group};
 
+use super::demonstration_set_scale;
+
 /// D_* (Alg. 1 step 4): for a refined or repaired rollout the selected ζ*'s unperturbed
 /// rollout and every successful perturbed one (labels: the commanded actions, modelled
 /// perturbations included, unless `perturbed_labels` says otherwise); a kept original as it
@@ -35,10 +37,8 @@ impl Kind for DstarStage {
         osms_policy::stages::numerics()
     }
 
-    /// D_R's rollouts: the sets are built on its conditions, whatever the size of the error
-    /// model (which follows D_E) or of the other inputs.
     fn scale(_: &DstarParams, inputs: &[(&str, f64)]) -> Scale {
-        Scale::items(Scale::input(inputs, "data"))
+        demonstration_set_scale(inputs)
     }
 }
 

@@ -35,7 +35,7 @@ pub use naive::NaiveStage;
 pub use normal::{NormalInputs, NormalStage};
 pub use validate::ValidateStage;
 
-use osms_make::{Ctx, Numerics, StageError};
+use osms_make::{Ctx, Numerics, Scale, StageError};
 use osms_policy::artifacts::{Dataset, DemoSet, Teacher};
 use osms_sim::artifacts::WorldArtifact;
 use serde::{Deserialize, Serialize};
@@ -196,6 +196,13 @@ fn load_inputs<P>(ctx: &Ctx<'_, P>, params: &ValidateParams) -> Result<Inputs, S
         rollouts: data.items.into_iter().take(n).map(|i| i.rollout).collect(),
         model,
     })
+}
+
+/// The cost-model size of a demonstration set (D_*, Naive's, Normal's, DART's): D_R's
+/// rollouts, since the set is built on its conditions, whatever the size of the error model
+/// (which follows D_E) or of the other inputs.
+fn demonstration_set_scale(inputs: &[(&str, f64)]) -> Scale {
+    Scale::items(Scale::input(inputs, "data"))
 }
 
 /// Registers the method's stage kinds.

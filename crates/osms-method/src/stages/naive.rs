@@ -8,7 +8,7 @@ use osms_make::{Ctx, ItemStage, Kind, Numerics, Scale, Slot, StageError};
 use osms_policy::artifacts::{Dataset, DemoGroup, DemoSet, Teacher};
 use osms_sim::artifacts::WorldArtifact;
 
-use super::BaselineParams;
+use super::{BaselineParams, demonstration_set_scale};
 use crate::construct::{naive_extension, naive_group, used};
 
 /// The Naive set: D_R's successes, then successful teacher rollouts on the stage's own
@@ -31,10 +31,8 @@ impl Kind for NaiveStage {
         osms_policy::stages::numerics()
     }
 
-    /// D_R's rollouts: the sets are built on its conditions, whatever the size of the error
-    /// model (which follows D_E) or of the other inputs.
     fn scale(_: &BaselineParams, inputs: &[(&str, f64)]) -> Scale {
-        Scale::items(Scale::input(inputs, "data"))
+        demonstration_set_scale(inputs)
     }
 }
 

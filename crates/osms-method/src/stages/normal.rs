@@ -9,7 +9,7 @@ use osms_policy::artifacts::{Dataset, DemoGroup, DemoSet, Teacher};
 use osms_policy::catch::CatchTaskSpec;
 use osms_sim::artifacts::WorldArtifact;
 
-use super::BaselineParams;
+use super::{BaselineParams, demonstration_set_scale};
 use crate::artifacts::{CandidateSets, ErrorModelArtifact, Validation};
 use crate::candidates::{Generator, SearchParams};
 use crate::construct::{Inputs, normal_extension, normal_group, used};
@@ -53,10 +53,8 @@ impl Kind for NormalStage {
         osms_policy::stages::numerics()
     }
 
-    /// D_R's rollouts: the sets are built on its conditions, whatever the size of the error
-    /// model (which follows D_E) or of the other inputs.
     fn scale(_: &BaselineParams, inputs: &[(&str, f64)]) -> Scale {
-        Scale::items(Scale::input(inputs, "data"))
+        demonstration_set_scale(inputs)
     }
 }
 
