@@ -224,13 +224,80 @@ fn field(s: &str) -> String {
     }
 }
 
-/// Data range with 5 % padding; a flat or empty range gets a unit width.
+/// Data range with 5 % padding; a flat range gets a tenth of its value as width (a unit width
+/// around 9,655 demonstrations would tick in hundredths), an empty or zero one a unit width.
 fn padded(lo: f64, hi: f64) -> Range<f64> {
     if !(lo.is_finite() && hi.is_finite()) || lo > hi {
         return 0.0..1.0;
     }
-    let span = if hi - lo > 1e-12 { hi - lo } else { 1.0 };
+    let span = if hi - lo > 1e-12 {
+        hi - lo
+    } else if hi.abs() > 1e-12 {
+        0.1 * hi.abs()
+    } else {
+        1.0
+    };
     (lo - 0.05 * span)..(hi + 0.05 * span)
+}
+
+/// The chart's outer margin and its y-label strip, in pixels (`draw_panel`'s layout).
+const MARGIN_PX: u32 = 10;
+const Y_LABEL_PX: u32 = 56;
+/// plotters' series-label box: the labels inside a 10 px margin, a 30 px legend swatch, placed
+/// 5 px from the plot's top and right edges.
+const LEGEND_MARGIN_PX: f64 = 10.0;
+const LEGEND_SWATCH_PX: f64 = 30.0;
+const LEGEND_OFFSET_PX: f64 = 5.0;
+/// Clearance kept between the legend box and a marker's centre (the largest marker's radius
+/// and a pixel).
+const MARKER_PX: f64 = 6.0;
+
+/// Width and height in pixels of the legend box plotters draws for these labels.
+fn legend_box(labels: &[&str]) -> Option<(f64, f64)> {
+    if labels.is_empty() {
+        return None;
+    }
+    let font: TextStyle = ("sans-serif", 11).into_font().into();
+    let mut text = MultiLineText::<(i32, i32), &str>::new((0, 0), &font);
+    for l in labels {
+        text.push_line(*l);
+    }
+    let (w, h) = text.estimate_dimension().ok()?;
+    Some((
+        f64::from(w) + LEGEND_SWATCH_PX + 2.0 * LEGEND_MARGIN_PX,
+        f64::from(h) + 2.0 * LEGEND_MARGIN_PX,
+    ))
+}
+
+/// Whether any point, or the end of its band, falls under the legend box in the plot's
+/// top-right corner (`plot` the plotting area's size in pixels).
+fn under_legend(
+    panel: &Panel,
+    x: &Range<f64>,
+    y: &Range<f64>,
+    plot: (f64, f64),
+    legend: (f64, f64),
+) -> bool {
+    let left = plot.0 - LEGEND_OFFSET_PX - legend.0 - MARKER_PX;
+    let bottom = LEGEND_OFFSET_PX + legend.1 + MARKER_PX;
+    let px = |v: f64| (v - x.start) / (x.end - x.start) * plot.0;
+    let py = |v: f64| (y.end - v) / (y.end - y.start) * plot.1;
+    panel.series.iter().any(|s| {
+        let half = if s.mark == Mark::Bars { 0.4 } else { 0.0 };
+        s.points.iter().any(|p| {
+            let (lo, hi) = p.band.unwrap_or((p.y, p.y));
+            px(p.x + half) >= left && [p.y, lo, hi].iter().any(|&v| py(v) <= bottom)
+        })
+    })
+}
+
+/// The y range stretched upward so that a plot `plot_px` high keeps its top `reserved_px`
+/// free of data: the old top maps to `reserved_px` below the new one.
+fn with_headroom(y: Range<f64>, plot_px: f64, reserved_px: f64) -> Range<f64> {
+    // A legend taller than half the plot would squeeze the data flat; it covers some instead.
+    let reserved = reserved_px.clamp(0.0, 0.5 * plot_px);
+    let top = y.start + (y.end - y.start) * plot_px / (plot_px - reserved);
+    y.start..top
 }
 
 fn ranges(panel: &Panel) -> (Range<f64>, Range<f64>) {
@@ -266,21 +333,56 @@ fn ranges(panel: &Panel) -> (Range<f64>, Range<f64>) {
     (x, padded(y0, y1))
 }
 
+/// The panel's axes, the y range raised where the data would run under the legend.
+fn chart_ranges(
+    panel: &Panel,
+    plot: (f64, f64),
+    legend: Option<(f64, f64)>,
+) -> (Range<f64>, Range<f64>) {
+    let (x, y) = ranges(panel);
+    match legend {
+        Some(size) if under_legend(panel, &x, &y, plot, size) => {
+            let y = with_headroom(y, plot.1, LEGEND_OFFSET_PX + size.1 + MARKER_PX);
+            (x, y)
+        }
+        _ => (x, y),
+    }
+}
+
 fn draw_panel<DB: DrawingBackend>(
     panel: &Panel,
     area: &DrawingArea<DB, Shift>,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-    let (xr, yr) = ranges(panel);
+    // The caption as ChartBuilder::caption draws it, so the plotting area's size is known
+    // before the y range is fixed.
+    let titled = area.titled(panel.title.as_str(), ("sans-serif", 15).into_font())?;
+    let x_label_px = if panel.x_categories.is_empty() {
+        36
+    } else {
+        60
+    };
+    let (w, h) = titled.dim_in_pixel();
+    let plot = (
+        f64::from(w.saturating_sub(2 * MARGIN_PX + Y_LABEL_PX)),
+        f64::from(h.saturating_sub(2 * MARGIN_PX + x_label_px)),
+    );
+    // A lone series is named by the panel's title; a legend would only cover data.
+    let labels: Vec<&str> = if panel.series.len() > 1 {
+        panel
+            .series
+            .iter()
+            .filter(|s| !s.name.is_empty())
+            .map(|s| s.name.as_str())
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let (xr, yr) = chart_ranges(panel, plot, legend_box(&labels));
     let (y_lo, y_hi) = (yr.start, yr.end);
-    let mut chart = ChartBuilder::on(area)
-        .caption(panel.title.as_str(), ("sans-serif", 15))
-        .margin(10)
-        .x_label_area_size(if panel.x_categories.is_empty() {
-            36
-        } else {
-            60
-        })
-        .y_label_area_size(56)
+    let mut chart = ChartBuilder::on(&titled)
+        .margin(MARGIN_PX)
+        .x_label_area_size(x_label_px)
+        .y_label_area_size(Y_LABEL_PX)
         .build_cartesian_2d(xr, yr)?;
     let categories = panel.x_categories.clone();
     let format_x = move |x: &f64| -> String {
@@ -314,8 +416,6 @@ fn draw_panel<DB: DrawingBackend>(
         .filter(|(_, s)| s.mark == Mark::Bars)
         .map(|(i, _)| i)
         .collect();
-    // A lone series is named by the panel's title; a legend would only cover data.
-    let legend_wanted = panel.series.len() > 1;
     let mut labelled = false;
     for (i, s) in panel.series.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
@@ -366,7 +466,7 @@ fn draw_panel<DB: DrawingBackend>(
                 }))?
             }
         };
-        if legend_wanted && !s.name.is_empty() {
+        if !labels.is_empty() && !s.name.is_empty() {
             drawn.label(s.name.as_str()).legend(legend);
             labelled = true;
         }
@@ -480,6 +580,95 @@ mod tests {
         assert_eq!(u32::from_be_bytes(png[20..24].try_into().expect("h")), h);
         assert_eq!((w, h), (3 * PANEL_W, TITLE_H + PANEL_H));
         assert_eq!(png, f.png().expect("png again"));
+    }
+
+    fn two_series(top_right: Point) -> Panel {
+        let series = |name: &str, points: Vec<Point>| Series {
+            name: name.into(),
+            mark: Mark::Points,
+            points,
+        };
+        Panel {
+            title: "p".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            x_categories: vec![],
+            x_marker: None,
+            x_range: None,
+            series: vec![
+                series("dev_student, validate.kappa=1", vec![Point::new(0.0, 0.0)]),
+                series("dev_student_dart, validate.kappa=1", vec![top_right]),
+            ],
+        }
+    }
+
+    #[test]
+    fn the_legend_box_grows_with_its_labels() {
+        register_font();
+        let one = legend_box(&["a"]).expect("one label");
+        let two = legend_box(&["a", "a much longer label"]).expect("two labels");
+        assert!(two.0 > one.0 && two.1 > one.1, "{one:?} {two:?}");
+        assert!(
+            one.1 > 2.0 * LEGEND_MARGIN_PX && one.0 > LEGEND_SWATCH_PX,
+            "{one:?}"
+        );
+        assert_eq!(legend_box(&[]), None);
+    }
+
+    #[test]
+    fn headroom_puts_the_old_top_the_reserved_pixels_below_the_new_one() {
+        let y = with_headroom(10.0..30.0, 300.0, 60.0);
+        assert_eq!(y.start, 10.0);
+        // On a 300 px axis the old top (30) sits 60 px below the new top: 60/300 of the span.
+        let from_top = (y.end - 30.0) / (y.end - y.start) * 300.0;
+        assert!((from_top - 60.0).abs() < 1e-9, "{y:?}");
+        // A reservation beyond half the plot is capped there.
+        let capped = with_headroom(0.0..1.0, 100.0, 90.0);
+        assert!((capped.end - 2.0).abs() < 1e-12, "{capped:?}");
+    }
+
+    #[test]
+    fn data_under_the_legend_raise_the_y_axis_and_other_data_leave_it() {
+        register_font();
+        let plot = (448.0, 290.0);
+        let legend = legend_box(&[
+            "dev_student, validate.kappa=1",
+            "dev_student_dart, validate.kappa=1",
+        ]);
+        let (w, h) = legend.expect("legend");
+        // Top right: the second series' point is the data's largest x and y.
+        let covered = two_series(Point::new(1.0, 1.0));
+        let (x, y) = ranges(&covered);
+        assert!(under_legend(&covered, &x, &y, plot, (w, h)));
+        let (x2, y2) = chart_ranges(&covered, plot, legend);
+        assert_eq!(x2, x);
+        assert!(y2.end > y.end && y2.start == y.start, "{y:?} -> {y2:?}");
+        // In pixels, the point now sits below the box with a marker's clearance.
+        let from_top = (y2.end - 1.0) / (y2.end - y2.start) * plot.1;
+        assert!(
+            from_top >= LEGEND_OFFSET_PX + h + MARKER_PX - 1e-9,
+            "{from_top} {h}"
+        );
+        assert!(!under_legend(&covered, &x2, &y2, plot, (w, h)));
+        // Bottom right and top left stay clear of the box: the axis is the data's.
+        for p in [Point::new(1.0, -1.0), Point::new(-1.0, 1.0)] {
+            let clear = two_series(p);
+            assert_eq!(chart_ranges(&clear, plot, legend), ranges(&clear), "{p:?}");
+        }
+        // An interval's end under the box counts like a point.
+        let band = two_series(Point {
+            band: Some((-1.0, 1.0)),
+            ..Point::new(1.0, -1.0)
+        });
+        let (x, y) = ranges(&band);
+        assert!(under_legend(&band, &x, &y, plot, (w, h)));
+    }
+
+    #[test]
+    fn a_flat_range_is_padded_by_a_tenth_of_its_value() {
+        assert_eq!(padded(9655.0, 9655.0), (9655.0 - 48.275)..(9655.0 + 48.275));
+        assert_eq!(padded(0.0, 0.0), -0.05..0.05);
+        assert_eq!(padded(f64::NAN, 1.0), 0.0..1.0);
     }
 
     #[test]
