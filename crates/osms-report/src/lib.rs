@@ -14,6 +14,7 @@ pub mod baselines;
 pub mod claims;
 mod error;
 pub mod figures;
+mod glyphs;
 pub mod plot;
 pub mod stages;
 pub mod tables;

@@ -12,6 +12,7 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 use serde::{Deserialize, Serialize};
 
+use crate::glyphs::Baseline;
 use crate::{Error, Result};
 
 /// How a series is drawn.
@@ -159,7 +160,10 @@ impl Figure {
         let (w, h) = self.size();
         let mut rgb = vec![0u8; (w * h * 3) as usize];
         {
-            let root = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
+            let bitmap = BitMapBackend::with_buffer(&mut rgb, (w, h));
+            let root = Baseline::new(bitmap)
+                .ok_or_else(|| self.draw_error("the bundled DejaVu Sans does not parse"))?
+                .into_drawing_area();
             self.draw(&root).map_err(|e| self.draw_error(e))?;
             root.present().map_err(|e| self.draw_error(e))?;
         }
