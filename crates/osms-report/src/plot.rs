@@ -244,6 +244,18 @@ fn padded(lo: f64, hi: f64) -> Range<f64> {
     (lo - 0.05 * span)..(hi + 0.05 * span)
 }
 
+/// A tick label: whole numbers without a fractional part ("800", not "800.0"), others with
+/// at most six decimals and no trailing zeros (0.1 + 0.2 reads "0.3").
+fn tick(v: f64) -> String {
+    let text = format!("{v:.6}");
+    let text = text.trim_end_matches('0').trim_end_matches('.');
+    if text == "-0" {
+        "0".to_string()
+    } else {
+        text.to_string()
+    }
+}
+
 /// The chart's outer margin and its y-label strip, in pixels (`draw_panel`'s layout).
 const MARGIN_PX: u32 = 10;
 const Y_LABEL_PX: u32 = 56;
@@ -391,7 +403,7 @@ fn draw_panel<DB: DrawingBackend>(
     let categories = panel.x_categories.clone();
     let format_x = move |x: &f64| -> String {
         if categories.is_empty() {
-            format!("{x}")
+            tick(*x)
         } else {
             let i = x.round();
             if (x - i).abs() < 1e-6 && i >= 0.0 {
@@ -401,6 +413,7 @@ fn draw_panel<DB: DrawingBackend>(
             }
         }
     };
+    let format_y = |y: &f64| tick(*y);
     let mut mesh = chart.configure_mesh();
     mesh.x_desc(panel.x_label.as_str())
         .y_desc(panel.y_label.as_str())
@@ -408,9 +421,10 @@ fn draw_panel<DB: DrawingBackend>(
         .axis_desc_style(("sans-serif", 13))
         .light_line_style(RGBColor(235, 235, 235));
     if !panel.x_categories.is_empty() {
-        mesh.x_labels(panel.x_categories.len() * 2 + 1)
-            .x_label_formatter(&format_x);
+        mesh.x_labels(panel.x_categories.len() * 2 + 1);
     }
+    mesh.x_label_formatter(&format_x)
+        .y_label_formatter(&format_y);
     mesh.draw()?;
 
     let bar_series: Vec<usize> = panel
@@ -673,6 +687,18 @@ mod tests {
         assert_eq!(padded(9655.0, 9655.0), (9655.0 - 48.275)..(9655.0 + 48.275));
         assert_eq!(padded(0.0, 0.0), -0.05..0.05);
         assert_eq!(padded(f64::NAN, 1.0), 0.0..1.0);
+    }
+
+    #[test]
+    fn tick_labels_drop_a_whole_numbers_fraction() {
+        assert_eq!(tick(800.0), "800");
+        assert_eq!(tick(0.0), "0");
+        assert_eq!(tick(-0.0), "0");
+        assert_eq!(tick(0.1 + 0.2), "0.3");
+        assert_eq!(tick(-2.5), "-2.5");
+        assert_eq!(tick(42.45), "42.45");
+        assert_eq!(tick(1e-7), "0");
+        assert_eq!(tick(9650.0), "9650");
     }
 
     #[test]
