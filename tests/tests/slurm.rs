@@ -299,6 +299,11 @@ fn the_cost_model_scales_measured_core_seconds_by_planned_work() {
             .iter()
             .all(|i| !i.measured.as_ref().expect("m").stale)
     );
+    // A stage with a build of its own is scaled from it, never from another of its kind.
+    for i in &e.instances {
+        let stage = i.instance.split(['#', '@']).next().expect("a stage");
+        assert_eq!(i.measured.as_ref().expect("m").stage, stage, "{i:?}");
+    }
 
     // New numbers: every build is stale. Those whose params are the profile's still measure
     // their stage (their last build's record); `numbers` itself, whose params changed, does not.
@@ -324,11 +329,22 @@ fn the_cost_model_scales_measured_core_seconds_by_planned_work() {
     assert_eq!((m.work, total.work), (12.0, 1000.0));
     let old = get("total@0").measured.expect("measured");
     assert_eq!((m.key, m.core_secs), (old.key, old.core_secs));
+    // `numbers`, whose own build no longer measures it, is scaled from the other stage of its
+    // kind, `reference`, and says so.
+    let numbers = e
+        .instances
+        .iter()
+        .find(|i| i.instance == "numbers@0")
+        .expect("numbers");
+    let by_kind = numbers.measured.as_ref().expect("measured by its kind");
+    assert_eq!(by_kind.stage, "reference");
+    assert_eq!(numbers.work, 1000.0);
+    let expected = by_kind.core_secs * 1000.0 / by_kind.work / 3600.0;
     assert!(
-        e.unmeasured.contains(&"numbers@0".to_string()),
-        "{:?}",
-        e.unmeasured
+        (numbers.core_hours.expect("hours") - expected).abs() <= 1e-12 * expected.max(1e-300),
+        "{numbers:?}"
     );
+    assert!(e.unmeasured.is_empty(), "{:?}", e.unmeasured);
     assert!(
         e.instances
             .iter()

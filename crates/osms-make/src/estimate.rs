@@ -13,6 +13,10 @@
 //! A stage whose inputs changed since its last build (stale) still has that build's record:
 //! where its params are the profile's, its core-seconds measure the same work on other input
 //! bytes, and the estimate uses it when no up-to-date build of the stage exists.
+//!
+//! A stage no profile has built (an ablation's validation, say) is scaled from another stage of
+//! the same kind, its largest build, and says so ([`Measured::stage`]): the same code per unit
+//! of work, other params, so a rougher figure than a build of the stage itself.
 
 use std::collections::BTreeMap;
 
@@ -49,6 +53,9 @@ pub fn scales(
 #[derive(Debug, Clone, Serialize)]
 pub struct Measured {
     pub profile: String,
+    /// The stage that was built: the estimated one, or another of its kind when no profile
+    /// has built the estimated one.
+    pub stage: String,
     pub key: Hash,
     pub core_secs: f64,
     pub work: f64,
@@ -99,8 +106,8 @@ pub fn estimate(
 ) -> Result<Estimate> {
     let all_targets: Vec<String> = Vec::new();
     let planned = scales(target, &all_targets, seeds)?;
-    // Every measured build, by instance name: (core-seconds, work, profile, key, assumed).
-    let mut measured: BTreeMap<String, Vec<Measured>> = BTreeMap::new();
+    // Every measured build, by instance name, with its stage's kind.
+    let mut measured: BTreeMap<String, Vec<(&'static str, Measured)>> = BTreeMap::new();
     let heads = Heads::load(store)?;
     for plan in references {
         let sizes = scales(plan, &all_targets, seeds)?;
@@ -133,11 +140,11 @@ pub fn estimate(
                 .filter_map(|h| std::fs::metadata(store.object_path(h)).ok())
                 .map(|m| m.len())
                 .sum();
-            measured
-                .entry(st.instance.clone())
-                .or_default()
-                .push(Measured {
+            measured.entry(st.instance.clone()).or_default().push((
+                stage.info.name,
+                Measured {
                     profile: plan.profile.clone(),
+                    stage: stage.name.clone(),
                     key,
                     core_secs,
                     work,
@@ -145,7 +152,8 @@ pub fn estimate(
                     threads_assumed,
                     stale,
                     bytes,
-                });
+                },
+            ));
         }
     }
     let mut out = Estimate {
@@ -161,14 +169,26 @@ pub fn estimate(
             continue;
         }
         // The largest up-to-date build of any instance of the stage (its seeds and folds do
-        // the same work), else the largest stale one.
-        let stage = &target.stages[id.stage].name;
-        let best = measured
-            .iter()
-            .filter(|(n, _)| n.split(['#', '@']).next() == Some(stage.as_str()))
-            .flat_map(|(_, m)| m)
-            .max_by(|a, b| b.stale.cmp(&a.stale).then(a.work.total_cmp(&b.work)))
-            .cloned();
+        // the same work), else the largest stale one; failing both, the same of its kind.
+        let stage = &target.stages[id.stage];
+        let largest = |of_stage: bool| {
+            measured
+                .iter()
+                .filter(|(n, _)| {
+                    !of_stage || n.split(['#', '@']).next() == Some(stage.name.as_str())
+                })
+                .flat_map(|(_, m)| m)
+                .filter(|(kind, _)| *kind == stage.info.name)
+                .map(|(_, m)| m)
+                .max_by(|a, b| {
+                    b.stale
+                        .cmp(&a.stale)
+                        .then(a.work.total_cmp(&b.work))
+                        .then(b.stage.cmp(&a.stage))
+                })
+                .cloned()
+        };
+        let best = largest(true).or_else(|| largest(false));
         let core_hours = best
             .as_ref()
             .map(|m| m.core_secs * scale.work / m.work / 3600.0);
@@ -180,7 +200,7 @@ pub fn estimate(
         out.total_bytes += bytes.unwrap_or(0.0);
         out.instances.push(InstanceEstimate {
             instance: name,
-            kind: target.stages[id.stage].info.name.to_string(),
+            kind: stage.info.name.to_string(),
             work: scale.work,
             core_hours,
             bytes,

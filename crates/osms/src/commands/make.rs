@@ -251,7 +251,7 @@ fn print_estimate(e: &osms_make::Estimate) {
     for i in &e.instances {
         match (&i.core_hours, &i.measured) {
             (Some(h), Some(m)) => errln!(
-                "  {:<28} {:>10.2}  ({} work {:.0} vs {:.0} on {}: {:.1} core-s{}{})",
+                "  {:<28} {:>10.2}  ({} work {:.0} vs {:.0} on {}: {:.1} core-s{}{}{})",
                 i.instance,
                 h,
                 i.kind,
@@ -264,7 +264,12 @@ fn print_estimate(e: &osms_make::Estimate) {
                 } else {
                     ""
                 },
-                if m.stale { ", stale build" } else { "" }
+                if m.stale { ", stale build" } else { "" },
+                if i.instance.split(['#', '@']).next() == Some(m.stage.as_str()) {
+                    String::new()
+                } else {
+                    format!(", from stage {} of its kind", m.stage)
+                }
             ),
             _ => errln!("  {:<28} {:>10}  (no measured build)", i.instance, "?"),
         }
