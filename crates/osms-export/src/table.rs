@@ -108,7 +108,9 @@ impl Table {
         self.check()?;
         let columns: Vec<parquet_file::Column> = self.columns.iter().map(Column::parquet).collect();
         let refs: Vec<&parquet_file::Column> = columns.iter().collect();
-        parquet_file::write(Vec::new(), &refs, &[0..self.rows()], None)
+        // One row group holding every row (`write` takes a list of row ranges).
+        let one_group = 0..self.rows();
+        parquet_file::write(Vec::new(), &refs, std::slice::from_ref(&one_group), None)
             .map_err(|e| Error::Format(format!("cannot write Parquet: {e}")))
     }
 }
