@@ -44,13 +44,7 @@ def osms(store, *args):
 
 
 def recorded(store):
-    listing = subprocess.run(
-        [os.path.join(ROOT, "osms"), "--store", store, "exp", "ls", "--json"],
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-    return {e["name"] for e in json.loads(listing.stdout)}
+    return {e["name"] for e in osms(store, "exp", "ls", "--json")}
 
 
 def wilson(k, n, z=1.959963984540054):

@@ -306,7 +306,8 @@ fn the_cost_model_scales_measured_core_seconds_by_planned_work() {
     }
 
     // New numbers: every build is stale. Those whose params are the profile's still measure
-    // their stage (their last build's record); `numbers` itself, whose params changed, does not.
+    // their stage (their last build's record); `numbers` itself, whose params changed, does not
+    // measure its own.
     p.write_pipeline(&osms_tests::project::ENGINE_PIPELINE.replace(
         "params = { n = 12, len = 4, scale = 1.0 }",
         "params = { n = 12, len = 4, scale = 2.0 }",

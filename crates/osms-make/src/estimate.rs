@@ -173,12 +173,11 @@ pub fn estimate(
         let stage = &target.stages[id.stage];
         let largest = |of_stage: bool| {
             measured
-                .iter()
-                .filter(|(n, _)| {
-                    !of_stage || n.split(['#', '@']).next() == Some(stage.name.as_str())
+                .values()
+                .flatten()
+                .filter(|(kind, m)| {
+                    *kind == stage.info.name && (!of_stage || m.stage == stage.name)
                 })
-                .flat_map(|(_, m)| m)
-                .filter(|(kind, _)| *kind == stage.info.name)
                 .map(|(_, m)| m)
                 .max_by(|a, b| {
                     b.stale
