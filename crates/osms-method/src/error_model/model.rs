@@ -306,4 +306,21 @@ mod tests {
         let back: ErrorModel = serde_json::from_str(&text).expect("deserialize");
         assert_eq!(back, model);
     }
+
+    /// The regime map's point at the calibrated deviation and the model's own κ validates
+    /// under the very model the default chain does, bit for bit: its validation differs from
+    /// the default one only in the params it records (docs/validation.md).
+    #[test]
+    fn unit_scale_at_the_models_own_kappa_is_the_model_itself() {
+        let model = hand_model(ErrorVariant::Calibrated, 1.5, hand_phase());
+        let same = model
+            .with_deviation_scale(1.0, model.variant)
+            .with_kappa(model.kappa);
+        assert_eq!(
+            serde_json::to_string(&same).expect("serialize"),
+            serde_json::to_string(&model).expect("serialize")
+        );
+        assert_ne!(model.with_kappa(1.0), model);
+        assert_ne!(model.with_deviation_scale(0.5, model.variant), model);
+    }
 }

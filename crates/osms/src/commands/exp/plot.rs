@@ -160,7 +160,7 @@ fn knob<'a>(row: &'a Row, name: &str, flag: &str) -> Result<&'a String> {
     row.params.get(name).ok_or_else(|| {
         let knobs: Vec<&str> = row.params.keys().map(String::as_str).collect();
         anyhow::anyhow!(
-            "{}: {flag} `{name}` is not a knob of this point (its knobs: {})\nhint: a point that ran on the pipeline's value records no knob; run it again with `--set {name}=VALUE` (the same value builds nothing new)",
+            "{}: {flag} `{name}` is not a knob of this point (its knobs: {})\nhint: a point that ran on the pipeline's value records no knob; run it again with `--set {name}=VALUE` (nothing new is built if pipeline.toml writes that value; a knob it leaves unset, like `validate.kappa`, keys the builds anew)",
             row.label(),
             if knobs.is_empty() {
                 "none".to_string()
