@@ -285,24 +285,51 @@ fn legend_box(labels: &[&str]) -> Option<(f64, f64)> {
     ))
 }
 
-/// Whether any point, or the end of its band, falls under the legend box in the plot's
-/// top-right corner (`plot` the plotting area's size in pixels).
+/// The corners a legend tries, in order: plotters' usual top right first.
+const CORNERS: [SeriesLabelPosition; 4] = [
+    SeriesLabelPosition::UpperRight,
+    SeriesLabelPosition::UpperLeft,
+    SeriesLabelPosition::LowerRight,
+    SeriesLabelPosition::LowerLeft,
+];
+
+/// Whether any point, or the end of its band, falls under the legend box in `corner` of the
+/// plot (`plot` the plotting area's size in pixels). A band's ends suffice: the box touches
+/// the plot's edge, so a band that crosses it has an end inside.
 fn under_legend(
     panel: &Panel,
     x: &Range<f64>,
     y: &Range<f64>,
     plot: (f64, f64),
     legend: (f64, f64),
+    corner: &SeriesLabelPosition,
 ) -> bool {
-    let left = plot.0 - LEGEND_OFFSET_PX - legend.0 - MARKER_PX;
-    let bottom = LEGEND_OFFSET_PX + legend.1 + MARKER_PX;
+    let (right, upper) = match corner {
+        SeriesLabelPosition::UpperLeft => (false, true),
+        SeriesLabelPosition::LowerRight => (true, false),
+        SeriesLabelPosition::LowerLeft => (false, false),
+        _ => (true, true),
+    };
+    let reach_x = LEGEND_OFFSET_PX + legend.0 + MARKER_PX;
+    let reach_y = LEGEND_OFFSET_PX + legend.1 + MARKER_PX;
     let px = |v: f64| (v - x.start) / (x.end - x.start) * plot.0;
     let py = |v: f64| (y.end - v) / (y.end - y.start) * plot.1;
     panel.series.iter().any(|s| {
         let half = if s.mark == Mark::Bars { 0.4 } else { 0.0 };
         s.points.iter().any(|p| {
             let (lo, hi) = p.band.unwrap_or((p.y, p.y));
-            px(p.x + half) >= left && [p.y, lo, hi].iter().any(|&v| py(v) <= bottom)
+            let in_x = if right {
+                px(p.x + half) >= plot.0 - reach_x
+            } else {
+                px(p.x - half) <= reach_x
+            };
+            in_x && [p.y, lo, hi].iter().any(|&v| {
+                if upper {
+                    py(v) <= reach_y
+                } else {
+                    py(v) >= plot.1 - reach_y
+                }
+            })
         })
     })
 }
@@ -349,19 +376,26 @@ fn ranges(panel: &Panel) -> (Range<f64>, Range<f64>) {
     (x, padded(y0, y1))
 }
 
-/// The panel's axes, the y range raised where the data would run under the legend.
+/// The panel's axes and its legend's corner: the first corner clear of data, else the top
+/// right with the y range raised until the data pass under the box.
 fn chart_ranges(
     panel: &Panel,
     plot: (f64, f64),
     legend: Option<(f64, f64)>,
-) -> (Range<f64>, Range<f64>) {
+) -> (Range<f64>, Range<f64>, SeriesLabelPosition) {
     let (x, y) = ranges(panel);
-    match legend {
-        Some(size) if under_legend(panel, &x, &y, plot, size) => {
+    let Some(size) = legend else {
+        return (x, y, SeriesLabelPosition::UpperRight);
+    };
+    match CORNERS
+        .into_iter()
+        .find(|c| !under_legend(panel, &x, &y, plot, size, c))
+    {
+        Some(corner) => (x, y, corner),
+        None => {
             let y = with_headroom(y, plot.1, LEGEND_OFFSET_PX + size.1 + MARKER_PX);
-            (x, y)
+            (x, y, SeriesLabelPosition::UpperRight)
         }
-        _ => (x, y),
     }
 }
 
@@ -393,7 +427,7 @@ fn draw_panel<DB: DrawingBackend>(
     } else {
         Vec::new()
     };
-    let (xr, yr) = chart_ranges(panel, plot, legend_box(&labels));
+    let (xr, yr, corner) = chart_ranges(panel, plot, legend_box(&labels));
     let (y_lo, y_hi) = (yr.start, yr.end);
     let mut chart = ChartBuilder::on(&titled)
         .margin(MARGIN_PX)
@@ -503,7 +537,7 @@ fn draw_panel<DB: DrawingBackend>(
             .label_font(("sans-serif", 11))
             .background_style(WHITE.mix(0.85))
             .border_style(RGBColor(180, 180, 180))
-            .position(SeriesLabelPosition::UpperRight)
+            .position(corner)
             .draw()?;
     }
     Ok(())
@@ -646,7 +680,7 @@ mod tests {
     }
 
     #[test]
-    fn data_under_the_legend_raise_the_y_axis_and_other_data_leave_it() {
+    fn the_legend_takes_the_first_corner_clear_of_data() {
         register_font();
         let plot = (448.0, 290.0);
         let legend = legend_box(&[
@@ -654,32 +688,68 @@ mod tests {
             "dev_student_dart, validate.kappa=1",
         ]);
         let (w, h) = legend.expect("legend");
-        // Top right: the second series' point is the data's largest x and y.
-        let covered = two_series(Point::new(1.0, 1.0));
-        let (x, y) = ranges(&covered);
-        assert!(under_legend(&covered, &x, &y, plot, (w, h)));
-        let (x2, y2) = chart_ranges(&covered, plot, legend);
-        assert_eq!(x2, x);
-        assert!(y2.end > y.end && y2.start == y.start, "{y:?} -> {y2:?}");
-        // In pixels, the point now sits below the box with a marker's clearance.
-        let from_top = (y2.end - 1.0) / (y2.end - y2.start) * plot.1;
-        assert!(
-            from_top >= LEGEND_OFFSET_PX + h + MARKER_PX - 1e-9,
-            "{from_top} {h}"
-        );
-        assert!(!under_legend(&covered, &x2, &y2, plot, (w, h)));
-        // Bottom right and top left stay clear of the box: the axis is the data's.
+        let up_right = SeriesLabelPosition::UpperRight;
+        // Bottom right and top left leave the top right clear: the axis is the data's.
         for p in [Point::new(1.0, -1.0), Point::new(-1.0, 1.0)] {
             let clear = two_series(p);
-            assert_eq!(chart_ranges(&clear, plot, legend), ranges(&clear), "{p:?}");
+            let (x, y) = ranges(&clear);
+            assert_eq!(chart_ranges(&clear, plot, legend), (x, y, up_right.clone()));
         }
+        // Top right: the second series' point is the data's largest x and y; the legend moves
+        // to the top left, where the first series' point (the smallest) sits at the bottom.
+        let covered = two_series(Point::new(1.0, 1.0));
+        let (x, y) = ranges(&covered);
+        assert!(under_legend(&covered, &x, &y, plot, (w, h), &up_right));
+        let left = SeriesLabelPosition::UpperLeft;
+        assert!(!under_legend(&covered, &x, &y, plot, (w, h), &left));
+        assert_eq!(chart_ranges(&covered, plot, legend), (x, y, left));
         // An interval's end under the box counts like a point.
         let band = two_series(Point {
             band: Some((-1.0, 1.0)),
             ..Point::new(1.0, -1.0)
         });
         let (x, y) = ranges(&band);
-        assert!(under_legend(&band, &x, &y, plot, (w, h)));
+        assert!(under_legend(&band, &x, &y, plot, (w, h), &up_right));
+        // Three corners taken: the bottom left.
+        let mut three = two_series(Point::new(1.0, 1.0));
+        three.series[0].points = vec![Point::new(0.0, 1.0), Point::new(1.0, 0.0)];
+        let (x, y) = ranges(&three);
+        assert_eq!(
+            chart_ranges(&three, plot, legend),
+            (x, y, SeriesLabelPosition::LowerLeft)
+        );
+    }
+
+    #[test]
+    fn data_in_every_corner_raise_the_y_axis_under_a_top_right_legend() {
+        register_font();
+        let plot = (448.0, 290.0);
+        let legend = legend_box(&[
+            "dev_student, validate.kappa=1",
+            "dev_student_dart, validate.kappa=1",
+        ]);
+        let (w, h) = legend.expect("legend");
+        let mut full = two_series(Point::new(1.0, 1.0));
+        full.series[0].points = vec![
+            Point::new(0.0, 0.0),
+            Point::new(0.0, 1.0),
+            Point::new(1.0, 0.0),
+        ];
+        let (x, y) = ranges(&full);
+        for c in &CORNERS {
+            assert!(under_legend(&full, &x, &y, plot, (w, h), c), "{c:?}");
+        }
+        let (x2, y2, corner) = chart_ranges(&full, plot, legend);
+        assert_eq!(corner, SeriesLabelPosition::UpperRight);
+        assert_eq!(x2, x);
+        assert!(y2.end > y.end && y2.start == y.start, "{y:?} -> {y2:?}");
+        // In pixels, the top point now sits below the box with a marker's clearance.
+        let from_top = (y2.end - 1.0) / (y2.end - y2.start) * plot.1;
+        assert!(
+            from_top >= LEGEND_OFFSET_PX + h + MARKER_PX - 1e-9,
+            "{from_top} {h}"
+        );
+        assert!(!under_legend(&full, &x2, &y2, plot, (w, h), &corner));
     }
 
     #[test]
