@@ -679,14 +679,19 @@ mod tests {
         assert!((capped.end - 2.0).abs() < 1e-12, "{capped:?}");
     }
 
-    #[test]
-    fn the_legend_takes_the_first_corner_clear_of_data() {
+    /// A 448 × 290 px plotting area and the legend box of [`two_series`]' labels.
+    fn two_series_legend() -> ((f64, f64), Option<(f64, f64)>) {
         register_font();
-        let plot = (448.0, 290.0);
         let legend = legend_box(&[
             "dev_student, validate.kappa=1",
             "dev_student_dart, validate.kappa=1",
         ]);
+        ((448.0, 290.0), legend)
+    }
+
+    #[test]
+    fn the_legend_takes_the_first_corner_clear_of_data() {
+        let (plot, legend) = two_series_legend();
         let (w, h) = legend.expect("legend");
         let up_right = SeriesLabelPosition::UpperRight;
         // Bottom right and top left leave the top right clear: the axis is the data's.
@@ -722,12 +727,7 @@ mod tests {
 
     #[test]
     fn data_in_every_corner_raise_the_y_axis_under_a_top_right_legend() {
-        register_font();
-        let plot = (448.0, 290.0);
-        let legend = legend_box(&[
-            "dev_student, validate.kappa=1",
-            "dev_student_dart, validate.kappa=1",
-        ]);
+        let (plot, legend) = two_series_legend();
         let (w, h) = legend.expect("legend");
         let mut full = two_series(Point::new(1.0, 1.0));
         full.series[0].points = vec![
