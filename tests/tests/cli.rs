@@ -689,6 +689,61 @@ fn a_sweep_builds_shared_work_once_and_exp_show_lists_every_point() {
 }
 
 #[test]
+fn a_dry_run_estimates_a_new_point_from_a_recorded_experiments_builds() {
+    let p = Project::new(EXP_PIPELINE);
+    let bin = Path::new(BIN);
+    let set = |a: &str, b: &str| {
+        vec![
+            "--set".to_string(),
+            format!("shifted.by={a}"),
+            "--set".to_string(),
+            format!("again.by={b}"),
+        ]
+    };
+    let mut first = vec!["exp", "run", "a", "-q"];
+    let first_set = set("2", "20");
+    first.extend(first_set.iter().map(String::as_str));
+    assert_eq!(p.run(bin, &first).status.code(), Some(0));
+    // The profile's own `shifted` and `again` were never built: only experiment `a` measures
+    // them.
+    let mut dry = vec!["exp", "run", "b", "--dry-run", "--json"];
+    let dry_set = set("3", "30");
+    dry.extend(dry_set.iter().map(String::as_str));
+    let out = json_of(&p.run(bin, &dry));
+    let estimate = &out["estimate"];
+    let of = |name: &str| {
+        estimate["instances"]
+            .as_array()
+            .expect("instances")
+            .iter()
+            .find(|i| i["instance"] == name)
+            .unwrap_or_else(|| panic!("{name} in {estimate}"))
+            .clone()
+    };
+    for stage in ["shifted", "again"] {
+        let i = of(&format!("{stage}@0"));
+        let m = &i["measured"];
+        assert_eq!(m["profile"], "small, experiment a", "{stage}: {m}");
+        assert_eq!(m["stage"], stage, "{stage}: {m}");
+        assert!(i["core_hours"].as_f64().is_some_and(|h| h > 0.0), "{i}");
+    }
+    assert_eq!(estimate["unmeasured"], serde_json::json!([]), "{estimate}");
+    assert!(
+        store_files(&p)
+            .keys()
+            .all(|f| !f.contains("experiments/b")),
+        "a dry run records nothing"
+    );
+    let mut dry_text = vec!["exp", "run", "b", "--dry-run"];
+    dry_text.extend(dry_set.iter().map(String::as_str));
+    let (text, _) = transcript(&p, &dry_text);
+    assert!(
+        text.contains("on small, experiment a:"),
+        "the estimate says where it measured: {text}"
+    );
+}
+
+#[test]
 fn an_experiment_that_reads_held_out_stages_is_warned() {
     let p = Project::new(EXP_PIPELINE);
     let (text, out) = transcript(&p, &["exp", "run", "peeking", "peek"]);

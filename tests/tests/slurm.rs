@@ -260,6 +260,41 @@ fn a_task_refuses_a_store_it_cannot_see_and_a_pipeline_changed_since_submission(
     );
 }
 
+/// Builds of the same work (one per run seed) measure a stage by their median core-seconds: a
+/// build resumed from a checkpoint records only its last part, and must not set the estimate.
+#[test]
+fn the_cost_model_takes_the_median_of_builds_of_equal_work() {
+    let p = Project::engine();
+    let seeds = [0, 1, 2];
+    p.make(Some("small"), &seeds, 2);
+    let store = p.open_store();
+    let (paper, small) = (
+        p.plan(Some("paper")).expect("paper plan"),
+        p.plan(Some("small")).expect("small plan"),
+    );
+    let names = vec!["numbers@0".to_string()];
+    let mut secs: Vec<f64> = osms_make::status(&small, &store, &[], &seeds)
+        .expect("status")
+        .into_iter()
+        .filter(|st| st.instance.starts_with("numbers@"))
+        .map(|st| {
+            let key = st.key.expect("built");
+            store
+                .record(&key)
+                .expect("read")
+                .and_then(|r| r.cpu_secs)
+                .expect("cpu_secs")
+        })
+        .collect();
+    assert_eq!(secs.len(), 3);
+    secs.sort_by(f64::total_cmp);
+    // Seen through two plans (an experiment's points share builds), still their median.
+    let twice = [small, p.plan(Some("small")).expect("small plan")];
+    let e = osms_make::estimate(&paper, &twice, &store, &seeds, &names, 1).expect("estimate");
+    let m = e.instances[0].measured.as_ref().expect("measured");
+    assert_eq!(m.core_secs, secs[1], "{secs:?}");
+}
+
 #[test]
 fn the_cost_model_scales_measured_core_seconds_by_planned_work() {
     let p = Project::engine();

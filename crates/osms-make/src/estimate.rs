@@ -7,8 +7,10 @@
 //! large as their largest input. Sizes flow down the graph, so a validation of a 20,000-rollout
 //! D_R is 20 times one of 1,000. The estimate of an instance is a measured build's core-seconds
 //! times target work over measured work, from the measuring profile with the most work (the
-//! least dominated by fixed costs). Fixed costs (model set-up, loading inputs) are scaled too,
-//! which overestimates; network width is not in the teacher's or student's work.
+//! least dominated by fixed costs); where several builds did that work, their median (a build
+//! resumed from a checkpoint records only its last part). Fixed costs (model set-up, loading
+//! inputs) are scaled too, which overestimates; network width is not in the teacher's or
+//! student's work.
 //!
 //! A stage whose inputs changed since its last build (stale) still has that build's record:
 //! where its params are the profile's, its core-seconds measure the same work on other input
@@ -94,7 +96,8 @@ pub struct Estimate {
 }
 
 /// Estimates the core-hours of `instances` of `target` from the builds in `store` of the same
-/// stages under `references` (other profiles of the same pipeline). Records without
+/// stages under `references` (other profiles of the same pipeline, an experiment's recorded
+/// points). Records without
 /// `cpu_secs` count `assumed_threads` threads.
 pub fn estimate(
     target: &Plan,
@@ -168,24 +171,34 @@ pub fn estimate(
         if !instances.contains(&name) {
             continue;
         }
-        // The largest up-to-date build of any instance of the stage (its seeds and folds do
-        // the same work), else the largest stale one; failing both, the same of its kind.
+        // The builds of the largest work of any instance of the stage (its seeds and folds do
+        // the same work), up-to-date ones before stale; failing both, the same of its kind.
+        // Of those, the median core-seconds: a build resumed from a checkpoint recorded only
+        // its last part, and one build seen by several plans counts once.
         let stage = &target.stages[id.stage];
         let largest = |of_stage: bool| {
-            measured
+            let mut builds: Vec<&Measured> = measured
                 .values()
                 .flatten()
                 .filter(|(kind, m)| {
                     *kind == stage.info.name && (!of_stage || m.stage == stage.name)
                 })
                 .map(|(_, m)| m)
-                .max_by(|a, b| {
-                    b.stale
-                        .cmp(&a.stale)
-                        .then(a.work.total_cmp(&b.work))
-                        .then(b.stage.cmp(&a.stage))
-                })
-                .cloned()
+                .collect();
+            builds.sort_by_key(|m| m.key);
+            builds.dedup_by_key(|m| m.key);
+            let first = builds
+                .iter()
+                .map(|m| (!m.stale, m.work))
+                .max_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)))?;
+            builds.retain(|m| (!m.stale, m.work) == first);
+            builds.sort_by(|a, b| {
+                a.core_secs
+                    .total_cmp(&b.core_secs)
+                    .then(a.stage.cmp(&b.stage))
+                    .then(a.key.cmp(&b.key))
+            });
+            Some(builds[(builds.len() - 1) / 2].clone())
         };
         let best = largest(true).or_else(|| largest(false));
         let core_hours = best

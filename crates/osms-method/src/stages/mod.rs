@@ -265,4 +265,23 @@ mod tests {
             assert_eq!(got, (1000.0, 1000.0, 4000.0), "{kind}");
         }
     }
+
+    #[test]
+    fn a_naive_set_of_a_declared_size_costs_its_demonstrations() {
+        let d_r = [("data", 1000.0), ("target", 3944.0)];
+        let of = |demos| {
+            NaiveStage::scale(
+                &BaselineParams {
+                    demos,
+                    ..BaselineParams::default()
+                },
+                &d_r,
+            )
+        };
+        assert_eq!(of(Some(40_000)).work, 40_000.0);
+        assert_eq!(of(Some(40_000)).size, 40_000.0);
+        // Fewer than D_R holds: D_R's rollouts are still read.
+        assert_eq!(of(Some(500)).work, 1000.0);
+        assert_eq!(of(None).work, 1000.0);
+    }
 }

@@ -31,8 +31,14 @@ impl Kind for NaiveStage {
         osms_policy::stages::numerics()
     }
 
-    fn scale(_: &BaselineParams, inputs: &[(&str, f64)]) -> Scale {
-        demonstration_set_scale(inputs)
+    fn scale(params: &BaselineParams, inputs: &[(&str, f64)]) -> Scale {
+        let d_r = demonstration_set_scale(inputs);
+        // A set of a declared size (issue 74's data curve) is mostly its extension's teacher
+        // rollouts, one per demonstration beyond D_R's successes: as many items as it holds.
+        match params.demos {
+            Some(n) => Scale::items(d_r.work.max(n as f64)),
+            None => d_r,
+        }
     }
 }
 

@@ -99,7 +99,7 @@ pub fn run(ctx: &Context, args: &MakeArgs) -> Result<ExitCode> {
 
     // A dry run also says what the work would cost, scaled from the builds in the store.
     let estimate = if args.dry_run {
-        Some(estimate(ctx, &plan, &store, &report, &seeds)?)
+        Some(estimate(ctx, &plan, &store, &report, &seeds, Vec::new())?)
     } else {
         None
     };
@@ -201,19 +201,22 @@ pub(crate) fn failure_exit(failed: &[&str]) -> ExitCode {
     ExitCode::from(EXIT_FAILURE)
 }
 
-/// The core-hours of what a dry run would build, from the measured builds of every profile.
-fn estimate(
+/// The core-hours of what a dry run would build, from the measured builds of every profile
+/// and of the `more` plans (an experiment's recorded points).
+pub(crate) fn estimate(
     ctx: &Context,
     plan: &Plan,
     store: &osms_store::Store,
     report: &osms_make::MakeReport,
     seeds: &[u64],
+    more: Vec<Plan>,
 ) -> Result<osms_make::Estimate> {
     let profiles = osms_make::Pipeline::load(&ctx.pipeline_path, None)?.profiles;
-    let references = profiles
+    let mut references = profiles
         .iter()
         .map(|p| ctx.plan(Some(p)))
         .collect::<Result<Vec<_>>>()?;
+    references.extend(more);
     let would_build: Vec<String> = report
         .instances
         .iter()
@@ -233,7 +236,7 @@ fn estimate(
     )?)
 }
 
-fn print_estimate(e: &osms_make::Estimate) {
+pub(crate) fn print_estimate(e: &osms_make::Estimate) {
     if e.instances.is_empty() {
         return;
     }
@@ -265,7 +268,8 @@ fn print_estimate(e: &osms_make::Estimate) {
                     ""
                 },
                 if m.stale { ", stale build" } else { "" },
-                if i.instance.split(['#', '@']).next() == Some(m.stage.as_str()) {
+                // A sweep's variant (`validate~2`) is its stage's own.
+                if i.instance.split(['#', '@', '~']).next() == Some(m.stage.as_str()) {
                     String::new()
                 } else {
                     format!(", from stage {} of its kind", m.stage)
@@ -316,7 +320,7 @@ fn warn_if_short_of_space(
     {
         return;
     }
-    let Ok(e) = estimate(ctx, plan, store, &report, seeds) else {
+    let Ok(e) = estimate(ctx, plan, store, &report, seeds, Vec::new()) else {
         return;
     };
     if (free as f64) < e.total_bytes {

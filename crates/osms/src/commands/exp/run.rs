@@ -10,7 +10,7 @@ use osms_make::experiment::{self, Axis, RunSpec, Sweep};
 use osms_make::{MakeOptions, Outcome, Pipeline, Plan};
 
 use crate::cli::ExpRunArgs;
-use crate::commands::make::{failure_exit, foreign_mujoco};
+use crate::commands::make::{failure_exit, foreign_mujoco, print_estimate};
 use crate::commands::print_json;
 use crate::context::{Context, parse_overrides};
 use crate::progress::MakeObserver;
@@ -100,6 +100,7 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         let report = osms_make::make(&sweep.plan, &store, &opts, &observer)?;
         let cached = report.count(|o| matches!(o, Outcome::Cached | Outcome::CutOff));
         let would = report.count(|o| matches!(o, Outcome::WouldBuild { .. }));
+        let estimate = estimate(ctx, &sweep.plan, &store, &report, &seeds)?;
         say!(
             ctx,
             "osms exp run {}: {} point(s); {would} instance(s) would be built, {cached} cached (nothing recorded)",
@@ -107,7 +108,9 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
             points.len()
         );
         if args.json {
-            print_json(&serde_json::json!({ "make": report }))?;
+            print_json(&serde_json::json!({ "make": report, "estimate": estimate }))?;
+        } else if ctx.printer.says() {
+            print_estimate(&estimate);
         }
         return Ok(ExitCode::SUCCESS);
     }
@@ -142,4 +145,32 @@ pub(super) fn exp_run(ctx: &Context, args: &ExpRunArgs) -> Result<ExitCode> {
         args.name
     );
     Ok(failure_exit(&failed))
+}
+
+/// The core-hours a dry run's builds would take, scaled from the builds of every profile and of
+/// every recorded experiment's points (a sweep's new point is measured by its siblings'
+/// builds). A record whose overrides no longer plan (the pipeline changed) measures nothing.
+fn estimate(
+    ctx: &Context,
+    plan: &Plan,
+    store: &osms_store::Store,
+    report: &osms_make::MakeReport,
+    seeds: &[u64],
+) -> Result<osms_make::Estimate> {
+    let mut recorded = Vec::new();
+    for exp in experiment::load_all(store)? {
+        for point in &exp.points {
+            let Ok(overrides) = parse_overrides(&point.overrides) else {
+                continue;
+            };
+            let Ok(pipeline) = Pipeline::load(&ctx.pipeline_path, Some(&exp.profile)) else {
+                continue;
+            };
+            if let Ok(mut p) = ctx.plan_of(pipeline, &overrides) {
+                p.profile = format!("{}, experiment {}", exp.profile, exp.name);
+                recorded.push(p);
+            }
+        }
+    }
+    crate::commands::make::estimate(ctx, plan, store, report, seeds, recorded)
 }
