@@ -97,8 +97,7 @@ pub struct Estimate {
 
 /// Estimates the core-hours of `instances` of `target` from the builds in `store` of the same
 /// stages under `references` (other profiles of the same pipeline, an experiment's recorded
-/// points). Records without
-/// `cpu_secs` count `assumed_threads` threads.
+/// points). Records without `cpu_secs` count `assumed_threads` threads.
 pub fn estimate(
     target: &Plan,
     references: &[Plan],
@@ -185,7 +184,7 @@ pub fn estimate(
                 })
                 .map(|(_, m)| m)
                 .collect();
-            builds.sort_by_key(|m| m.key);
+            builds.sort_by_key(|m| (m.key, m.stale));
             builds.dedup_by_key(|m| m.key);
             let first = builds
                 .iter()
@@ -198,7 +197,8 @@ pub fn estimate(
                     .then(a.stage.cmp(&b.stage))
                     .then(a.key.cmp(&b.key))
             });
-            Some(builds[(builds.len() - 1) / 2].clone())
+            let median = builds.len().checked_sub(1)? / 2;
+            Some(builds[median].clone())
         };
         let best = largest(true).or_else(|| largest(false));
         let core_hours = best
