@@ -486,7 +486,13 @@ fn draw_panel<DB: DrawingBackend>(
         }
         let legend =
             move |(x, y): (i32, i32)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], color.filled());
-        let drawn = match s.mark {
+        // A line through one point draws nothing: such a series (a knob value with one point
+        // on an axis of several) is drawn as a marker with its interval.
+        let mark = match s.mark {
+            Mark::Line if s.points.len() < 2 => Mark::Points,
+            m => m,
+        };
+        let drawn = match mark {
             Mark::Line => chart.draw_series(LineSeries::new(
                 s.points.iter().map(|p| (p.x, p.y)),
                 color.stroke_width(2),
@@ -500,7 +506,7 @@ fn draw_panel<DB: DrawingBackend>(
                     )))?;
                 }
                 chart.draw_series(s.points.iter().map(|p| {
-                    let style = if p.highlight {
+                    let style = if p.highlight || s.mark == Mark::Line {
                         color.filled()
                     } else {
                         color.mix(0.55).stroke_width(1)
@@ -750,6 +756,38 @@ mod tests {
             "{from_top} {h}"
         );
         assert!(!under_legend(&full, &x2, &y2, plot, (w, h), &corner));
+    }
+
+    #[test]
+    fn a_line_through_one_point_is_drawn_as_a_marker() {
+        let panel = |points: Vec<Point>| Panel {
+            title: "p".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            x_categories: vec!["0.25".into(), "0.5".into()],
+            x_marker: None,
+            x_range: None,
+            series: vec![Series {
+                name: "kappa=1.5".into(),
+                mark: Mark::Line,
+                points,
+            }],
+        };
+        let circles = |points: Vec<Point>| {
+            let f = Figure {
+                id: "one".into(),
+                title: "t".into(),
+                caption: String::new(),
+                panels: vec![panel(points)],
+            };
+            f.svg().expect("svg").matches("<circle").count()
+        };
+        let one = Point {
+            band: Some((0.8, 1.2)),
+            ..Point::new(0.0, 1.0)
+        };
+        assert_eq!(circles(vec![one]), 1);
+        assert_eq!(circles(vec![one, Point::new(1.0, 2.0)]), 0, "a line of two");
     }
 
     #[test]
