@@ -159,14 +159,14 @@ fn estimate(
 ) -> Result<osms_make::Estimate> {
     let mut recorded = Vec::new();
     for exp in experiment::load_all(store)? {
+        let Ok(pipeline) = Pipeline::load(&ctx.pipeline_path, Some(&exp.profile)) else {
+            continue;
+        };
         for point in &exp.points {
             let Ok(overrides) = parse_overrides(&point.overrides) else {
                 continue;
             };
-            let Ok(pipeline) = Pipeline::load(&ctx.pipeline_path, Some(&exp.profile)) else {
-                continue;
-            };
-            if let Ok(mut p) = ctx.plan_of(pipeline, &overrides) {
+            if let Ok(mut p) = ctx.plan_of(pipeline.clone(), &overrides) {
                 p.profile = format!("{}, experiment {}", exp.profile, exp.name);
                 recorded.push(p);
             }
