@@ -729,9 +729,7 @@ fn a_dry_run_estimates_a_new_point_from_a_recorded_experiments_builds() {
     }
     assert_eq!(estimate["unmeasured"], serde_json::json!([]), "{estimate}");
     assert!(
-        store_files(&p)
-            .keys()
-            .all(|f| !f.contains("experiments/b")),
+        store_files(&p).keys().all(|f| !f.contains("experiments/b")),
         "a dry run records nothing"
     );
     let mut dry_text = vec!["exp", "run", "b", "--dry-run"];

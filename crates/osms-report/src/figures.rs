@@ -9,7 +9,7 @@ use osms_policy::artifacts::Teacher;
 use osms_sim::artifacts::{EvalRow, Evaluation, ImpactTrace};
 use osms_sim::spec::ObjectVariant;
 
-use crate::plot::{Figure, Mark, Panel, Point, Series};
+use crate::plot::{Figure, Mark, Panel, Point, Series, Style};
 use osms_core::stats::MeanSd;
 
 /// Mean ± one sample sd across rollouts at each offset from the contact step, for one signal.
@@ -39,6 +39,7 @@ fn profile(rows: &[&EvalRow], signal: impl Fn((f32, f32, f32)) -> f32, name: &st
         name: name.into(),
         mark: Mark::Line,
         points,
+        style: Style::default(),
     }
 }
 
@@ -197,6 +198,7 @@ fn offset_series(name: &str, evals: &[&Evaluation], edge: f64) -> Series {
         name: name.into(),
         mark: Mark::Line,
         points,
+        style: Style::default(),
     }
 }
 
@@ -226,6 +228,7 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[Evaluation]; 3]) -> Fi
             .enumerate()
             .filter_map(|(i, &v)| Some(Point::new(i as f64, of_variant(teacher, v)?)))
             .collect(),
+        style: Style::default(),
     };
     let ours = pooled(students[2]);
     let gain = Series {
@@ -248,6 +251,7 @@ pub fn task_conditions(teacher: &Evaluation, students: [&[Evaluation]; 3]) -> Fi
                 })
             })
             .collect(),
+        style: Style::default(),
     };
     let all: Vec<&Evaluation> = std::iter::once(teacher)
         .chain(students.iter().flat_map(|s| s.iter()))
@@ -335,6 +339,7 @@ pub fn ios_figure(profile: &IosProfile) -> Figure {
                 name: "S_IOS".into(),
                 mark: Mark::Points,
                 points,
+                style: Style::default(),
             }],
         }],
     }
@@ -365,6 +370,7 @@ fn seed_curve(name: &str, curves: &[Vec<(f64, f64)>]) -> Series {
         name: name.into(),
         mark: Mark::Line,
         points,
+        style: Style::default(),
     }
 }
 
@@ -385,6 +391,7 @@ pub fn learning_curves(
                     .iter()
                     .map(|c| Point::new(f64::from(c.iteration), f(c)))
                     .collect(),
+                style: Style::default(),
             })
             .collect()
     };
@@ -524,11 +531,13 @@ pub fn candidate_selection(v: &Validation) -> Figure {
                 name: "SR from all Q rollouts (filled: selected)".into(),
                 mark: Mark::Points,
                 points: known,
+                style: Style::default(),
             },
             Series {
                 name: format!("stopped below {bar} (upper bound)"),
                 mark: Mark::Points,
                 points: bounded,
+                style: Style::default(),
             },
         ];
         if refine {
@@ -536,6 +545,7 @@ pub fn candidate_selection(v: &Validation) -> Figure {
                 name: "originals (SR_org, J_org)".into(),
                 mark: Mark::Points,
                 points: originals,
+                style: Style::default(),
             });
         }
         panels.push(Panel {

@@ -52,6 +52,20 @@ pub struct Series {
     pub name: String,
     pub mark: Mark,
     pub points: Vec<Point>,
+    /// How it looks: chosen where the figure is drawn and never stored (`serde(skip)`), so a
+    /// figure in an artifact stays its numbers and its bytes do not change with a look.
+    #[serde(skip)]
+    pub style: Style,
+}
+
+/// A series' color and dash, for figures whose series come in families (a stage's line per
+/// value of a knob: one color per stage, one dash per value).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Style {
+    /// Index into the palette; `None`: the series' position in its panel.
+    pub color: Option<usize>,
+    /// 0 solid with filled markers; 1 dashed, 2 dotted, each with hollow markers (cycling).
+    pub dash: usize,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -83,6 +97,9 @@ const PANEL_W: u32 = 520;
 const PANEL_H: u32 = 380;
 const TITLE_H: u32 = 44;
 const PER_ROW: usize = 3;
+
+/// Dash patterns (on, off in pixels) by [`Style::dash`]: solid, dashed, dotted.
+const DASHES: [Option<(u32, u32)>; 3] = [None, Some((8, 4)), Some((2, 3))];
 
 const PALETTE: [RGBColor; 8] = [
     RGBColor(31, 119, 180),
@@ -470,7 +487,8 @@ fn draw_panel<DB: DrawingBackend>(
         .collect();
     let mut labelled = false;
     for (i, s) in panel.series.iter().enumerate() {
-        let color = PALETTE[i % PALETTE.len()];
+        let color = PALETTE[s.style.color.unwrap_or(i) % PALETTE.len()];
+        let dash = DASHES[s.style.dash % DASHES.len()];
         let band: Vec<(f64, f64, f64)> = s
             .points
             .iter()
@@ -484,20 +502,24 @@ fn draw_panel<DB: DrawingBackend>(
                 color.mix(0.18).filled(),
             )))?;
         }
-        let legend =
-            move |(x, y): (i32, i32)| Rectangle::new([(x, y - 4), (x + 16, y + 4)], color.filled());
         // A line through one point draws nothing: such a series (a knob value with one point
         // on an axis of several) is drawn as a marker with its interval.
         let mark = match s.mark {
             Mark::Line if s.points.len() < 2 => Mark::Points,
             m => m,
         };
-        let drawn = match mark {
-            Mark::Line => chart.draw_series(LineSeries::new(
+        let drawn = match (mark, dash) {
+            (Mark::Line, None) => chart.draw_series(LineSeries::new(
                 s.points.iter().map(|p| (p.x, p.y)),
                 color.stroke_width(2),
             ))?,
-            Mark::Points => {
+            (Mark::Line, Some((on, off))) => chart.draw_series(DashedLineSeries::new(
+                s.points.iter().map(|p| (p.x, p.y)),
+                on,
+                off,
+                color.stroke_width(2),
+            ))?,
+            (Mark::Points, _) => {
                 for p in s.points.iter().filter(|p| p.band.is_some()) {
                     let (lo, hi) = p.band.unwrap_or((p.y, p.y));
                     chart.draw_series(std::iter::once(PathElement::new(
@@ -506,7 +528,9 @@ fn draw_panel<DB: DrawingBackend>(
                     )))?;
                 }
                 chart.draw_series(s.points.iter().map(|p| {
-                    let style = if p.highlight || s.mark == Mark::Line {
+                    let style = if dash.is_some() {
+                        color.stroke_width(2)
+                    } else if p.highlight || s.mark == Mark::Line {
                         color.filled()
                     } else {
                         color.mix(0.55).stroke_width(1)
@@ -514,7 +538,7 @@ fn draw_panel<DB: DrawingBackend>(
                     Circle::new((p.x, p.y), if p.highlight { 5 } else { 3 }, style)
                 }))?
             }
-            Mark::Bars => {
+            (Mark::Bars, _) => {
                 let k = bar_series.len().max(1) as f64;
                 let j = bar_series.iter().position(|&b| b == i).unwrap_or(0) as f64;
                 let w = 0.8 / k;
@@ -525,7 +549,25 @@ fn draw_panel<DB: DrawingBackend>(
             }
         };
         if !labels.is_empty() && !s.name.is_empty() {
-            drawn.label(s.name.as_str()).legend(legend);
+            let drawn = drawn.label(s.name.as_str());
+            // A styled series' swatch is its line, so the legend tells the dashes apart.
+            match (s.style == Style::default(), dash) {
+                (true, _) => drawn.legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 4), (x + 16, y + 4)], color.filled())
+                }),
+                (false, None) => drawn.legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2))
+                }),
+                (false, Some((on, off))) => drawn.legend(move |(x, y)| {
+                    let (on, off) = (on as i32, off as i32);
+                    EmptyElement::at((x, y))
+                        + PathElement::new(vec![(0, 0), (on, 0)], color.stroke_width(2))
+                        + PathElement::new(
+                            vec![(on + off, 0), ((2 * on + off).min(16), 0)],
+                            color.stroke_width(2),
+                        )
+                }),
+            };
             labelled = true;
         }
     }
@@ -568,11 +610,13 @@ mod tests {
                     }
                 })
                 .collect(),
+            style: Style::default(),
         };
         let bars = Series {
             name: "gain".into(),
             mark: Mark::Bars,
             points: vec![Point::new(0.0, 0.3), Point::new(1.0, -0.1)],
+            style: Style::default(),
         };
         let scatter = Series {
             name: "candidates".into(),
@@ -584,6 +628,7 @@ mod tests {
                     ..Point::new(0.4, 0.9)
                 },
             ],
+            style: Style::default(),
         };
         Figure {
             id: "fig_test".into(),
@@ -645,6 +690,7 @@ mod tests {
             name: name.into(),
             mark: Mark::Points,
             points,
+            style: Style::default(),
         };
         Panel {
             title: "p".into(),
@@ -771,6 +817,7 @@ mod tests {
                 name: "kappa=1.5".into(),
                 mark: Mark::Line,
                 points,
+                style: Style::default(),
             }],
         };
         let circles = |points: Vec<Point>| {
@@ -788,6 +835,84 @@ mod tests {
         };
         assert_eq!(circles(vec![one]), 1);
         assert_eq!(circles(vec![one, Point::new(1.0, 2.0)]), 0, "a line of two");
+    }
+
+    /// A figure of one line series with `style`, on two categories or a numeric axis.
+    fn one_series(style: Style, points: Vec<Point>, categories: bool) -> Figure {
+        Figure {
+            id: "styled".into(),
+            title: "t".into(),
+            caption: String::new(),
+            panels: vec![Panel {
+                title: "p".into(),
+                x_label: "x".into(),
+                y_label: "y".into(),
+                x_categories: if categories {
+                    vec!["a".into(), "b".into()]
+                } else {
+                    vec![]
+                },
+                x_marker: None,
+                x_range: None,
+                series: vec![Series {
+                    name: "s".into(),
+                    mark: Mark::Line,
+                    points,
+                    style,
+                }],
+            }],
+        }
+    }
+
+    /// A style's dash breaks the line into pieces and leaves its markers hollow; its color
+    /// comes from the style, not the series' position; none of it is in the stored bytes.
+    #[test]
+    fn a_style_sets_the_color_and_dash_and_is_not_stored() {
+        let svg = |color, dash, n: usize| {
+            let points = (0..n).map(|i| Point::new(i as f64, i as f64)).collect();
+            one_series(Style { color, dash }, points, true)
+                .svg()
+                .expect("svg")
+        };
+        let solid = svg(None, 0, 2);
+        let dashed = svg(None, 1, 2);
+        let pieces = |s: &str| s.matches("<polyline").count();
+        assert!(
+            pieces(&dashed) > pieces(&solid) + 2,
+            "{} vs {}",
+            pieces(&dashed),
+            pieces(&solid)
+        );
+        let circle = |s: &str| {
+            let at = s.find("<circle").expect("a marker");
+            s[at..at + s[at..].find("/>").expect("closed")].to_string()
+        };
+        let (filled, hollow) = (svg(None, 0, 1), svg(None, 1, 1));
+        assert!(
+            circle(&hollow).contains("fill=\"none\""),
+            "{}",
+            circle(&hollow)
+        );
+        assert!(
+            !circle(&filled).contains("fill=\"none\""),
+            "{}",
+            circle(&filled)
+        );
+        // The palette's third color (44, 160, 44) instead of the first.
+        assert!(svg(Some(2), 0, 2).contains("#2CA02C") && !solid.contains("#2CA02C"));
+        // An artifact's bytes (the store's codec) are the same with or without a style.
+        let figure = |style| one_series(style, vec![Point::new(0.0, 1.0)], false);
+        let styled = figure(Style {
+            color: Some(3),
+            dash: 2,
+        });
+        let bytes = osms_core::encode(&styled).expect("encode");
+        assert_eq!(
+            bytes,
+            osms_core::encode(&figure(Style::default())).expect("encode")
+        );
+        let back: Figure = osms_core::decode(&bytes).expect("decode");
+        assert_eq!(back, figure(Style::default()));
     }
 
     #[test]

@@ -214,6 +214,10 @@ pub struct ExpPlotArgs {
     /// The figure's title [default: METRICS against KNOB]
     #[arg(long)]
     pub title: Option<String>,
+    /// Name a target stage, metric or knob in the figure and its CSV (repeatable), e.g.
+    /// `--label dev_student=Ours-IL --label validate.kappa=κ`
+    #[arg(long, value_name = "NAME=TEXT")]
+    pub label: Vec<String>,
     /// Print the files written and the plotted numbers as JSON on stdout
     #[arg(long)]
     pub json: bool,

@@ -10,7 +10,7 @@ use anyhow::{Context as _, Result, bail};
 use osms_core::stats::{MeanSd, normal_quantile, wilson_bounds};
 use osms_core::table::{Unit, csv_field as field};
 use osms_make::experiment;
-use osms_report::plot::{Figure, Mark, Panel, Point, Series};
+use osms_report::plot::{Figure, Mark, Panel, Point, Series, Style};
 use serde::Serialize;
 
 use super::rows::{Row, point_spec, row_named, rows_of, unit_of};
@@ -27,6 +27,14 @@ pub(super) struct PlotSpec {
     pub metrics: Vec<String>,
     pub id: String,
     pub title: String,
+    /// `--label NAME=TEXT`: a target, metric or knob as the figure names it.
+    pub labels: BTreeMap<String, String>,
+}
+
+impl PlotSpec {
+    fn label<'a>(&'a self, name: &'a str) -> &'a str {
+        self.labels.get(name).map_or(name, String::as_str)
+    }
 }
 
 /// One drawn point: the rows that share its x (and `by`) value, pooled.
@@ -54,6 +62,9 @@ pub(super) struct PlotSeries {
     /// and, with `--by`, the knob's value.
     pub name: String,
     pub points: Vec<PlotPoint>,
+    /// With `--by`, a color per column and a dash per value, so a stage's lines share a color.
+    #[serde(skip)]
+    pub style: Style,
 }
 
 /// The data of the figure: what `--json` prints and the CSV holds.
@@ -104,6 +115,7 @@ pub(super) fn plot(ctx: &Context, args: &ExpPlotArgs) -> Result<ExitCode> {
             .title
             .clone()
             .unwrap_or_else(|| format!("{} against {}", args.metrics.join(", "), args.x)),
+        labels: labels(&args.label)?,
     };
     let data = plot_data(&rows, &spec)?;
     let figure = figure(&data, &spec, &args.names);
@@ -136,6 +148,31 @@ fn write_file(dir: &Path, name: &str, bytes: &[u8]) -> Result<PathBuf> {
     std::fs::rename(&partial, &path)
         .with_context(|| format!("cannot move {} to {}", partial.display(), path.display()))?;
     Ok(path)
+}
+
+/// `--label NAME=TEXT` flags as a map; a flag without `=` or with an empty side is an error
+/// that quotes it.
+fn labels(flags: &[String]) -> Result<BTreeMap<String, String>> {
+    let mut out = BTreeMap::new();
+    for flag in flags {
+        match flag.split_once('=') {
+            Some((name, text)) if !name.trim().is_empty() && !text.trim().is_empty() => {
+                out.insert(name.trim().to_string(), text.trim().to_string());
+            }
+            _ => bail!(
+                "--label `{flag}`: expected NAME=TEXT, NAME a target stage, metric or knob of the plot (e.g. `--label dev_student=Ours-IL` or `--label validate.kappa=κ`)"
+            ),
+        }
+    }
+    Ok(out)
+}
+
+/// The target stage in a metric's column name: `dev_student` in `success (dev_student)`.
+fn target_of<'a>(column: &'a str, metric: &str) -> Option<&'a str> {
+    column
+        .strip_prefix(metric)?
+        .strip_prefix(" (")?
+        .strip_suffix(')')
 }
 
 /// Values in order: by number when every one is a number, else as first seen.
@@ -192,6 +229,9 @@ pub(super) fn plot_data(rows: &[Row], spec: &PlotSpec) -> Result<PlotData> {
         counts: (u64, u64),
     }
     let mut series = Vec::new();
+    let mut named: Vec<String> = vec![spec.x.clone()];
+    named.extend(spec.by.clone());
+    named.extend(spec.metrics.iter().cloned());
     for metric in &spec.metrics {
         let mut columns: Vec<&String> = Vec::new();
         for r in rows {
@@ -207,14 +247,20 @@ pub(super) fn plot_data(rows: &[Row], spec: &PlotSpec) -> Result<PlotData> {
                 "no point has the metric `{metric}`\nhint: `osms exp show NAME --metrics {metric}` shows what the targets' summaries hold (`osms show STAGE --json` lists their fields)"
             );
         }
+        named.extend(
+            columns
+                .iter()
+                .filter_map(|c| target_of(c, metric))
+                .map(str::to_string),
+        );
         let groups: Vec<Option<&String>> = if spec.by.is_some() {
             by_values.iter().map(Some).collect()
         } else {
             vec![None]
         };
-        for column in columns {
+        for (c, column) in columns.into_iter().enumerate() {
             let percent = unit_of(column) == Unit::Percent;
-            for group in &groups {
+            for (g, group) in groups.iter().enumerate() {
                 let mut pools: BTreeMap<usize, Pool> = BTreeMap::new();
                 for r in rows {
                     if let (Some(by), Some(g)) = (&spec.by, group)
@@ -264,17 +310,36 @@ pub(super) fn plot_data(rows: &[Row], spec: &PlotSpec) -> Result<PlotData> {
                         })
                     })
                     .collect();
-                let name = match (&spec.by, group) {
-                    (Some(by), Some(g)) => format!("{column}, {by}={g}"),
-                    _ => column.clone(),
+                let base = match target_of(column, metric) {
+                    Some(t) if spec.labels.contains_key(t) => spec.label(t).to_string(),
+                    _ => format!("{}{}", spec.label(metric), &column[metric.len()..]),
+                };
+                let (name, style) = match (&spec.by, group) {
+                    (Some(by), Some(v)) => (
+                        format!("{base}, {}={v}", spec.label(by)),
+                        Style {
+                            color: Some(c),
+                            dash: g,
+                        },
+                    ),
+                    _ => (base, Style::default()),
                 };
                 series.push(PlotSeries {
                     metric: metric.clone(),
                     name,
                     points,
+                    style,
                 });
             }
         }
+    }
+    if let Some(unknown) = spec.labels.keys().find(|k| !named.contains(k)) {
+        named.sort();
+        named.dedup();
+        bail!(
+            "--label `{unknown}=…`: `{unknown}` is not a target, metric or knob of this plot (it names: {})",
+            named.join(", ")
+        );
     }
     Ok(PlotData {
         x: spec.x.clone(),
@@ -297,6 +362,7 @@ pub(super) fn figure(data: &PlotData, spec: &PlotSpec, names: &[String]) -> Figu
                 .iter()
                 .filter(|s| &s.metric == metric)
                 .map(|s| Series {
+                    style: s.style,
                     name: s.name.clone(),
                     mark: if data.categories.len() > 1 {
                         Mark::Line
@@ -315,14 +381,15 @@ pub(super) fn figure(data: &PlotData, spec: &PlotSpec, names: &[String]) -> Figu
                         .collect(),
                 })
                 .collect();
+            let title = spec.label(metric).to_string();
             Panel {
-                title: metric.clone(),
-                x_label: data.x.clone(),
+                x_label: spec.label(&data.x).to_string(),
                 y_label: if percent {
-                    format!("{metric} (%)")
+                    format!("{title} (%)")
                 } else {
-                    metric.clone()
+                    title.clone()
                 },
+                title,
                 x_categories: data.categories.clone(),
                 x_marker: None,
                 x_range: None,
@@ -376,6 +443,7 @@ mod tests {
             metrics: metrics.iter().map(|m| m.to_string()).collect(),
             id: "fig".into(),
             title: "t".into(),
+            labels: BTreeMap::new(),
         }
     }
 
@@ -453,6 +521,74 @@ mod tests {
         assert_eq!(f.panels.len(), 1);
         assert_eq!(f.panels[0].series.len(), 2);
         assert_eq!(f.panels[0].series[0].mark, Mark::Points, "one category");
+    }
+
+    /// `--label` names targets, metrics and knobs in series, titles and axes; with `--by` a
+    /// column keeps its color across values and each value gets its dash.
+    #[test]
+    fn labels_name_the_series_and_by_values_share_a_color_per_target() {
+        let rows = [
+            row(
+                Some(0),
+                &[("v.scale", "0.5"), ("v.kappa", "1")],
+                &[
+                    ("success (dev_student)", &[0.4]),
+                    ("success (dev_student_dart)", &[0.8]),
+                ],
+            ),
+            row(
+                Some(0),
+                &[("v.scale", "0.5"), ("v.kappa", "1.5")],
+                &[
+                    ("success (dev_student)", &[0.5]),
+                    ("success (dev_student_dart)", &[0.7]),
+                ],
+            ),
+        ];
+        let mut s = spec("v.scale", Some("v.kappa"), &["success"]);
+        s.labels = labels(&[
+            "dev_student=Ours-IL".into(),
+            "v.kappa=κ".into(),
+            "v.scale = deviation scale".into(),
+        ])
+        .expect("labels");
+        let data = plot_data(&rows, &s).expect("data");
+        let named: Vec<(&str, Style)> = data
+            .series
+            .iter()
+            .map(|x| (x.name.as_str(), x.style))
+            .collect();
+        let style = |color, dash| Style {
+            color: Some(color),
+            dash,
+        };
+        assert_eq!(
+            named,
+            [
+                ("Ours-IL, κ=1", style(0, 0)),
+                ("Ours-IL, κ=1.5", style(0, 1)),
+                ("success (dev_student_dart), κ=1", style(1, 0)),
+                ("success (dev_student_dart), κ=1.5", style(1, 1)),
+            ]
+        );
+        assert!(csv(&data).contains("success,\"Ours-IL, κ=1.5\",0.5,50,"));
+        let f = figure(&data, &s, &[]);
+        assert_eq!(f.panels[0].x_label, "deviation scale");
+        assert_eq!(f.panels[0].series[1].style, style(0, 1));
+        // Without --by every series is plain.
+        let plain = plot_data(&rows, &spec("v.scale", None, &["success"])).expect("data");
+        assert!(plain.series.iter().all(|x| x.style == Style::default()));
+
+        s.labels = labels(&["dev_stduent=Ours-IL".into()]).expect("labels");
+        let e = format!("{:#}", plot_data(&rows, &s).expect_err("a typo"));
+        assert!(
+            e.contains("`dev_stduent` is not a target, metric or knob of this plot")
+                && e.contains("dev_student, dev_student_dart, success, v.kappa, v.scale"),
+            "{e}"
+        );
+        let e = format!("{:#}", labels(&["Ours-IL".into()]).expect_err("no ="));
+        assert!(e.contains("--label `Ours-IL`: expected NAME=TEXT"), "{e}");
+        assert!(labels(&["dev_student=".into()]).is_err(), "an empty text");
     }
 
     #[test]
