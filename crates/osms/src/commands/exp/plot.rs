@@ -260,7 +260,7 @@ pub(super) fn plot_data(rows: &[Row], spec: &PlotSpec) -> Result<PlotData> {
         };
         for (c, column) in columns.into_iter().enumerate() {
             let percent = unit_of(column) == Unit::Percent;
-            for (g, group) in groups.iter().enumerate() {
+            for (dash, group) in groups.iter().enumerate() {
                 let mut pools: BTreeMap<usize, Pool> = BTreeMap::new();
                 for r in rows {
                     if let (Some(by), Some(g)) = (&spec.by, group)
@@ -319,7 +319,7 @@ pub(super) fn plot_data(rows: &[Row], spec: &PlotSpec) -> Result<PlotData> {
                         format!("{base}, {}={v}", spec.label(by)),
                         Style {
                             color: Some(c),
-                            dash: g,
+                            dash,
                         },
                     ),
                     _ => (base, Style::default()),
