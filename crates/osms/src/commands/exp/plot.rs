@@ -310,9 +310,9 @@ pub(super) fn plot_data(rows: &[Row], spec: &PlotSpec) -> Result<PlotData> {
                         })
                     })
                     .collect();
-                let base = match target_of(column, metric) {
-                    Some(t) if spec.labels.contains_key(t) => spec.label(t).to_string(),
-                    _ => format!("{}{}", spec.label(metric), &column[metric.len()..]),
+                let base = match target_of(column, metric).and_then(|t| spec.labels.get(t)) {
+                    Some(label) => label.clone(),
+                    None => format!("{}{}", spec.label(metric), &column[metric.len()..]),
                 };
                 let (name, style) = match (&spec.by, group) {
                     (Some(by), Some(v)) => (
