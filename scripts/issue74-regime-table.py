@@ -10,13 +10,11 @@ Wilson 95 % over the pooled rollouts) and Ours-IL's paired differences (the seed
 held). Points not yet recorded are listed as such.
 """
 
-import json
-import math
 import os
-import subprocess
 import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from exprecords import osms, paired, success
+
 SCALES = ["0.25", "0.5", "1"]
 KAPPAS = ["1", "1.5"]
 STUDENTS = ["dev_student", "dev_student_naive", "dev_student_dart"]
@@ -33,41 +31,8 @@ METRICS = [
 ]
 
 
-def osms(store, *args):
-    out = subprocess.run(
-        [os.path.join(ROOT, "osms"), "--store", store, "--no-progress", *args],
-        check=True,
-        capture_output=True,
-        text=True,
-    )
-    return json.loads(out.stdout)
-
-
 def recorded(store):
     return {e["name"] for e in osms(store, "exp", "ls", "--json")}
-
-
-def wilson(k, n, z=1.959963984540054):
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return centre - half, centre + half
-
-
-def student(row, stage):
-    values = row["metrics"][f"success ({stage})"]
-    k, n = row["counts"][f"success ({stage})"]
-    mean = sum(values) / len(values)
-    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
-    lo, hi = wilson(k, n)
-    return f"{100 * mean:.1f} % ± {100 * sd:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]"
-
-
-def paired(store, name, baseline):
-    d = osms(store, "exp", "diff", name, name, "--paired", f"{baseline}:dev_student", "--json")
-    e = d["difference"]
-    text = f"{100 * e['estimate']:+.1f} [{100 * e['low']:+.1f}, {100 * e['high']:+.1f}]"
-    return text.replace("-", "−")
 
 
 def main():
@@ -101,7 +66,7 @@ def main():
                 f"{repaired} of {failed}{share}",
                 f"{int(one['demonstrations']):,} ({one['coverage']:.3f}, "
                 f"{one['refinement_rate']:.3f})",
-                *(student(row, s) for s in STUDENTS),
+                *(success(row, s) for s in STUDENTS),
                 paired(store, name, "dev_student_naive"),
                 paired(store, name, "dev_student_dart"),
             ]
