@@ -221,11 +221,15 @@ impl Figure {
     ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
         root.fill(&WHITE)?;
         let (title, body) = root.split_vertically(TITLE_H);
-        title.draw(&Text::new(
-            self.title.clone(),
-            (12, 12),
-            ("sans-serif", 20).into_font(),
-        ))?;
+        let (lines, size) = title_lines(&self.title, self.size().0 - 2 * TITLE_X_PX);
+        let top = if lines.len() == 1 { 12 } else { 4 };
+        for (i, line) in lines.iter().enumerate() {
+            title.draw(&Text::new(
+                line.clone(),
+                (TITLE_X_PX as i32, top + i as i32 * (size as i32 + 3)),
+                ("sans-serif", size).into_font(),
+            ))?;
+        }
         let n = self.panels.len().max(1);
         let cols = n.min(PER_ROW);
         let rows = n.div_ceil(PER_ROW);
@@ -235,6 +239,43 @@ impl Figure {
         }
         Ok(())
     }
+}
+
+/// Left margin of the figure's title, in pixels.
+const TITLE_X_PX: u32 = 12;
+
+/// Width in pixels of `text` in the title's font at `size`.
+fn text_width(text: &str, size: u32) -> u32 {
+    let font: TextStyle = ("sans-serif", size).into_font().into();
+    let mut t = MultiLineText::<(i32, i32), &str>::new((0, 0), &font);
+    t.push_line(text);
+    t.estimate_dimension()
+        .map(|(w, _)| u32::try_from(w).unwrap_or(0))
+        .unwrap_or(u32::MAX)
+}
+
+/// The title's lines and font size: one line at the largest size from 20 px down to 13 that
+/// fits `width`, else two lines split at the space that balances them, at the largest size from
+/// 16 px down that fits (12 px at least): a long `--title` on a one-panel figure must not run
+/// off the image.
+fn title_lines(title: &str, width: u32) -> (Vec<String>, u32) {
+    for size in (13..=20).rev() {
+        if text_width(title, size) <= width {
+            return (vec![title.to_string()], size);
+        }
+    }
+    let split = title
+        .match_indices(' ')
+        .map(|(i, _)| (title[..i].trim_end(), title[i..].trim_start()))
+        .min_by_key(|(a, b)| text_width(a, 12).abs_diff(text_width(b, 12)));
+    let Some((a, b)) = split else {
+        return (vec![title.to_string()], 12);
+    };
+    let size = (12..=16)
+        .rev()
+        .find(|&size| text_width(a, size).max(text_width(b, size)) <= width)
+        .unwrap_or(12);
+    (vec![a.to_string(), b.to_string()], size)
 }
 
 fn field(s: &str) -> String {
@@ -704,6 +745,34 @@ mod tests {
                 series("dev_student_dart, validate.kappa=1", vec![top_right]),
             ],
         }
+    }
+
+    #[test]
+    fn a_title_too_wide_for_one_panel_shrinks_then_wraps_to_fit() {
+        register_font();
+        let width = PANEL_W - 2 * TITLE_X_PX;
+        assert_eq!(
+            title_lines("Where does it pay?", width),
+            (vec!["Where does it pay?".to_string()], 20)
+        );
+        let long = "Naive-IL against its demonstrations (dev, construction without DR)";
+        assert!(
+            text_width(long, 20) > width,
+            "the case under test: too wide at 20 px"
+        );
+        let (lines, size) = title_lines(long, width);
+        assert!((12..20).contains(&size), "{size}");
+        assert!(
+            lines.iter().all(|l| text_width(l, size) <= width),
+            "{lines:?} at {size}"
+        );
+        assert_eq!(lines.join(" "), long);
+        let longer = long.repeat(2);
+        let (lines, size) = title_lines(&longer, width);
+        assert_eq!((lines.len(), lines.join(" ")), (2, longer.clone()));
+        assert!(size <= 16 && lines.iter().all(|l| l.len() < longer.len()));
+        let one_word = "x".repeat(200);
+        assert_eq!(title_lines(&one_word, width), (vec![one_word.clone()], 12));
     }
 
     #[test]
