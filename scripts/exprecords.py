@@ -31,13 +31,19 @@ def wilson(k, n, z=1.959963984540054):
     return centre - half, centre + half
 
 
+def mean_success(row, stage):
+    """A stage's success in an `exp show --json` row, averaged over the run seeds."""
+    values = row["metrics"][f"success ({stage})"]
+    return sum(values) / len(values)
+
+
 def success(row, stage):
     """A stage's success in an `exp show --json` row: mean ± sd over the run seeds (one seed:
     the value alone), with the Wilson 95 % interval over the pooled rollouts."""
     values = row["metrics"][f"success ({stage})"]
     k, n = row["counts"][f"success ({stage})"]
     lo, hi = wilson(k, n)
-    mean = sum(values) / len(values)
+    mean = mean_success(row, stage)
     if len(values) == 1:
         return f"{100 * mean:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]"
     sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))

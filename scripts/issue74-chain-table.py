@@ -13,7 +13,7 @@ seeds' spread held). Read from `osms exp show --json`; prints Markdown.
 
 import sys
 
-from exprecords import osms, paired, success
+from exprecords import mean_success, osms, paired, success
 
 METRICS = [
     "success",
@@ -34,18 +34,13 @@ METRICS = [
 def column(store, name):
     row = osms(store, "exp", "show", name, "--json", "--metrics", ",".join(METRICS))["rows"][0]
     m = {k.split(" (")[0]: v[0] for k, v in row["metrics"].items() if not k.startswith("success")}
-    teacher = sum(row["metrics"]["success (dev_teacher)"]) / len(
-        row["metrics"]["success (dev_teacher)"]
-    )
-    pibar = sum(row["metrics"]["success (dev_student_il)"]) / len(
-        row["metrics"]["success (dev_student_il)"]
-    )
+    ratio = mean_success(row, "dev_student_il") / mean_success(row, "dev_teacher")
     repaired, dropped = int(m["repaired"]), int(m["dropped"])
     failed = repaired + dropped
     share = f" ({100 * repaired / failed:.1f} %)" if failed else ""
     return {
         "teacher on `dev`": success(row, "dev_teacher"),
-        "π̄_0 on `dev` (÷ teacher)": f"{success(row, 'dev_student_il')} ({pibar / teacher:.2f})",
+        "π̄_0 on `dev` (÷ teacher)": f"{success(row, 'dev_student_il')} ({ratio:.2f})",
         "calibrated deviation scale (pooled)": f"{m['calibration.pooled.scale']:.3f}",
         "teacher successes on D_R": f"{int(m['original_successes']):,} of "
         f"{int(m['original_successes']) + failed:,}",
